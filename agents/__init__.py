@@ -1,0 +1,1 @@
+"""Policies, training and evaluation for gym_gridloc (see the README)."""

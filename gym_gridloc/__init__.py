@@ -1,0 +1,56 @@
+"""gym_gridloc: active localisation on grid maps, with exact HMM beliefs.
+
+Importing the package registers ``ColourGrid-v0``, ``RingSensor8x8-v0`` and ``WindyMaze-v0``.
+"""
+
+from gymnasium.envs.registration import register, registry
+
+from gym_gridloc.core import (
+    DIRECTIONS,
+    ColourSensor,
+    GridLocError,
+    GridMap,
+    GridModel,
+    ImpossibleObservationError,
+    MapError,
+    RingSensor,
+    Sensor,
+    Term,
+    WallSensor,
+)
+from gym_gridloc.envs import ColourGridEnv, GridLocEnv, RingSensorEnv, WindyMazeEnv
+from gym_gridloc.filter import ForwardFilter
+from gym_gridloc.models import (
+    colour_grid_model,
+    parse_colour_map,
+    parse_maze,
+    ring_sensor_model,
+    windy_maze_model,
+)
+from gym_gridloc.wrappers import HMMBeliefWrapper
+
+__version__ = "0.1.0"
+
+#: The registered environment ids.
+ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0")
+
+
+def _register() -> None:
+    specs = {
+        "ColourGrid-v0": ("gym_gridloc.envs.colour_grid:ColourGridEnv", 100, {}),
+        "RingSensor8x8-v0": ("gym_gridloc.envs.ring_sensor:RingSensorEnv", 400, {"size": (8, 8)}),
+        "WindyMaze-v0": ("gym_gridloc.envs.windy_maze:WindyMazeEnv", 100, {}),
+    }
+    for env_id, (entry_point, steps, kwargs) in specs.items():
+        if env_id not in registry:
+            register(id=env_id, entry_point=entry_point, max_episode_steps=steps, kwargs=kwargs)
+
+
+_register()
+
+__all__ = [
+    "ENV_IDS", "DIRECTIONS", "ColourGridEnv", "ColourSensor", "ForwardFilter", "GridLocEnv",
+    "GridLocError", "GridMap", "GridModel", "HMMBeliefWrapper", "ImpossibleObservationError",
+    "MapError", "RingSensor", "RingSensorEnv", "Sensor", "Term", "WallSensor", "WindyMazeEnv",
+    "colour_grid_model", "parse_colour_map", "parse_maze", "ring_sensor_model", "windy_maze_model",
+]

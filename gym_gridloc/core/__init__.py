@@ -1,0 +1,11 @@
+"""The world: grids, sensors and the model object shared by the simulator and the filter."""
+
+from gym_gridloc.core.errors import GridLocError, ImpossibleObservationError, MapError
+from gym_gridloc.core.grid import DIRECTIONS, GridMap
+from gym_gridloc.core.model import GridModel, Term
+from gym_gridloc.core.sensors import ColourSensor, RingSensor, Sensor, WallSensor
+
+__all__ = [
+    "DIRECTIONS", "GridMap", "GridModel", "Term", "Sensor", "ColourSensor", "RingSensor",
+    "WallSensor", "GridLocError", "MapError", "ImpossibleObservationError",
+]

@@ -1,0 +1,46 @@
+from __future__ import annotations
+
+from gym_gridloc.envs.base import GridLocEnv
+from gym_gridloc.models import windy_maze_model
+
+
+class WindyMazeEnv(GridLocEnv):
+    """A robot in a windy maze senses obstacles in the four directions (seed 004).
+
+    ## Description
+    The robot sits on an unknown free cell of a maze.  Wind makes it drift sideways; four noisy
+    bits tell it whether an obstacle lies west, north, east or south.  The goal is to localise.
+
+    ## Action Space
+    ``Discrete(4)``: 0 = N, 1 = E, 2 = S, 3 = W.  The robot reaches the neighbour in that direction
+    with ``1 - 2 drift`` (0.8) and the neighbour on the action's left or right with ``drift`` (0.1)
+    each; a blocked target means staying in place.
+
+    ## Observation Space
+    ``MultiBinary(4)``: bits in the order (W, N, E, S), 1 = "obstacle sensed".  An obstacle (or the
+    edge) is sensed with ``p_detect`` (0.85), a free neighbour with ``p_false_alarm`` (0.10),
+    independently.
+
+    ## Starting State
+    Uniform over the free cells; the first observation is a reading at the start.
+
+    ## Rewards
+    -1 per step.
+
+    ## Episode End
+    Terminated when the largest posterior probability of a position reaches
+    ``localise_threshold``; truncated at ``max_episode_steps`` (100 for ``WindyMaze-v0``).
+
+    ## Arguments
+    ``layout``: a path to a maze file or a list of rows of ``O`` (free) and ``#`` (obstacle)
+    (default: seed 004's 6x7 maze, 31 free cells).  ``drift`` (0.1), ``p_detect`` (0.85),
+    ``p_false_alarm`` (0.10), ``localise_threshold`` (0.9), ``render_mode``.
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    def __init__(self, layout=None, *, drift: float = 0.1, p_detect: float = 0.85, p_false_alarm: float = 0.10,
+                 localise_threshold: float = 0.9, render_mode: str | None = None) -> None:
+        super().__init__(windy_maze_model(layout, drift=drift, p_detect=p_detect, p_false_alarm=p_false_alarm),
+                         localise_threshold=localise_threshold, render_mode=render_mode)

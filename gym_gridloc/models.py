@@ -1,0 +1,178 @@
+"""The three models of the source documents, as thin builders over :class:`GridModel`."""
+
+from __future__ import annotations
+
+import os
+from typing import Sequence
+
+import numpy as np
+
+from gym_gridloc.core.grid import DIRECTIONS, GridMap, parse_rows, read_layout
+from gym_gridloc.core.model import GridModel, Term, move_terms
+from gym_gridloc.core.sensors import ColourSensor, RingSensor, WallSensor
+from gym_gridloc.core.validation import check_choice, check_probability, check_size
+
+Layout = "str | os.PathLike | Sequence[str]"
+
+COLOURS = ("R", "G", "B", "Y")
+#: Seed 000's 5x5 colour grid (19 free cells).
+COLOUR_GRID_LAYOUT = ("R,G,B,Y,B", ".,R,R,G,G", ".,.,B,.,Y", "Y,Y,B,.,R", "B,G,G,.,Y")
+#: Seed 004's 6x7 windy maze (31 free cells).
+WINDY_MAZE_LAYOUT = ("OOOOOOO", "OO####O", "OO#OO#O", "O##OO#O", "OOOO##O", "OOOOOOO")
+
+
+def parse_colour_map(layout: str | os.PathLike | Sequence[str]) -> GridMap:
+    """A colour map in seed 000's format: comma-separated ``R, G, B, Y`` cells, ``.`` obstacles."""
+    rows, source = read_layout(layout)
+    return parse_rows(rows, COLOURS, (".",), sep=",", source=source)
+
+
+def parse_maze(layout: str | os.PathLike | Sequence[str]) -> GridMap:
+    """A maze in seed 004's format: rows of ``O`` (free) and ``#`` (obstacle)."""
+    rows, source = read_layout(layout)
+    return parse_rows(rows, ("O",), ("#",), sep=None, source=source)
+
+
+def colour_grid_model(
+    layout: str | os.PathLike | Sequence[str] | GridMap | None = None,
+    *,
+    slip: float = 0.1,
+    accuracy: float = 0.88,
+) -> GridModel:
+    """Seed 000's colour-sensing robot.
+
+    Under action a the robot moves one cell in direction a with probability ``1 - slip`` and in a
+    uniformly random direction of the four with probability ``slip``; blocked moves stay.  The
+    sensor reads the true colour with ``accuracy``; the wrong colours share the rest equally.
+    ``slip = 1`` is the seed's robot (a uniformly random move whatever the action).
+    """
+    grid = layout if isinstance(layout, GridMap) else parse_colour_map(COLOUR_GRID_LAYOUT if layout is None else layout)
+    slip = check_probability("slip", slip)
+    transitions = []
+    for a in range(4):
+        probs = np.full(4, slip / 4)
+        probs[a] += 1.0 - slip
+        transitions.append(move_terms(grid, probs))
+    return GridModel(
+        grid,
+        transitions,
+        ColourSensor(grid, accuracy),
+        name="ColourGrid",
+        action_dependent=slip < 1.0,
+        params={"slip": slip, "accuracy": accuracy},
+    )
+
+
+def windy_maze_model(
+    layout: str | os.PathLike | Sequence[str] | GridMap | None = None,
+    *,
+    drift: float = 0.1,
+    p_detect: float = 0.85,
+    p_false_alarm: float = 0.10,
+) -> GridModel:
+    """Seed 004's windy maze.
+
+    Under action a: ``1 - 2 drift`` to the neighbour in direction a, ``drift`` to the neighbour on
+    a's left and ``drift`` on its right; a blocked target means staying.  Sensor: four independent
+    bits (W, N, E, S), an obstacle sensed with ``p_detect``, a free neighbour with ``p_false_alarm``.
+    """
+    grid = layout if isinstance(layout, GridMap) else parse_maze(WINDY_MAZE_LAYOUT if layout is None else layout)
+    drift = check_probability("drift", drift)
+    if drift > 0.5:
+        raise ValueError(f"drift must be in [0, 0.5] (the robot drifts left and right with drift each), got {drift!r}")
+    transitions = []
+    for a in range(4):
+        probs = np.zeros(4)
+        probs[a] = 1.0 - 2.0 * drift
+        probs[(a - 1) % 4] += drift
+        probs[(a + 1) % 4] += drift
+        transitions.append(move_terms(grid, probs))
+    return GridModel(
+        grid,
+        transitions,
+        WallSensor(grid, p_detect, p_false_alarm),
+        name="WindyMaze",
+        params={"drift": drift, "p_detect": p_detect, "p_false_alarm": p_false_alarm},
+    )
+
+
+def heading_probs(grid: GridMap, keep: float) -> np.ndarray:
+    """``P[h, h', r, c]``: the next heading given heading h at (r, c), by the seeds' rule.
+
+    If h does not face a wall, keep it with ``keep``, else a uniformly chosen other heading that
+    does not face a wall (``1 - keep`` shared among them; if there is none, h is kept).  If h faces a
+    wall, a uniformly chosen heading that does not.  Where every heading faces a wall, the heading
+    is kept and the robot cannot move (it stays).
+    """
+    blocked = grid.blocked()  # (4, H, W)
+    open_ = ~blocked
+    n_open = open_.sum(axis=0)
+    h, w = grid.shape
+    out = np.zeros((4, 4, h, w))
+    for hd in range(4):
+        others_open = open_.copy()
+        others_open[hd] = False
+        n_others = others_open.sum(axis=0)
+        facing_free = open_[hd]
+        for nh in range(4):
+            if nh == hd:
+                p = np.where(facing_free, np.where(n_others > 0, keep, 1.0), 0.0)
+            else:
+                p = np.where(
+                    facing_free,
+                    np.where(others_open[nh], (1.0 - keep) / np.maximum(n_others, 1), 0.0),
+                    np.where(open_[nh], 1.0 / np.maximum(n_open, 1), 0.0),
+                )
+            out[hd, nh] = p
+        # Nowhere to go: keep the heading (and stay; see ring_sensor_model).
+        out[hd, hd] = np.where(n_open == 0, 1.0, out[hd, hd])
+    out[:, :, ~grid.free] = 0.0
+    return out
+
+
+def ring_sensor_model(
+    size: int | tuple[int, int] = (8, 8),
+    *,
+    dynamics: str = "commanded",
+    keep_heading: float = 0.7,
+    p_true: float = 0.1,
+    p_ring1: float = 0.05,
+    p_ring2: float = 0.025,
+    layout: GridMap | None = None,
+) -> GridModel:
+    """Seeds 001/003's robot on an empty grid with a vague location sensor.
+
+    ``dynamics="seed"``: the hidden state is (heading, position); the heading follows the seeds'
+    rule (keep it with ``keep_heading`` unless it faces a wall, else a uniformly chosen heading that
+    does not), then the robot moves one cell; the action plays no part.  ``dynamics="commanded"``
+    (the default): the hidden state is the position and the action takes the role of the heading.
+    """
+    dynamics = check_choice("dynamics", dynamics, ("commanded", "seed"))
+    keep = check_probability("keep_heading", keep_heading)
+    if layout is None:
+        h, w = check_size("size", size)
+        grid = GridMap(np.zeros((h, w), dtype=np.int64), ("O",))
+    else:
+        grid = layout
+    sensor = RingSensor(grid, p_true, p_ring1, p_ring2)
+    hp = heading_probs(grid, keep)  # (4, 4, H, W)
+    stuck = grid.blocked().all(axis=0) & grid.free
+    params = {"dynamics": dynamics, "keep_heading": keep, "p_true": p_true, "p_ring1": p_ring1, "p_ring2": p_ring2}
+    if dynamics == "seed":
+        terms = []
+        for hd in range(4):
+            for nh in range(4):
+                weight = np.where(stuck, 0.0, hp[hd, nh])
+                dr, dc = DIRECTIONS[nh]
+                terms.append(Term(hd, nh, int(dr), int(dc), weight))
+            terms.append(Term(hd, hd, 0, 0, np.where(stuck, 1.0, 0.0)))
+        return GridModel(
+            grid, [terms], sensor, n_layers=4, name="RingSensor", action_dependent=False,
+            layer_names=("N", "E", "S", "W"), params=params,
+        )
+    transitions = []
+    for a in range(4):
+        # The action plays the current heading: the next heading is drawn by the rule, then one
+        # move.  No move is blocked (the rule only picks open headings), except where none is open.
+        transitions.append(move_terms(grid, hp[a]))
+    return GridModel(grid, transitions, sensor, name="RingSensor", params=params)

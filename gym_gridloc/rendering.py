@@ -1,0 +1,151 @@
+"""Rendering: an ANSI table of beliefs, RGB frames drawn with numpy, and a pygame window."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from gym_gridloc.core.sensors import ColourSensor, RingSensor, WallSensor
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gym_gridloc.envs.base import GridLocEnv
+
+COLOUR_RGB = {"R": (220, 50, 47), "G": (60, 170, 60), "B": (50, 100, 220), "Y": (230, 200, 30)}
+FREE_RGB = (235, 235, 235)
+OBSTACLE_RGB = (40, 40, 40)
+BELIEF_RGB = np.array([20, 30, 120], dtype=np.float64)
+TRUTH_RGB = (255, 140, 0)
+READING_RGB = (0, 200, 220)
+
+
+def belief_table(belief: np.ndarray, free: np.ndarray, mark: tuple[int, int] | None = None) -> str:
+    """A table of position beliefs in percent, ``####`` on obstacles (like seed 004's tables);
+    ``mark`` puts a ``*`` after the true position."""
+    lines = []
+    for r in range(belief.shape[0]):
+        cells = []
+        for c in range(belief.shape[1]):
+            if not free[r, c]:
+                cell = "####"
+            else:
+                cell = f"{100 * belief[r, c]:.2f}"
+            if mark == (r, c):
+                cell += "*"
+            cells.append(f"{cell:>7}")
+        lines.append(" ".join(cells))
+    return "\n".join(lines)
+
+
+def ansi(env: "GridLocEnv") -> str:
+    model = env.model
+    state = env.state
+    header = f"{model.name} {model.shape[0]}x{model.shape[1]}"
+    if env._last_action is not None:
+        header += f"  action: {'NESW'[env._last_action]}"
+    header += f"  reading: {model.sensor.describe(env.last_reading)}"
+    table = belief_table(env.posterior, model.grid.free, mark=(state[1], state[2]))
+    return f"{header}\nposition belief (%), * = true position\n{table}\n"
+
+
+def _tile_size(shape: tuple[int, int]) -> int:
+    return int(max(1, min(32, 512 // max(shape))))
+
+
+def base_image(model) -> np.ndarray:
+    """(H, W, 3) float colours of the cells before the belief is drawn."""
+    grid = model.grid
+    img = np.empty((*grid.shape, 3))
+    img[:] = FREE_RGB
+    if isinstance(model.sensor, ColourSensor):
+        for i, sym in enumerate(grid.symbols):
+            img[grid.labels == i] = COLOUR_RGB.get(sym, FREE_RGB)
+        img = 0.55 * img + 0.45 * 255  # pastel, so the belief stands out
+    img[~grid.free] = OBSTACLE_RGB
+    return img
+
+
+def rgb_frame(env: "GridLocEnv") -> np.ndarray:
+    """An RGB frame: cells, the belief as intensity, the true position, the last reading."""
+    model = env.model
+    belief = env.posterior
+    img = base_image(model)
+    peak = max(float(belief.max()), 1e-12)
+    alpha = np.sqrt(np.clip(belief / peak, 0.0, 1.0))[..., None] * 0.85
+    img = np.where(model.grid.free[..., None], (1 - alpha) * img + alpha * BELIEF_RGB, img)
+    t = _tile_size(model.shape)
+    frame = np.kron(img, np.ones((t, t, 1))).astype(np.uint8)
+    if t >= 4:  # grid lines
+        frame[::t, :, :] = 90
+        frame[:, ::t, :] = 90
+    _, r, c = env.state
+    reading = env.last_reading
+    sensor = model.sensor
+    if isinstance(sensor, RingSensor) and reading is not None and reading != sensor.nothing:
+        rr, cc = divmod(reading, model.shape[1])
+        _outline(frame, rr, cc, t, READING_RGB, max(1, t // 6))
+    _dot(frame, r, c, t, TRUTH_RGB)
+    # A strip along the bottom shows the last reading.
+    strip = np.full((max(6, t), frame.shape[1], 3), 255, dtype=np.uint8)
+    if isinstance(sensor, ColourSensor) and reading is not None:
+        strip[:] = COLOUR_RGB.get(sensor.colours[reading], (128, 128, 128))
+    elif isinstance(sensor, WallSensor) and reading is not None:
+        bits = sensor.to_observation(reading)
+        q = strip.shape[1] // 4
+        for i, b in enumerate(bits):
+            strip[:, i * q : (i + 1) * q - 1] = OBSTACLE_RGB if b else FREE_RGB
+    elif isinstance(sensor, RingSensor):
+        strip[:] = FREE_RGB if reading == sensor.nothing else READING_RGB
+    return np.ascontiguousarray(np.concatenate([frame, strip], axis=0))
+
+
+def _dot(frame: np.ndarray, r: int, c: int, t: int, rgb) -> None:
+    cy, cx = r * t + t / 2, c * t + t / 2
+    yy, xx = np.mgrid[r * t : (r + 1) * t, c * t : (c + 1) * t]
+    mask = (yy + 0.5 - cy) ** 2 + (xx + 0.5 - cx) ** 2 <= (max(t, 2) * 0.3) ** 2
+    if t < 3:
+        mask[:] = True
+    frame[r * t : (r + 1) * t, c * t : (c + 1) * t][mask] = rgb
+
+
+def _outline(frame: np.ndarray, r: int, c: int, t: int, rgb, width: int) -> None:
+    tile = frame[r * t : (r + 1) * t, c * t : (c + 1) * t]
+    tile[:width] = rgb
+    tile[-width:] = rgb
+    tile[:, :width] = rgb
+    tile[:, -width:] = rgb
+
+
+class Window:
+    """A pygame window showing RGB frames (``render_mode="human"``)."""
+
+    def __init__(self, title: str, fps: int) -> None:
+        try:
+            import pygame
+        except ImportError as exc:  # pragma: no cover - depends on the install
+            raise ImportError(
+                "render_mode='human' needs pygame: pip install 'gym_gridloc[render]' (pygame-ce)"
+            ) from exc
+        self._pg = pygame
+        pygame.init()
+        pygame.display.init()
+        self.title = title
+        self.fps = fps
+        self.screen = None
+        self.clock = pygame.time.Clock()
+
+    def show(self, frame: np.ndarray) -> None:
+        pg = self._pg
+        h, w = frame.shape[:2]
+        if self.screen is None:
+            self.screen = pg.display.set_mode((w, h))
+            pg.display.set_caption(self.title)
+        surface = pg.surfarray.make_surface(np.transpose(frame, (1, 0, 2)))
+        self.screen.blit(surface, (0, 0))
+        pg.event.pump()
+        pg.display.flip()
+        self.clock.tick(self.fps)
+
+    def close(self) -> None:
+        self._pg.display.quit()
+        self._pg.quit()
