@@ -127,8 +127,7 @@ class Window:
                 "render_mode='human' needs pygame: pip install 'gym_gridloc[render]' (pygame-ce)"
             ) from exc
         self._pg = pygame
-        pygame.init()
-        pygame.display.init()
+        pygame.display.init()  # not pygame.init(): no audio device is needed
         self.title = title
         self.fps = fps
         self.screen = None
@@ -148,4 +147,3 @@ class Window:
 
     def close(self) -> None:
         self._pg.display.quit()
-        self._pg.quit()
