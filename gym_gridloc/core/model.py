@@ -134,6 +134,13 @@ class GridModel:
                 self._slices[id(t)] = t.slices(grid.shape)
         self._check()
 
+    def __setstate__(self, state: dict) -> None:
+        # ``_slices`` is keyed by ``id(term)``; after unpickling the terms are new objects.
+        self.__dict__.update(state)
+        self._slices = {
+            id(t): t.slices(self.grid.shape) for terms in (*self.transitions, self.mean_transition) for t in terms
+        }
+
     def with_kidnapping(self, kidnap_prob: float) -> "GridModel":
         """A copy of this model in which, after every move, the robot is teleported with
         probability ``kidnap_prob`` to a uniformly chosen free state (the kidnapped robot)."""
