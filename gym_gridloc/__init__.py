@@ -28,6 +28,9 @@ from gym_gridloc.models import (
     windy_maze_model,
 )
 from gym_gridloc.wrappers import HMMBeliefWrapper
+from gym_gridloc.inference import FixedLagSmoother, fixed_lag_smooth, forward_backward, smooth, viterbi
+from gym_gridloc.particles import ParticleFilter
+from gym_gridloc.recording import RecordTrajectory, Trajectory
 
 __version__ = "0.1.0"
 
@@ -53,4 +56,6 @@ __all__ = [
     "GridLocError", "GridMap", "GridModel", "HMMBeliefWrapper", "ImpossibleObservationError",
     "MapError", "RingSensor", "RingSensorEnv", "Sensor", "Term", "WallSensor", "WindyMazeEnv",
     "colour_grid_model", "parse_colour_map", "parse_maze", "ring_sensor_model", "windy_maze_model",
+    "FixedLagSmoother", "ParticleFilter", "RecordTrajectory", "Trajectory", "fixed_lag_smooth",
+    "forward_backward", "smooth", "viterbi",
 ]

@@ -16,7 +16,8 @@ class ForwardFilter:
     The belief is kept as an (L, H, W) array (``L`` hidden states per cell, e.g. headings).  A
     prediction costs one multiply-add per non-zero transition (a stencil over shifted arrays);
     an update one multiply per state.  Observations are given exactly as the environment emits
-    them.
+    them.  ``kidnap_prob`` (default: the model's own) mixes a teleport to a uniformly chosen free
+    state with that probability into every prediction, so the belief recovers from kidnapping.
 
     >>> import gym_gridloc
     >>> f = gym_gridloc.ForwardFilter(gym_gridloc.windy_maze_model())
@@ -26,9 +27,13 @@ class ForwardFilter:
     0.425
     """
 
-    def __init__(self, model: GridModel) -> None:
+    def __init__(self, model: GridModel, *, kidnap_prob: float | None = None) -> None:
         if not isinstance(model, GridModel):
             raise TypeError(f"ForwardFilter needs a GridModel, got {type(model).__name__}")
+        if kidnap_prob is not None:
+            # The kidnapped robot: mix a teleport to a uniform free state with this probability
+            # into every prediction (0.0 switches off any kidnapping the model has).
+            model = model.with_kidnapping(kidnap_prob)
         self.model = model
         self._f: np.ndarray | None = None
         self.log_likelihood = 0.0

@@ -248,6 +248,18 @@ class GridModel:
             out += (self.kidnap_prob / self.n_states) * belief.sum() * self.state_mask
         return out
 
+    def backward(self, message: np.ndarray, action: int | None) -> np.ndarray:
+        """The transpose of :meth:`predict`: ``out[s] = sum_s' T[s, s'] * message[s']`` for an
+        (L, H, W) message (the backward pass of smoothing; kidnapping included)."""
+        out = np.zeros_like(message)
+        for t in self.terms(action):
+            src, dst = self._slices[id(t)]
+            out[t.src][src] += t.weight[src] * message[t.dst][dst]
+        if self.kidnap_prob > 0.0:
+            out *= 1.0 - self.kidnap_prob
+            out += (self.kidnap_prob / self.n_states) * float(message[self.state_mask].sum()) * self.state_mask
+        return out
+
     def likelihood(self, reading: int) -> np.ndarray:
         """P(reading | position) as an (H, W) array, zero on obstacles."""
         return self.sensor.likelihood(reading)

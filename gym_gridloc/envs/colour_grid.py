@@ -34,7 +34,8 @@ class ColourGridEnv(GridLocEnv):
     ## Arguments
     ``layout``: a path to a map file or a list of comma-separated rows (default: seed 000's 5x5
     map ``R,G,B,Y,B / .,R,R,G,G / .,.,B,.,Y / Y,Y,B,.,R / B,G,G,.,Y``).  ``slip`` (0.1; 1.0 is the
-    seed's random walk), ``accuracy`` (0.88), ``localise_threshold`` (0.9), ``render_mode``
+    seed's random walk), ``accuracy`` (0.88), ``localise_threshold`` (0.9), ``kidnap_prob`` (0.0: after every move the
+    robot is teleported to a uniformly chosen free cell with this probability), ``render_mode``
     (``"ansi"``, ``"rgb_array"``, ``"human"``).
 
     ## Version History
@@ -42,6 +43,7 @@ class ColourGridEnv(GridLocEnv):
     """
 
     def __init__(self, layout=None, *, slip: float = 0.1, accuracy: float = 0.88,
-                 localise_threshold: float = 0.9, render_mode: str | None = None) -> None:
-        super().__init__(colour_grid_model(layout, slip=slip, accuracy=accuracy),
+                 localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
+                 render_mode: str | None = None) -> None:
+        super().__init__(colour_grid_model(layout, slip=slip, accuracy=accuracy).with_kidnapping(kidnap_prob),
                          localise_threshold=localise_threshold, render_mode=render_mode)

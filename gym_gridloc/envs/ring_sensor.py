@@ -37,7 +37,8 @@ class RingSensorEnv(GridLocEnv):
 
     ## Arguments
     ``size`` ((8, 8)), ``dynamics`` (``"commanded"`` or ``"seed"``), ``keep_heading`` (0.7),
-    ``p_true`` (0.1), ``p_ring1`` (0.05), ``p_ring2`` (0.025), ``localise_threshold`` (0.9),
+    ``p_true`` (0.1), ``p_ring1`` (0.05), ``p_ring2`` (0.025), ``localise_threshold`` (0.9), ``kidnap_prob`` (0.0: after every move the
+    robot is teleported to a uniformly chosen free state with this probability),
     ``render_mode``.
 
     ## Version History
@@ -46,7 +47,8 @@ class RingSensorEnv(GridLocEnv):
 
     def __init__(self, size=(8, 8), *, dynamics: str = "commanded", keep_heading: float = 0.7,
                  p_true: float = 0.1, p_ring1: float = 0.05, p_ring2: float = 0.025,
-                 localise_threshold: float = 0.9, render_mode: str | None = None) -> None:
+                 localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
+                 render_mode: str | None = None) -> None:
         model = ring_sensor_model(size, dynamics=dynamics, keep_heading=keep_heading,
-                                  p_true=p_true, p_ring1=p_ring1, p_ring2=p_ring2)
+                                  p_true=p_true, p_ring1=p_ring1, p_ring2=p_ring2).with_kidnapping(kidnap_prob)
         super().__init__(model, localise_threshold=localise_threshold, render_mode=render_mode)

@@ -34,13 +34,16 @@ class WindyMazeEnv(GridLocEnv):
     ## Arguments
     ``layout``: a path to a maze file or a list of rows of ``O`` (free) and ``#`` (obstacle)
     (default: seed 004's 6x7 maze, 31 free cells).  ``drift`` (0.1), ``p_detect`` (0.85),
-    ``p_false_alarm`` (0.10), ``localise_threshold`` (0.9), ``render_mode``.
+    ``p_false_alarm`` (0.10), ``localise_threshold`` (0.9), ``kidnap_prob`` (0.0: after every move the
+    robot is teleported to a uniformly chosen free cell with this probability), ``render_mode``.
 
     ## Version History
     * v0: initial version.
     """
 
     def __init__(self, layout=None, *, drift: float = 0.1, p_detect: float = 0.85, p_false_alarm: float = 0.10,
-                 localise_threshold: float = 0.9, render_mode: str | None = None) -> None:
-        super().__init__(windy_maze_model(layout, drift=drift, p_detect=p_detect, p_false_alarm=p_false_alarm),
+                 localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
+                 render_mode: str | None = None) -> None:
+        super().__init__(windy_maze_model(layout, drift=drift, p_detect=p_detect, p_false_alarm=p_false_alarm)
+                         .with_kidnapping(kidnap_prob),
                          localise_threshold=localise_threshold, render_mode=render_mode)
