@@ -96,6 +96,8 @@ def read_layout(layout: str | os.PathLike | Sequence[str], what: str = "layout")
     strings.  ``source`` names the file (or ``<layout>``) for error messages."""
     if isinstance(layout, (str, os.PathLike)):
         path = Path(layout)
+        if isinstance(layout, str) and not layout.strip():
+            raise MapError(f"{what}: got an empty string; pass a path to a map file or a list of row strings")
         if isinstance(layout, str) and "\n" in layout:
             raise MapError(
                 f"{what}: got a multi-line string; pass a path to a map file or a list of row strings"
