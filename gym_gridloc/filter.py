@@ -36,6 +36,7 @@ class ForwardFilter:
             model = model.with_kidnapping(kidnap_prob)
         self.model = model
         self._f: np.ndarray | None = None
+        self._spare: np.ndarray | None = None  # the other buffer of predict's double buffering
         self.log_likelihood = 0.0
 
     # -- the API ---------------------------------------------------------------------------------
@@ -49,22 +50,43 @@ class ForwardFilter:
 
     def predict(self, action: int | None = None) -> "ForwardFilter":
         """One transition step; ``None`` means the action is unknown (the actions' average)."""
-        self._f = self.model.predict(self._belief(), action)
+        f = self._belief()
+        spare = self._spare
+        if spare is None or spare is f or spare.shape != f.shape:
+            spare = None
+        self._f = self.model.predict(f, action, out=spare)
+        self._spare = f
         return self
 
     def update(self, observation: Any) -> "ForwardFilter":
         """Condition on a reading.  Raises :class:`ImpossibleObservationError` (and keeps the
         belief as it was) when the observation has probability zero under the model."""
         reading = self.model.sensor.to_reading(observation)
-        f = self._belief() * self.model.likelihood(reading)
-        z = float(f.sum())
+        f = self._belief()
+        window = self.model.sensor.likelihood_window(reading)
+        if window is not None:  # the likelihood is zero outside a small window (ring sensor)
+            rows, cols, lik = window
+            post = f[:, rows, cols] * lik
+            z = float(post.sum())
+        else:
+            lik = self.model.likelihood(reading)
+            z = float(np.dot(f.reshape(f.shape[0], -1).sum(axis=0), lik.reshape(-1))) if f.shape[0] > 1 \
+                else float(np.dot(f.reshape(-1), lik.reshape(-1)))
         if not z > 0.0 or not np.isfinite(z):
             raise ImpossibleObservationError(
                 f"observation {observation!r} is impossible under the filter's model "
                 f"({self.model!r}) given the belief so far: every state that could be reached "
                 "gives it probability 0 (model mismatch?)"
             )
-        f /= z
+        if f is self._spare:  # never write into the other buffer
+            f = f.copy()
+        if window is not None:
+            post /= z
+            f.fill(0.0)
+            f[:, rows, cols] = post
+        else:
+            np.multiply(f, lik, out=f)
+            f /= z
         self._f = f
         self.log_likelihood += float(np.log(z))
         return self

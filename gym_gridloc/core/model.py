@@ -237,12 +237,73 @@ class GridModel:
             raise ValueError(f"action must be an integer in 0..{self.n_actions - 1} (0=N, 1=E, 2=S, 3=W), got {action!r}")
         return a
 
-    def predict(self, belief: np.ndarray, action: int | None) -> np.ndarray:
-        """One transition step of an (L, H, W) belief (sum over the stencil's shifted arrays)."""
-        out = np.zeros_like(belief)
+    def flat_plan(self, action: int | None) -> tuple[tuple[bool, int, int, int, int, np.ndarray], ...]:
+        """The stencil of ``action`` as shifts of the flattened (L*H*W) belief, cached.
+
+        A shift (dr, dc) is the flat offset ``dr*W + dc``: the cells where that wraps round a
+        row edge have weight 0 (a term never leaves the grid, see :meth:`_check`), so one
+        contiguous slice per term gives exactly the 2-D result while reading contiguous memory.
+        Returns ``(zero_layers, entries)``; an entry is ``(first, src_lo, dst_lo, n, weight_slice)``
+        over flat indices: ``first`` marks a (0, 0) term that covers its whole destination layer
+        and is written rather than added (such terms come first); ``zero_layers`` are the layers
+        no such term covers, cleared first.  Used by :meth:`predict` and :class:`BatchFilter`.
+        """
+        key = -1 if action is None else self.check_action(action)
+        cache = self.__dict__.setdefault("_flat_plans", {})
+        plan = cache.get(key)
+        if plan is not None:
+            return plan
+        h, w = self.shape
+        hw = h * w
+        firsts, rest, covered = [], [], set()
         for t in self.terms(action):
-            src, dst = self._slices[id(t)]
-            out[t.dst][dst] += t.weight[src] * belief[t.src][src]
+            off = t.dr * w + t.dc
+            wf = t.weight.reshape(-1)
+            s0, d0 = (0, off) if off >= 0 else (-off, 0)
+            n = hw - abs(off)
+            entry = (t.src * hw + s0, t.dst * hw + d0, n, wf[s0 : s0 + n])
+            if off == 0 and t.dst not in covered:
+                covered.add(t.dst)
+                firsts.append((True, *entry))
+            else:
+                rest.append((False, *entry))
+        zero = tuple(layer for layer in range(self.n_layers) if layer not in covered)
+        plan = (zero, tuple(firsts) + tuple(rest))
+        cache[key] = plan
+        return plan
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state.pop("_flat_plans", None)  # views into the weights: rebuilt on demand
+        state.pop("_scratch", None)
+        return state
+
+    def predict(self, belief: np.ndarray, action: int | None, out: np.ndarray | None = None) -> np.ndarray:
+        """One transition step of an (L, H, W) belief (sum over the stencil's shifted arrays).
+
+        ``out`` (an (L, H, W) float64 array, not ``belief``) receives the result without a new
+        allocation.  Each term is one multiply and one add over contiguous slices.
+        """
+        belief = np.ascontiguousarray(belief, dtype=np.float64)
+        if out is None:
+            out = np.empty(self.belief_shape)
+        zero, plan = self.flat_plan(action)
+        bf = belief.reshape(-1)
+        of = out.reshape(-1)
+        hw = bf.shape[0] // self.n_layers
+        for layer in zero:
+            of[layer * hw : (layer + 1) * hw] = 0.0
+        scratch = self.__dict__.get("_scratch")
+        if scratch is None or scratch.shape[0] < hw:
+            scratch = self.__dict__["_scratch"] = np.empty(hw)
+        for first, s0, d0, n, wf in plan:
+            if first:
+                np.multiply(wf, bf[s0 : s0 + n], out=of[d0 : d0 + n])
+            else:
+                tmp = scratch[:n]
+                np.multiply(wf, bf[s0 : s0 + n], out=tmp)
+                dst = of[d0 : d0 + n]
+                np.add(dst, tmp, out=dst)
         if self.kidnap_prob > 0.0:
             out *= 1.0 - self.kidnap_prob
             out += (self.kidnap_prob / self.n_states) * belief.sum() * self.state_mask

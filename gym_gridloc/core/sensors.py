@@ -34,6 +34,11 @@ class Sensor(ABC):
     def distribution(self, row: int, col: int) -> tuple[np.ndarray, np.ndarray]:
         """The readings possible at (row, col) and their probabilities (summing to 1)."""
 
+    def likelihood_window(self, reading: int) -> tuple[slice, slice, np.ndarray] | None:
+        """``(rows, cols, values)`` when P(reading | position) is zero outside a small window
+        (the filter then touches only that window), else None."""
+        return None
+
     def sample(self, row: int, col: int, rng: np.random.Generator) -> int:
         readings, probs = self.distribution(row, col)
         k = int(np.searchsorted(np.cumsum(probs), rng.random() * probs.sum(), side="right"))
@@ -187,6 +192,15 @@ class RingSensor(Sensor):
     def nothing_probability(self) -> np.ndarray:
         """P(nothing | cell) as an (H, W) array."""
         return self._nothing
+
+    def likelihood_window(self, reading: int) -> tuple[slice, slice, np.ndarray] | None:
+        if reading == self.nothing:
+            return None
+        h, w = self.grid.shape
+        r0, c0 = divmod(int(reading), w)
+        r1, r2, c1, c2 = max(0, r0 - 2), min(h, r0 + 3), max(0, c0 - 2), min(w, c0 + 3)
+        values = self._kernel[r1 - r0 + 2 : r2 - r0 + 2, c1 - c0 + 2 : c2 - c0 + 2] * self.grid.free[r1:r2, c1:c2]
+        return slice(r1, r2), slice(c1, c2), values
 
     def likelihood(self, reading: int) -> np.ndarray:
         if reading == self.nothing:

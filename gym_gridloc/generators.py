@@ -1,0 +1,143 @@
+"""Generated maps, reproducible from a seed: random colour grids and mazes of any size.
+
+Every generator takes a ``numpy.random.Generator`` (or an int seed) and returns a
+:class:`~gym_gridloc.core.grid.GridMap` whose free cells are connected (4-neighbourhood).  The same
+seed gives the same map.  Large maps (512 x 512 and more) are built with array operations, except
+the maze, whose depth-first carving is a loop over the maze's cells (about 0.3 s at 512 x 512).
+"""
+
+from __future__ import annotations
+
+import numbers
+import string
+from typing import Any
+
+import numpy as np
+
+from gym_gridloc.core.grid import GridMap
+from gym_gridloc.core.validation import check_int, check_size
+
+#: Colour symbols: seed 000's four first, then more letters (``n_colours`` up to 26).
+COLOUR_SYMBOLS = ("R", "G", "B", "Y") + tuple(c for c in string.ascii_uppercase if c not in "RGBY")
+
+#: The largest side a generated map may have.
+MAX_SIDE = 4096
+
+
+def as_rng(seed: Any, name: str = "map_seed") -> np.random.Generator:
+    """A Generator from an int seed (>= 0), a Generator (used as is) or None (fresh entropy)."""
+    if isinstance(seed, np.random.Generator):
+        return seed
+    if seed is None:
+        return np.random.default_rng()
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or int(seed) < 0:
+        raise TypeError(f"{name} must be a non-negative integer, a numpy Generator or None, got {seed!r}")
+    return np.random.default_rng(int(seed))
+
+
+def check_density(name: str, value: Any) -> float:
+    """A fraction in [0, 1)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0.0 <= float(value) < 1.0:
+        raise ValueError(f"{name} must be a number in [0, 1) (the fraction of obstacle cells), got {value!r}")
+    return float(value)
+
+
+def largest_component(free: np.ndarray) -> np.ndarray:
+    """The largest 4-connected region of ``free`` as a bool mask (ties: the one met first)."""
+    from scipy import ndimage
+
+    labels, n = ndimage.label(free)
+    if n <= 1:
+        return free.copy()
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    return labels == int(np.argmax(sizes))
+
+
+def is_connected(free: np.ndarray) -> bool:
+    """True when the free cells form one 4-connected region."""
+    from scipy import ndimage
+
+    return int(ndimage.label(free)[1]) == 1
+
+
+def colour_map(
+    size: int | tuple[int, int],
+    *,
+    obstacle_density: float = 0.2,
+    n_colours: int = 4,
+    seed: Any = None,
+) -> GridMap:
+    """A random colour grid: each cell an obstacle with ``obstacle_density``, else a colour drawn
+    uniformly from ``n_colours``.
+
+    Free cells cut off from the largest free region become obstacles too, so the robot can reach
+    every free cell (the map's obstacle fraction can then exceed ``obstacle_density`` a little;
+    far more above about 0.4, where random obstacles start to wall regions off).
+    """
+    h, w = check_size("size", size, MAX_SIDE)
+    density = check_density("obstacle_density", obstacle_density)
+    k = check_int("n_colours", n_colours, 1, len(COLOUR_SYMBOLS))
+    rng = as_rng(seed)
+    colours = rng.integers(0, k, size=(h, w))
+    free = rng.random((h, w)) >= density
+    if not free.any():
+        free[rng.integers(h), rng.integers(w)] = True
+    free = largest_component(free)
+    labels = np.where(free, colours, -1)
+    return GridMap(labels, COLOUR_SYMBOLS[:k])
+
+
+def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:
+    """A maze: corridors one cell wide with walls between, every free cell reachable.
+
+    A recursive backtracker (depth-first search with random neighbour order) on the lattice of
+    cells at even (row, col); the walls between lattice cells it passes through are opened.  An
+    even side leaves a last row (column) outside the lattice: its cells next to a corridor are
+    opened with probability 1/2 (dead ends of length one), so every size is filled.
+    """
+    h, w = check_size("size", size, MAX_SIDE)
+    rng = as_rng(seed)
+    ch, cw = (h + 1) // 2, (w + 1) // 2  # lattice cells
+    free = np.zeros((h, w), dtype=bool)
+    n = ch * cw
+    visited = np.zeros(n, dtype=bool)
+    start = int(rng.integers(n))
+    visited[start] = True
+    free[2 * (start // cw), 2 * (start % cw)] = True
+    stack = [start]
+    # Random draws in blocks: one uniform per visit to a cell on the stack.
+    block = rng.random(4 * n + 16)
+    k = 0
+    steps = ((-1, 0), (0, 1), (1, 0), (0, -1))
+    while stack:
+        cell = stack[-1]
+        r, c = divmod(cell, cw)
+        options = []
+        for dr, dc in steps:
+            rr, cc = r + dr, c + dc
+            if 0 <= rr < ch and 0 <= cc < cw and not visited[rr * cw + cc]:
+                options.append((rr, cc))
+        if not options:
+            stack.pop()
+            continue
+        if k >= block.shape[0]:
+            block, k = rng.random(4 * n + 16), 0
+        rr, cc = options[int(block[k] * len(options))]
+        k += 1
+        nxt = rr * cw + cc
+        visited[nxt] = True
+        free[r + rr, c + cc] = True  # the wall between (2r, 2c) and (2rr, 2cc)
+        free[2 * rr, 2 * cc] = True
+        stack.append(nxt)
+    if h % 2 == 0 and h > 1:
+        free[h - 1] = free[h - 2] & (rng.random(w) < 0.5)
+    if w % 2 == 0 and w > 1:
+        free[:, w - 1] = free[:, w - 2] & (rng.random(h) < 0.5)
+    return GridMap(np.where(free, 0, -1), ("O",))
+
+
+def empty_map(size: int | tuple[int, int]) -> GridMap:
+    """An H x W grid with no obstacle (the ring sensor's world)."""
+    h, w = check_size("size", size, MAX_SIDE)
+    return GridMap(np.zeros((h, w), dtype=np.int64), ("O",))
