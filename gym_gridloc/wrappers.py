@@ -59,6 +59,11 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         What to do with an observation the model calls impossible: ``"raise"`` (default) raises
         :class:`ImpossibleObservationError`; ``"reset"`` restarts the belief from the prior
         (updated with the observation when that is possible) and sets ``info["belief_reset"]``.
+    belief:
+        ``"exact"`` (default): the forward filter.  ``"particles"``: the weighted histogram of a
+        :class:`gym_gridloc.ParticleFilter` with ``n_particles`` particles and
+        ``resample_threshold``, in place of the exact belief (same shapes).  Its random generator
+        is reseeded from the seed passed to ``reset``.
     """
 
     def __init__(
@@ -70,9 +75,13 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         full_state: bool = False,
         key: str = "belief",
         on_impossible: str = "raise",
+        belief: str = "exact",
+        n_particles: int = 1000,
+        resample_threshold: float = 0.5,
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
-            self, model=model, flatten=flatten, full_state=full_state, key=key, on_impossible=on_impossible
+            self, model=model, flatten=flatten, full_state=full_state, key=key, on_impossible=on_impossible,
+            belief=belief, n_particles=n_particles, resample_threshold=resample_threshold,
         )
         gym.ObservationWrapper.__init__(self, env)
         if model is None:
@@ -86,7 +95,13 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             raise TypeError(f"model must be a GridModel, got {type(model).__name__}")
         self.on_impossible = check_choice("on_impossible", on_impossible, ("raise", "reset"))
         self.model = model
-        self.filter = ForwardFilter(model)
+        self.belief = check_choice("belief", belief, ("exact", "particles"))
+        if self.belief == "particles":
+            from gym_gridloc.particles import ParticleFilter
+
+            self.filter = ParticleFilter(model, n_particles, resample_threshold=resample_threshold)
+        else:
+            self.filter = ForwardFilter(model)
         self.flatten = bool(flatten)
         self.full_state = bool(full_state)
         self.key = key
@@ -124,6 +139,8 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
         self._reset_flag = False
+        if seed is not None and self.belief == "particles":  # a stream of its own, fixed by the seed
+            self.filter.seed(np.random.SeedSequence(seed, spawn_key=(1,)))
         try:
             self.filter.reset(self._sensor_obs(obs))
         except ImpossibleObservationError:
