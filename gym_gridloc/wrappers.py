@@ -84,6 +84,9 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             belief=belief, n_particles=n_particles, resample_threshold=resample_threshold,
         )
         gym.ObservationWrapper.__init__(self, env)
+        #: No model given: follow the environment's, also when it redraws its map at reset.
+        self._follows_env = model is None
+        self._filter_args = (n_particles, resample_threshold)
         if model is None:
             model = getattr(env.unwrapped, "model", None)
             if not isinstance(model, GridModel):
@@ -138,6 +141,16 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
+        env_model = getattr(self.env.unwrapped, "model", None) if self._follows_env else None
+        if env_model is not None and env_model is not self.model:  # the map was redrawn at reset
+            self.model = env_model
+            if self.belief == "particles":
+                from gym_gridloc.particles import ParticleFilter
+
+                n, threshold = self._filter_args
+                self.filter = ParticleFilter(env_model, n, resample_threshold=threshold)
+            else:
+                self.filter = ForwardFilter(env_model)
         self._reset_flag = False
         if seed is not None and self.belief == "particles":  # a stream of its own, fixed by the seed
             self.filter.seed(np.random.SeedSequence(seed, spawn_key=(1,)))

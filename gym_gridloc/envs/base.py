@@ -42,6 +42,8 @@ class GridLocEnv(gym.Env):
         self.observation_space = model.sensor.observation_space
         self.action_space = spaces.Discrete(model.n_actions)
         self._referee = ForwardFilter(model)
+        #: ``rng -> GridModel`` when a new map is drawn at every reset (see ``new_map_each_reset``).
+        self._map_factory = None
         self._state: tuple[int, int, int] | None = None
         self._last_reading: int | None = None
         self._last_action: int | None = None
@@ -50,6 +52,8 @@ class GridLocEnv(gym.Env):
     # -- Gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
+        if self._map_factory is not None:  # a new map from np_random: same seed, same map
+            self._set_model(self._map_factory(self.np_random))
         if options:
             unknown = set(options) - {"state"}
             if unknown:
@@ -97,6 +101,13 @@ class GridLocEnv(gym.Env):
             self._renderer = None
 
     # -- helpers ---------------------------------------------------------------------------------
+    def _set_model(self, model: GridModel) -> None:
+        """Replace the model (a redrawn map of the same size and sensor)."""
+        if model.sensor.observation_space != self.observation_space or model.n_actions != self.action_space.n:
+            raise ValueError("a redrawn map must keep the observation and action spaces")
+        self.model = model
+        self._referee = ForwardFilter(model)
+
     def _start_state(self, options) -> tuple[int, int, int]:
         if options and "state" in options:
             st = tuple(int(v) for v in options["state"])

@@ -38,12 +38,43 @@ class ColourGridEnv(GridLocEnv):
     robot is teleported to a uniformly chosen free cell with this probability), ``render_mode``
     (``"ansi"``, ``"rgb_array"``, ``"human"``).
 
+    Generated maps (in place of ``layout``): ``size`` ((H, W); (5, 5) when only other generator
+    options are given), ``obstacle_density`` (0.2: each cell an obstacle with this probability;
+    free cells cut off from the largest free region become obstacles too, so the free cells are
+    connected), ``n_colours`` (4: ``R, G, B, Y``, then further letters; the observation space is
+    ``Discrete(n_colours)``), ``map_seed`` (0: the same seed gives the same map), and
+    ``new_map_each_reset`` (False: one fixed map; True: a new map at every reset, drawn from the
+    environment's ``np_random``, so the same reset seed gives the same map).  See
+    :func:`gym_gridloc.generators.colour_map`.
+
     ## Version History
     * v0: initial version.
     """
 
     def __init__(self, layout=None, *, slip: float = 0.1, accuracy: float = 0.88,
                  localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
-                 render_mode: str | None = None) -> None:
-        super().__init__(colour_grid_model(layout, slip=slip, accuracy=accuracy).with_kidnapping(kidnap_prob),
-                         localise_threshold=localise_threshold, render_mode=render_mode)
+                 render_mode: str | None = None, size=None, obstacle_density: float | None = None,
+                 n_colours: int | None = None, map_seed: int | None = None,
+                 new_map_each_reset: bool = False) -> None:
+        from gym_gridloc.generators import colour_map
+
+        options = {"size": size, "obstacle_density": obstacle_density, "n_colours": n_colours, "map_seed": map_seed}
+        generated = new_map_each_reset or any(v is not None for v in options.values())
+        if generated and layout is not None:
+            given = [k for k, v in options.items() if v is not None] or ["new_map_each_reset"]
+            raise ValueError(f"give either layout=... or a generated map ({', '.join(given)}), not both")
+        if not isinstance(new_map_each_reset, bool):
+            raise TypeError(f"new_map_each_reset must be True or False, got {new_map_each_reset!r}")
+
+        def build(grid):
+            return colour_grid_model(grid, slip=slip, accuracy=accuracy).with_kidnapping(kidnap_prob)
+
+        def draw(rng):
+            return colour_map((5, 5) if size is None else size,
+                              obstacle_density=0.2 if obstacle_density is None else obstacle_density,
+                              n_colours=4 if n_colours is None else n_colours, seed=rng)
+
+        grid = draw(0 if map_seed is None else map_seed) if generated else layout
+        super().__init__(build(grid), localise_threshold=localise_threshold, render_mode=render_mode)
+        if new_map_each_reset:
+            self._map_factory = lambda rng: build(draw(rng))

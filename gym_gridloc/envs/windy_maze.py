@@ -37,13 +37,36 @@ class WindyMazeEnv(GridLocEnv):
     ``p_false_alarm`` (0.10), ``localise_threshold`` (0.9), ``kidnap_prob`` (0.0: after every move the
     robot is teleported to a uniformly chosen free cell with this probability), ``render_mode``.
 
+    Generated mazes (in place of ``layout``): ``size`` ((H, W); (7, 7) when only other generator
+    options are given; corridors one cell wide, walls between, every free cell reachable),
+    ``map_seed`` (0: the same seed gives the same maze) and ``new_map_each_reset`` (False; True:
+    a new maze at every reset from the environment's ``np_random``, so the same reset seed gives
+    the same maze).  See :func:`gym_gridloc.generators.maze_map`.
+
     ## Version History
     * v0: initial version.
     """
 
     def __init__(self, layout=None, *, drift: float = 0.1, p_detect: float = 0.85, p_false_alarm: float = 0.10,
                  localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
-                 render_mode: str | None = None) -> None:
-        super().__init__(windy_maze_model(layout, drift=drift, p_detect=p_detect, p_false_alarm=p_false_alarm)
-                         .with_kidnapping(kidnap_prob),
-                         localise_threshold=localise_threshold, render_mode=render_mode)
+                 render_mode: str | None = None, size=None, map_seed: int | None = None,
+                 new_map_each_reset: bool = False) -> None:
+        from gym_gridloc.generators import maze_map
+
+        generated = new_map_each_reset or size is not None or map_seed is not None
+        if generated and layout is not None:
+            raise ValueError("give either layout=... or a generated maze (size, map_seed, new_map_each_reset), not both")
+        if not isinstance(new_map_each_reset, bool):
+            raise TypeError(f"new_map_each_reset must be True or False, got {new_map_each_reset!r}")
+
+        def build(grid):
+            return windy_maze_model(grid, drift=drift, p_detect=p_detect,
+                                    p_false_alarm=p_false_alarm).with_kidnapping(kidnap_prob)
+
+        def draw(rng):
+            return maze_map((7, 7) if size is None else size, seed=rng)
+
+        grid = draw(0 if map_seed is None else map_seed) if generated else layout
+        super().__init__(build(grid), localise_threshold=localise_threshold, render_mode=render_mode)
+        if new_map_each_reset:
+            self._map_factory = lambda rng: build(draw(rng))
