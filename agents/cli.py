@@ -1,0 +1,132 @@
+"""``gridloc``: train agents and run the localisation-speed benchmark.
+
+    gridloc train configs/ppo_windymaze.yml [--force] [--resume CKPT] [--tensorboard DIR]
+    gridloc bench --env WindyMaze-v0 --policies random,greedy,greedy2,ppo --episodes 200 \\
+                  --json out.json --plot out.png
+    gridloc bench --all            # the README's table: 3 environments x 5 policies x 1000 episodes
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+RESULTS = Path("results")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="gridloc", description="gym_gridloc agents: training and the localisation benchmark")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    t = sub.add_parser("train", help="train a policy from a YAML config (see configs/)")
+    t.add_argument("config", help="a YAML config, e.g. configs/ppo_windymaze.yml")
+    t.add_argument("--force", action="store_true", help="overwrite an existing model file")
+    t.add_argument("--resume", metavar="CKPT", help="continue from a checkpoint .zip up to total_timesteps")
+    t.add_argument("--output", metavar="PATH", help="model file to write (.zip; overrides the config)")
+    t.add_argument("--timesteps", type=int, metavar="N", help="total timesteps (overrides the config)")
+    t.add_argument("--tensorboard", metavar="DIR", help="log to TensorBoard in DIR")
+    t.add_argument("--no-progress", action="store_true", help="no progress bar")
+    t.add_argument("--torch-threads", type=int, default=1, metavar="N", help="torch threads (default 1: fastest for small MLPs)")
+
+    b = sub.add_parser("bench", help="benchmark policies on the same episode seeds")
+    b.add_argument("--env", metavar="ENV_ID", help="environment id, e.g. WindyMaze-v0")
+    b.add_argument("--all", action="store_true",
+                   help="all three environments, every policy, 1000 episodes; writes results/bench.json and results/bench_<env>.png")
+    b.add_argument("--policies", default=None, help="comma-separated: random,greedy,greedy2,ppo,recurrent (default: all)")
+    b.add_argument("--episodes", type=int, default=None, help="episodes per policy (default 200; 1000 with --all)")
+    b.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode i uses seed+i)")
+    b.add_argument("--json", metavar="PATH", help="write the rows as JSON")
+    b.add_argument("--plot", metavar="PATH.png", help="write the plot (one environment)")
+    b.add_argument("--ppo-model", metavar="PATH", help="benchmark this PPO model instead of the shipped one")
+    b.add_argument("--recurrent-model", metavar="PATH", help="benchmark this RecurrentPPO model instead of the shipped one")
+    b.add_argument("--jobs", type=int, default=1, help="rows to run in parallel processes (default 1)")
+    b.add_argument("--no-progress", action="store_true", help="no progress bars")
+    return p
+
+
+def _train(args) -> int:
+    from agents.config import ConfigError
+    from agents.train import TrainingInterrupted, train
+
+    try:
+        info = train(
+            args.config,
+            force=args.force,
+            resume=args.resume,
+            output=args.output,
+            total_timesteps=args.timesteps,
+            tensorboard_log=args.tensorboard,
+            progress_bar=not args.no_progress,
+            torch_threads=args.torch_threads,
+            command="gridloc " + " ".join(sys.argv[1:]),
+        )
+    except TrainingInterrupted as exc:
+        print(f"gridloc train: {exc}; resume with: gridloc train {args.config} --resume {exc.checkpoint}", file=sys.stderr)
+        return 130
+    except (ConfigError, FileExistsError, FileNotFoundError, ValueError) as exc:
+        print(f"gridloc train: error: {exc}", file=sys.stderr)
+        return 2
+    out = info["config"]["output"]
+    print(f"saved {out} ({info['num_timesteps']} steps, {info['wall_time_seconds']:.0f} s) and {Path(out).with_suffix('.json')}")
+    return 0
+
+
+def _bench(args) -> int:
+    import gym_gridloc
+    from agents.bench import markdown_table, plot, public_row, run_benchmark
+    from agents.policies import POLICY_NAMES
+    from agents.train import atomic_write_json
+
+    if args.all == bool(args.env):
+        print("gridloc bench: error: give exactly one of --env ENV_ID or --all", file=sys.stderr)
+        return 2
+    envs = list(gym_gridloc.ENV_IDS) if args.all else [args.env]
+    import gymnasium as gym
+
+    for e in envs:
+        if e not in gym.registry:
+            print(f"gridloc bench: error: --env {e!r} is not a registered environment; allowed: {', '.join(gym_gridloc.ENV_IDS)}", file=sys.stderr)
+            return 2
+    policies = [p.strip() for p in (args.policies or ",".join(POLICY_NAMES)).split(",") if p.strip()]
+    episodes = args.episodes if args.episodes is not None else (1000 if args.all else 200)
+    if episodes < 1:
+        print(f"gridloc bench: error: --episodes must be >= 1, got {episodes}", file=sys.stderr)
+        return 2
+    if args.plot and len(envs) > 1:
+        print("gridloc bench: error: --plot takes one environment; --all writes results/bench_<env>.png", file=sys.stderr)
+        return 2
+    try:
+        rows = run_benchmark(
+            envs, policies, episodes, seed_start=args.seed, ppo_model=args.ppo_model,
+            recurrent_model=args.recurrent_model, progress=not args.no_progress, jobs=args.jobs,
+        )
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"gridloc bench: error: {exc}", file=sys.stderr)
+        return 2
+    print(markdown_table(rows))
+    json_path = args.json or (str(RESULTS / "bench.json") if args.all else None)
+    if json_path:
+        atomic_write_json(json_path, rows)
+        print(f"\nwrote {json_path}", file=sys.stderr)
+    if args.plot:
+        plot(rows, args.plot)
+        print(f"wrote {args.plot}", file=sys.stderr)
+    if args.all:
+        for e in envs:
+            path = RESULTS / f"bench_{e}.png"
+            plot([r for r in rows if r["env"] == e], path)
+            print(f"wrote {path}", file=sys.stderr)
+        atomic_write_json(RESULTS / "bench_table.json", [public_row(r) for r in rows])
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    if args.command == "train":
+        return _train(args)
+    return _bench(args)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

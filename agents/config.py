@@ -1,0 +1,223 @@
+"""Training configurations: YAML files read with ``yaml.safe_load`` and validated.
+
+A config (rl-baselines3-zoo style, one experiment per file)::
+
+    algo: ppo                       # ppo | recurrent_ppo
+    env_id: WindyMaze-v0
+    env_kwargs: {}                  # keyword arguments of gym.make
+    wrapper:                        # HMMBeliefWrapper options; belief: false = raw observations
+      belief: true
+      flatten: true
+    n_envs: 8
+    seed: 0
+    total_timesteps: !!float 1e6
+    policy: MlpPolicy
+    policy_kwargs: {net_arch: [64, 64], activation_fn: tanh}
+    hyperparams: {learning_rate: 3.0e-4, n_steps: 256, gamma: 0.995}
+    output: agents/policies/WindyMaze-v0.zip
+    checkpoint_freq: 100000         # environment steps between checkpoints (0: none)
+    checkpoint_dir: null            # default runs/checkpoints/<output stem>
+    tensorboard_log: null           # a directory, or null
+
+Every key is checked: an unknown key is an error that names it and lists the allowed ones.  No
+string from a config is ever evaluated: activation functions are looked up by name in a fixed table.
+"""
+
+from __future__ import annotations
+
+import copy
+import inspect
+from pathlib import Path
+from typing import Any
+
+ALGOS = ("ppo", "recurrent_ppo")
+
+TOP_KEYS = {
+    "algo": "ppo or recurrent_ppo",
+    "env_id": "a registered environment id",
+    "env_kwargs": "keyword arguments of gym.make",
+    "wrapper": "HMMBeliefWrapper options: belief, flatten, full_state",
+    "n_envs": "number of parallel environments (DummyVecEnv)",
+    "seed": "the seed of environments, numpy and torch",
+    "total_timesteps": "environment steps to train for",
+    "policy": "the sb3 policy class name",
+    "policy_kwargs": "net_arch, activation_fn, ortho_init, lstm_hidden_size, n_lstm_layers, ...",
+    "hyperparams": "keyword arguments of the algorithm (learning_rate, n_steps, gamma, ...)",
+    "output": "the model file to write (.zip); metadata goes to the same name with .json",
+    "checkpoint_freq": "environment steps between checkpoints (0 = none)",
+    "checkpoint_dir": "where checkpoints go (default runs/checkpoints/<output stem>)",
+    "tensorboard_log": "a TensorBoard log directory, or null",
+    "description": "free text, kept in the metadata",
+}
+
+WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool}
+
+POLICIES = {
+    "ppo": ("MlpPolicy", "MultiInputPolicy"),
+    "recurrent_ppo": ("MlpLstmPolicy", "MultiInputLstmPolicy"),
+}
+
+ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "gelu")
+
+POLICY_KWARGS = {
+    "ppo": {"net_arch", "activation_fn", "ortho_init", "log_std_init", "share_features_extractor"},
+    "recurrent_ppo": {
+        "net_arch", "activation_fn", "ortho_init", "lstm_hidden_size", "n_lstm_layers",
+        "shared_lstm", "enable_critic_lstm", "share_features_extractor",
+    },
+}
+
+# Keys of the algorithm's constructor that the config must not set through ``hyperparams``
+# (they come from elsewhere in the config, or would let a config run arbitrary code).
+_RESERVED = {"policy", "env", "seed", "policy_kwargs", "tensorboard_log", "verbose", "device",
+             "_init_setup_model", "rollout_buffer_class", "rollout_buffer_kwargs", "stats_window_size"}
+
+
+class ConfigError(ValueError):
+    """A training config is malformed; the message names the file and the key."""
+
+
+def algo_class(algo: str):
+    if algo == "ppo":
+        from stable_baselines3 import PPO
+
+        return PPO
+    if algo == "recurrent_ppo":
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO
+    raise ConfigError(f"algo must be one of {ALGOS}, got {algo!r}")
+
+
+def allowed_hyperparams(algo: str) -> set[str]:
+    params = inspect.signature(algo_class(algo).__init__).parameters
+    return {k for k in params if k != "self"} - _RESERVED
+
+
+def activation(name: str):
+    import torch.nn as nn
+
+    table = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU, "gelu": nn.GELU}
+    return table[name]
+
+
+def load_config(path: str | Path) -> dict[str, Any]:
+    """Read and validate a YAML config; returns a dict with every default filled in."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file {str(path)!r} does not exist")
+    with open(path, encoding="utf-8") as fh:
+        try:
+            raw = yaml.safe_load(fh)
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    return validate_config(raw, source=str(path))
+
+
+def _num(source: str, key: str, value: Any, *, integer: bool, minimum: float) -> Any:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{source}: {key} must be a number, got {value!r}")
+    if integer:
+        if float(value) != int(value):
+            raise ConfigError(f"{source}: {key} must be a whole number, got {value!r}")
+        value = int(value)
+    if value < minimum:
+        raise ConfigError(f"{source}: {key} must be >= {minimum}, got {value!r}")
+    return value
+
+
+def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
+    """Check a config dict (see the module docstring) and fill in defaults."""
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{source}: a config must be a mapping of keys to values, got {type(raw).__name__}")
+    unknown = sorted(set(raw) - set(TOP_KEYS))
+    if unknown:
+        raise ConfigError(
+            f"{source}: unknown key(s) {', '.join(map(repr, unknown))}; allowed: {', '.join(sorted(TOP_KEYS))}"
+        )
+    cfg = copy.deepcopy(raw)
+    for key in ("algo", "env_id"):
+        if key not in cfg:
+            raise ConfigError(f"{source}: missing required key {key!r}")
+    if cfg["algo"] not in ALGOS:
+        raise ConfigError(f"{source}: algo must be one of {', '.join(ALGOS)}, got {cfg['algo']!r}")
+    algo = cfg["algo"]
+    import gymnasium as gym
+
+    import gym_gridloc  # noqa: F401 - registers the environments
+
+    if not isinstance(cfg["env_id"], str) or cfg["env_id"] not in gym.registry:
+        raise ConfigError(f"{source}: env_id {cfg['env_id']!r} is not a registered environment (e.g. {', '.join(gym_gridloc.ENV_IDS)})")
+    cfg.setdefault("env_kwargs", {})
+    if not isinstance(cfg["env_kwargs"], dict):
+        raise ConfigError(f"{source}: env_kwargs must be a mapping, got {cfg['env_kwargs']!r}")
+
+    wrapper = cfg.setdefault("wrapper", {})
+    if not isinstance(wrapper, dict):
+        raise ConfigError(f"{source}: wrapper must be a mapping, got {wrapper!r}")
+    bad = sorted(set(wrapper) - set(WRAPPER_KEYS))
+    if bad:
+        raise ConfigError(f"{source}: unknown key(s) in wrapper: {', '.join(map(repr, bad))}; allowed: {', '.join(WRAPPER_KEYS)}")
+    wrapper.setdefault("belief", algo == "ppo")
+    wrapper.setdefault("flatten", bool(wrapper["belief"]))
+    wrapper.setdefault("full_state", False)
+    for k, v in wrapper.items():
+        if not isinstance(v, bool):
+            raise ConfigError(f"{source}: wrapper.{k} must be true or false, got {v!r}")
+    if not wrapper["belief"] and (wrapper["flatten"] or wrapper["full_state"]):
+        raise ConfigError(f"{source}: wrapper.flatten / wrapper.full_state need wrapper.belief: true")
+
+    cfg["n_envs"] = _num(source, "n_envs", cfg.get("n_envs", 8), integer=True, minimum=1)
+    cfg["seed"] = _num(source, "seed", cfg.get("seed", 0), integer=True, minimum=0)
+    if "total_timesteps" not in cfg:
+        raise ConfigError(f"{source}: missing required key 'total_timesteps'")
+    cfg["total_timesteps"] = _num(source, "total_timesteps", cfg["total_timesteps"], integer=True, minimum=1)
+    cfg["checkpoint_freq"] = _num(source, "checkpoint_freq", cfg.get("checkpoint_freq", 0), integer=True, minimum=0)
+
+    default_policy = POLICIES[algo][0] if wrapper["flatten"] or not wrapper["belief"] else POLICIES[algo][1]
+    cfg.setdefault("policy", default_policy)
+    if cfg["policy"] not in POLICIES[algo]:
+        raise ConfigError(f"{source}: policy for {algo} must be one of {', '.join(POLICIES[algo])}, got {cfg['policy']!r}")
+
+    pk = cfg.setdefault("policy_kwargs", {})
+    if not isinstance(pk, dict):
+        raise ConfigError(f"{source}: policy_kwargs must be a mapping, got {pk!r}")
+    bad = sorted(set(pk) - POLICY_KWARGS[algo])
+    if bad:
+        raise ConfigError(
+            f"{source}: unknown key(s) in policy_kwargs: {', '.join(map(repr, bad))}; allowed for {algo}: {', '.join(sorted(POLICY_KWARGS[algo]))}"
+        )
+    if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
+        raise ConfigError(f"{source}: policy_kwargs.activation_fn must be one of {', '.join(ACTIVATIONS)}, got {pk['activation_fn']!r}")
+    if "net_arch" in pk:
+        na = pk["net_arch"]
+        ok = isinstance(na, list) and all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in na)
+        ok = ok or (isinstance(na, dict) and set(na) <= {"pi", "vf"} and all(
+            isinstance(v, list) and all(isinstance(x, int) and x > 0 for x in v) for v in na.values()))
+        if not ok:
+            raise ConfigError(f"{source}: policy_kwargs.net_arch must be a list of positive integers or {{pi: [...], vf: [...]}}, got {na!r}")
+
+    hp = cfg.setdefault("hyperparams", {})
+    if not isinstance(hp, dict):
+        raise ConfigError(f"{source}: hyperparams must be a mapping, got {hp!r}")
+    allowed = allowed_hyperparams(algo)
+    bad = sorted(set(hp) - allowed)
+    if bad:
+        raise ConfigError(f"{source}: unknown key(s) in hyperparams: {', '.join(map(repr, bad))}; allowed for {algo}: {', '.join(sorted(allowed))}")
+    for k, v in hp.items():
+        if isinstance(v, str):
+            raise ConfigError(f"{source}: hyperparams.{k} must be a number or boolean (strings are not evaluated), got {v!r}")
+
+    if "output" not in cfg:
+        raise ConfigError(f"{source}: missing required key 'output' (the model file to write, .zip)")
+    if not isinstance(cfg["output"], str) or not cfg["output"].endswith(".zip"):
+        raise ConfigError(f"{source}: output must be a path ending in .zip, got {cfg['output']!r}")
+    cfg.setdefault("checkpoint_dir", None)
+    cfg.setdefault("tensorboard_log", None)
+    for key in ("checkpoint_dir", "tensorboard_log"):
+        if cfg[key] is not None and not isinstance(cfg[key], str):
+            raise ConfigError(f"{source}: {key} must be a path or null, got {cfg[key]!r}")
+    cfg.setdefault("description", "")
+    return cfg

@@ -1,0 +1,311 @@
+"""Training from a validated config (see :mod:`agents.config`), and safe model loading.
+
+Training never loses work: a checkpoint every ``checkpoint_freq`` steps and one on Ctrl-C (both in
+``checkpoint_dir``), ``resume=`` continues from a checkpoint to ``total_timesteps``; an existing
+model file is not overwritten unless ``force=True``; the model and its metadata JSON are written to
+a temporary file and renamed into place, so a crash never leaves half a file.
+
+Model zip files are pickles: load only files from a trusted source.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from agents.config import ConfigError, activation, algo_class, validate_config
+
+
+class TrainingInterrupted(Exception):
+    """Raised by :func:`train` after Ctrl-C, once the checkpoint has been written."""
+
+    def __init__(self, checkpoint: Path, num_timesteps: int) -> None:
+        super().__init__(f"training interrupted at {num_timesteps} steps; checkpoint saved to {checkpoint}")
+        self.checkpoint = checkpoint
+        self.num_timesteps = num_timesteps
+
+
+# -- atomic files ---------------------------------------------------------------------------------
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file in the same directory and a rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_json(path: str | Path, data: Any) -> None:
+    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
+
+
+def atomic_save_model(model, path: str | Path) -> None:
+    """``model.save`` to a temporary ``.zip`` beside ``path``, then rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.zip", dir=path.parent)
+    os.close(fd)
+    try:
+        model.save(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+# -- environments ---------------------------------------------------------------------------------
+def make_env_fn(cfg: dict[str, Any]) -> Callable[[], Any]:
+    """A thunk building one (wrapped) training environment from a validated config."""
+    env_id, env_kwargs, wrapper = cfg["env_id"], dict(cfg["env_kwargs"]), dict(cfg["wrapper"])
+
+    def thunk():
+        import gymnasium as gym
+
+        import gym_gridloc
+
+        env = gym.make(env_id, **env_kwargs)
+        if wrapper["belief"]:
+            env = gym_gridloc.HMMBeliefWrapper(env, flatten=wrapper["flatten"], full_state=wrapper["full_state"])
+        return env
+
+    return thunk
+
+
+def make_vec_env(cfg: dict[str, Any]):
+    from stable_baselines3.common.env_util import make_vec_env as _mve
+
+    return _mve(make_env_fn(cfg), n_envs=cfg["n_envs"], seed=cfg["seed"])
+
+
+def versions() -> dict[str, str]:
+    """Versions of the packages a model depends on."""
+    from importlib import metadata
+
+    out = {"python": platform.python_version()}
+    for pkg in ("gym_gridloc", "gymnasium", "stable-baselines3", "sb3-contrib", "torch", "numpy"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+def _policy_kwargs(cfg: dict[str, Any]) -> dict[str, Any]:
+    pk = dict(cfg["policy_kwargs"])
+    if "activation_fn" in pk:
+        pk["activation_fn"] = activation(pk["activation_fn"])
+    return pk
+
+
+def default_checkpoint_dir(cfg: dict[str, Any]) -> Path:
+    if cfg.get("checkpoint_dir"):
+        return Path(cfg["checkpoint_dir"])
+    return Path("runs") / "checkpoints" / Path(cfg["output"]).stem
+
+
+# -- training -------------------------------------------------------------------------------------
+def _checkpoint_callback(freq: int, directory: Path, meta: Callable[[], dict[str, Any]]):
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Checkpoint(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.next_at = None
+            self.saved: list[Path] = []
+
+        def _on_step(self) -> bool:
+            if self.next_at is None:
+                self.next_at = (self.num_timesteps // freq + 1) * freq
+            if self.num_timesteps >= self.next_at:
+                path = directory / f"step_{self.num_timesteps}.zip"
+                atomic_save_model(self.model, path)
+                atomic_write_json(path.with_suffix(".json"), {**meta(), "num_timesteps": int(self.num_timesteps)})
+                self.saved.append(path)
+                self.next_at = (self.num_timesteps // freq + 1) * freq
+            return True
+
+    return Checkpoint()
+
+
+def train(
+    config: dict[str, Any] | str | Path,
+    *,
+    force: bool = False,
+    resume: str | Path | None = None,
+    output: str | Path | None = None,
+    total_timesteps: int | None = None,
+    tensorboard_log: str | Path | None = None,
+    progress_bar: bool = True,
+    torch_threads: int | None = 1,
+    callbacks: list | None = None,
+    command: str | None = None,
+) -> dict[str, Any]:
+    """Train the model a config describes; returns the metadata written beside it.
+
+    ``output``, ``total_timesteps`` and ``tensorboard_log`` override the config.  Raises
+    :class:`FileExistsError` if the output exists and ``force`` is false (before any training),
+    :class:`TrainingInterrupted` after Ctrl-C (the checkpoint is saved first).
+    """
+    from agents.config import load_config
+
+    cfg = load_config(config) if isinstance(config, (str, Path)) else validate_config(config)
+    if output is not None:
+        cfg["output"] = str(output)
+        if not cfg["output"].endswith(".zip"):
+            raise ConfigError(f"--output must end in .zip, got {cfg['output']!r}")
+    if total_timesteps is not None:
+        if int(total_timesteps) < 1:
+            raise ConfigError(f"total_timesteps must be >= 1, got {total_timesteps!r}")
+        cfg["total_timesteps"] = int(total_timesteps)
+    if tensorboard_log is not None:
+        cfg["tensorboard_log"] = str(tensorboard_log)
+    out = Path(cfg["output"])
+    if out.exists() and not force:
+        raise FileExistsError(f"{out} exists; pass --force (force=True) to overwrite it")
+
+    import torch
+
+    if torch_threads:
+        torch.set_num_threads(int(torch_threads))
+    Algo = algo_class(cfg["algo"])
+    venv = make_vec_env(cfg)
+    ckpt_dir = default_checkpoint_dir(cfg)
+    previous_wall = 0.0
+    resumed_from = None
+    if resume is not None:
+        resume = Path(resume)
+        if not resume.is_file():
+            raise FileNotFoundError(f"checkpoint {str(resume)!r} does not exist")
+        prev = {}
+        if resume.with_suffix(".json").exists():
+            prev = json.loads(resume.with_suffix(".json").read_text(encoding="utf-8"))
+            if prev.get("env_id") not in (None, cfg["env_id"]) or prev.get("algo") not in (None, cfg["algo"]):
+                raise ValueError(
+                    f"checkpoint {resume} was trained with {prev.get('algo')} on {prev.get('env_id')}, "
+                    f"but the config asks for {cfg['algo']} on {cfg['env_id']}"
+                )
+        model = load_model(resume, algo=cfg["algo"], env=venv)[0]
+        previous_wall = float(prev.get("wall_time_seconds", 0.0))
+        resumed_from = str(resume)
+        if cfg["tensorboard_log"]:
+            model.tensorboard_log = cfg["tensorboard_log"]
+    else:
+        model = Algo(
+            cfg["policy"],
+            venv,
+            seed=cfg["seed"],
+            policy_kwargs=_policy_kwargs(cfg),
+            tensorboard_log=cfg["tensorboard_log"],
+            device="cpu",
+            verbose=0,
+            **cfg["hyperparams"],
+        )
+
+    start = time.perf_counter()
+
+    def meta() -> dict[str, Any]:
+        return {
+            "algo": cfg["algo"],
+            "env_id": cfg["env_id"],
+            "env_kwargs": cfg["env_kwargs"],
+            "wrapper": cfg["wrapper"],
+            "observation_space": repr(venv.observation_space),
+            "action_space": repr(venv.action_space),
+            "seed": cfg["seed"],
+            "total_timesteps": cfg["total_timesteps"],
+            "num_timesteps": int(model.num_timesteps),
+            "wall_time_seconds": round(previous_wall + time.perf_counter() - start, 2),
+            "torch_threads": torch.get_num_threads(),
+            "cpu_count": os.cpu_count(),
+            "versions": versions(),
+            "config": cfg,
+            "resumed_from": resumed_from,
+            "command": command or " ".join(sys.argv),
+            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        }
+
+    cbs = list(callbacks or [])
+    if cfg["checkpoint_freq"] > 0:
+        cbs.append(_checkpoint_callback(cfg["checkpoint_freq"], ckpt_dir, meta))
+    remaining = cfg["total_timesteps"] - int(model.num_timesteps)
+    try:
+        if remaining > 0:
+            model.learn(
+                remaining,
+                callback=cbs or None,
+                progress_bar=progress_bar,
+                reset_num_timesteps=resume is None,
+                tb_log_name=f"{cfg['algo']}_{cfg['env_id']}_seed{cfg['seed']}",
+            )
+    except KeyboardInterrupt:
+        path = ckpt_dir / f"interrupted_step_{int(model.num_timesteps)}.zip"
+        atomic_save_model(model, path)
+        atomic_write_json(path.with_suffix(".json"), {**meta(), "interrupted": True})
+        venv.close()
+        raise TrainingInterrupted(path, int(model.num_timesteps)) from None
+    info = {**meta(), "interrupted": False}
+    if out.exists() and not force:  # appeared while training
+        raise FileExistsError(f"{out} appeared during training; pass --force to overwrite it")
+    atomic_save_model(model, out)
+    atomic_write_json(out.with_suffix(".json"), info)
+    venv.close()
+    return info
+
+
+# -- loading --------------------------------------------------------------------------------------
+def load_model(
+    path: str | Path,
+    *,
+    algo: str = "ppo",
+    env_id: str | None = None,
+    observation_space=None,
+    env=None,
+):
+    """Load an sb3 model, refusing one trained for another algorithm, environment or observation
+    space.  Returns ``(model, metadata)``.  Zip files are pickles: trusted sources only."""
+    path = Path(path)
+    if not path.is_file():
+        hint = ""
+        if path.parent.name == "policies":
+            hint = f" (train it with `gridloc train configs/...`, or pass --ppo-model PATH)"
+        raise FileNotFoundError(f"model file {str(path)!r} does not exist{hint}")
+    meta: dict[str, Any] = {}
+    meta_path = path.with_suffix(".json")
+    if meta_path.exists():
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    if meta.get("algo") not in (None, algo):
+        raise ValueError(f"{path} holds a {meta['algo']} model, not {algo}")
+    if env_id is not None and meta.get("env_id") not in (None, env_id):
+        raise ValueError(f"{path} was trained for {meta['env_id']}, not {env_id}; train one for {env_id} or pick its model")
+    Algo = algo_class(algo)
+    try:
+        model = Algo.load(path, env=env, device="cpu")
+    except (ValueError, KeyError) as exc:
+        if env is not None and "space" in str(exc).lower():
+            raise ValueError(f"{path} does not fit this environment: {exc}") from None
+        raise ValueError(f"{path} is not a loadable {algo} model: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - a broken or foreign zip
+        raise ValueError(f"{path} is not a loadable {algo} model: {type(exc).__name__}: {exc}") from None
+    if observation_space is not None and model.observation_space != observation_space:
+        where = f" (trained for {meta['env_id']})" if meta.get("env_id") else ""
+        raise ValueError(
+            f"{path}{where} expects observations {model.observation_space}, but this environment gives "
+            f"{observation_space}: it was trained for another environment or observation space"
+        )
+    return model, meta

@@ -1,0 +1,200 @@
+"""Policies: valid actions everywhere, greedy / greedy2 equal to brute force, safe model loading."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import gym_gridloc
+from agents.policies import (
+    POLICY_NAMES,
+    Greedy2Policy,
+    GreedyPolicy,
+    PPOPolicy,
+    RandomPolicy,
+    RecurrentPolicy,
+    default_model_path,
+    make_policy,
+)
+from gym_gridloc.filter import ForwardFilter
+
+
+def _entropy_bits(p: np.ndarray) -> float:
+    p = p[p > 0]
+    return float(-(p * np.log2(p)).sum())
+
+
+def brute_expected_entropy(model, belief, action) -> float:
+    """E_z[H(position | b, a, z)] by an explicit loop over readings with the filter itself."""
+    f = ForwardFilter(model)
+    f.reset()
+    f.set_belief(belief)
+    f.predict(action)
+    pred = f.full_belief
+    total = 0.0
+    for z in range(model.sensor.n_readings):
+        joint = pred * model.likelihood(z)[None]
+        pz = joint.sum()
+        if pz > 0:
+            total += pz * _entropy_bits((joint / pz).sum(axis=0).ravel())
+    return total
+
+
+def brute_two_step(model, belief, a1) -> float:
+    f = ForwardFilter(model)
+    f.reset()
+    f.set_belief(belief)
+    f.predict(a1)
+    pred = f.full_belief
+    total = 0.0
+    for z1 in range(model.sensor.n_readings):
+        joint = pred * model.likelihood(z1)[None]
+        pz = joint.sum()
+        if pz > 0:
+            total += pz * min(brute_expected_entropy(model, joint / pz, a2) for a2 in range(model.n_actions))
+    return total
+
+
+def _beliefs(env_id, n_steps, seed=0, **kwargs):
+    env = gym_gridloc.HMMBeliefWrapper(gym.make(env_id, **kwargs))
+    obs, _ = env.reset(seed=seed)
+    out = [env.filter.full_belief]
+    rng = np.random.default_rng(seed)
+    for _ in range(n_steps):
+        obs, _, term, trunc, _ = env.step(int(rng.integers(env.action_space.n)))
+        out.append(env.filter.full_belief)
+        if term or trunc:
+            break
+    return env.unwrapped.model, out
+
+
+@pytest.mark.parametrize(
+    "env_id,kwargs",
+    [
+        ("WindyMaze-v0", {}),
+        ("ColourGrid-v0", {}),
+        ("RingSensor8x8-v0", {"size": (4, 5)}),
+        ("RingSensor8x8-v0", {"size": (4, 4), "dynamics": "seed"}),
+        ("ColourGrid-v0", {"slip": 0.5}),
+    ],
+)
+def test_greedy_equals_brute_force(env_id, kwargs):
+    model, beliefs = _beliefs(env_id, 3, **kwargs)
+    g = GreedyPolicy(model)
+    for b in beliefs:
+        got = g.expected_entropies(b)
+        want = [brute_expected_entropy(model, b, a) for a in range(model.n_actions)]
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+        best = np.flatnonzero(np.isclose(want, min(want), rtol=1e-9, atol=1e-9))
+        assert g.act(None, b) in best
+
+
+def test_greedy_with_kidnapping_equals_brute_force():
+    model = gym_gridloc.windy_maze_model().with_kidnapping(0.05)
+    _, beliefs = _beliefs("WindyMaze-v0", 3)
+    for b in beliefs:
+        want = [brute_expected_entropy(model, b, a) for a in range(model.n_actions)]
+        np.testing.assert_allclose(GreedyPolicy(model).expected_entropies(b), want, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("env_id,kwargs", [("WindyMaze-v0", {}), ("RingSensor8x8-v0", {"size": (3, 4)}),
+                                          ("RingSensor8x8-v0", {"size": (3, 3), "dynamics": "seed"})])
+def test_greedy2_equals_brute_force(env_id, kwargs):
+    model, beliefs = _beliefs(env_id, 2, **kwargs)
+    g2 = Greedy2Policy(model)
+    for b in beliefs[:2]:
+        got = g2.expected_entropies(b)
+        want = [brute_two_step(model, b, a) for a in range(model.n_actions)]
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+
+
+def test_greedy_accepts_position_belief_and_rejects_wrong_shape():
+    model = gym_gridloc.windy_maze_model()
+    g = GreedyPolicy(model)
+    b = model.prior()
+    np.testing.assert_allclose(g.expected_entropies(b[0]), g.expected_entropies(b))
+    with pytest.raises(ValueError, match="belief must be"):
+        g.act(None, np.ones((3, 3)))
+    seed_model = gym_gridloc.ring_sensor_model((4, 4), dynamics="seed")
+    with pytest.raises(ValueError, match=r"\(4, 4, 4\)"):
+        GreedyPolicy(seed_model).act(None, np.ones((4, 4)) / 16)
+
+
+def test_random_policy_is_seeded_and_uniform():
+    model = gym_gridloc.colour_grid_model()
+    p = RandomPolicy(model)
+    p.reset(seed=3)
+    a = [p.act(None, None) for _ in range(400)]
+    p.reset(seed=3)
+    assert a == [p.act(None, None) for _ in range(400)]
+    counts = np.bincount(a, minlength=4)
+    assert counts.min() > 60
+
+
+@pytest.mark.parametrize("env_id", gym_gridloc.ENV_IDS)
+@pytest.mark.parametrize("name", POLICY_NAMES)
+def test_every_policy_returns_valid_actions(env_id, name):
+    env = gym_gridloc.HMMBeliefWrapper(gym.make(env_id))
+    policy = make_policy(name, env.unwrapped.model, env_id=env_id)
+    for ep in range(2):
+        obs, _ = env.reset(seed=ep)
+        policy.reset(seed=ep)
+        for _ in range(6):
+            a = policy.act(obs["observation"], env.filter.full_belief)
+            assert isinstance(a, int) and env.action_space.contains(a)
+            obs, _, term, trunc, _ = env.step(a)
+            if term or trunc:
+                break
+
+
+def test_shipped_models_have_metadata():
+    for env_id in gym_gridloc.ENV_IDS:
+        for algo in ("ppo", "recurrent_ppo"):
+            path = default_model_path(env_id, algo)
+            assert path.is_file(), path
+            meta = path.with_suffix(".json")
+            import json
+
+            m = json.loads(meta.read_text())
+            assert m["env_id"] == env_id and m["algo"] == algo
+            assert m["num_timesteps"] >= m["total_timesteps"]
+            assert {"config", "seed", "versions", "wall_time_seconds"} <= set(m)
+            assert path.stat().st_size < 2_000_000
+
+
+def test_ppo_for_another_environment_fails_clearly(tmp_path):
+    colour = gym_gridloc.colour_grid_model()
+    # By metadata: the shipped WindyMaze model named for ColourGrid.
+    with pytest.raises(ValueError, match="trained for WindyMaze-v0, not ColourGrid-v0"):
+        PPOPolicy(colour, env_id="ColourGrid-v0", path=default_model_path("WindyMaze-v0"))
+    # Without metadata: the observation space decides.
+    import shutil
+
+    bare = tmp_path / "model.zip"
+    shutil.copy(default_model_path("WindyMaze-v0"), bare)
+    with pytest.raises(ValueError, match="another environment or observation space"):
+        PPOPolicy(colour, path=bare)
+    with pytest.raises(ValueError, match="holds a ppo model, not recurrent_ppo"):
+        RecurrentPolicy(colour, path=default_model_path("ColourGrid-v0"))
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        PPOPolicy(colour, path=tmp_path / "missing.zip")
+    junk = tmp_path / "junk.zip"
+    junk.write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="not a loadable ppo model"):
+        PPOPolicy(colour, path=junk)
+
+
+def test_ppo_encoding_matches_the_wrapper():
+    env = gym_gridloc.HMMBeliefWrapper(gym.make("ColourGrid-v0"), flatten=True)
+    inner = env.env
+    p = PPOPolicy(env.unwrapped.model, env_id="ColourGrid-v0")
+    obs, _ = env.reset(seed=1)
+    raw = inner.unwrapped.last_reading
+    np.testing.assert_array_equal(p.encode(raw, env.filter.full_belief), obs)
+    assert p.sb3.observation_space.contains(obs)
+
+
+def test_unknown_policy_name():
+    with pytest.raises(ValueError, match="unknown policy 'smart'"):
+        make_policy("smart", gym_gridloc.colour_grid_model())
