@@ -1,4 +1,6 @@
-"""Recording episodes for offline inference (smoothing, Viterbi): :class:`RecordTrajectory`."""
+"""Recording episodes for offline inference (smoothing, Viterbi): :class:`RecordTrajectory`; and
+the measurement of recovery from kidnapping on recorded true states (:func:`kidnap_steps`,
+:func:`steps_to_recover`)."""
 
 from __future__ import annotations
 
@@ -11,7 +13,7 @@ import numpy as np
 
 from gym_gridloc.core.validation import check_int
 
-__all__ = ["RecordTrajectory", "Trajectory"]
+__all__ = ["RecordTrajectory", "Trajectory", "kidnap_steps", "steps_to_recover"]
 
 
 def _copy(obs: Any) -> Any:
@@ -42,6 +44,12 @@ class Trajectory:
     def positions(self) -> list[tuple[int, int]]:
         """The true positions ``info["position"]`` (when the environment reports them)."""
         return [tuple(i["position"]) for i in self.infos]
+
+    @property
+    def states(self) -> list[tuple[int, int, int]]:
+        """The true hidden states ``(layer, row, col)``: ``info["heading"]`` (0 when absent) and
+        ``info["position"]``."""
+        return [(int(i.get("heading", 0)), *map(int, i["position"])) for i in self.infos]
 
     @property
     def sensor_observations(self) -> list[Any]:
@@ -90,3 +98,50 @@ class RecordTrajectory(gym.Wrapper, gym.utils.RecordConstructorArgs):
         tr.infos.append(dict(info))
         tr.terminated, tr.truncated = bool(terminated), bool(truncated)
         return obs, reward, terminated, truncated, info
+
+
+# -- the kidnapped robot ---------------------------------------------------------------------------
+def kidnap_steps(model, states, actions) -> list[int]:
+    """The steps k (1..t) at which the robot was kidnapped: ``states[k]`` cannot be reached from
+    ``states[k-1]`` under ``actions[k-1]`` by the model's motion alone.  (A teleport that lands on
+    a state the move could have reached is indistinguishable from that move and is not counted.)
+    ``states`` are ``(layer, row, col)`` tuples, e.g. :attr:`Trajectory.states`."""
+    if len(actions) != len(states) - 1:
+        raise ValueError(f"actions must have one element fewer than states; got {len(actions)} and {len(states)}")
+    out = []
+    for k in range(1, len(states)):
+        reachable = {s for s, _ in model.outcomes(tuple(states[k - 1]), actions[k - 1])}
+        if tuple(states[k]) not in reachable:
+            out.append(k)
+    return out
+
+
+def steps_to_recover(
+    estimates, confidences, positions, kidnaps, *, cap: int = 50, min_confidence: float = 0.5
+) -> list[int | None]:
+    """For each kidnap step k, the number of steps ``j >= 0`` until the estimate is right again:
+    the first ``k + j`` at which ``estimates[k + j] == positions[k + j]`` and
+    ``confidences[k + j] >= min_confidence``.
+
+    Returns one entry per kidnap: ``j``; ``cap + 1`` when the filter has not recovered within
+    ``cap`` steps (counted as a failure); or ``None`` when the measurement is cut short -- the
+    next kidnap or the end of the episode comes before recovery and before ``cap`` steps -- so
+    the event says nothing about this filter and is left out.
+    """
+    cap = check_int("cap", cap, minimum=0)
+    n = len(positions)
+    out: list[int | None] = []
+    for i, k in enumerate(kidnaps):
+        nxt = kidnaps[i + 1] if i + 1 < len(kidnaps) else n
+        result: int | None = None
+        for j in range(cap + 1):
+            step = k + j
+            if step >= nxt:
+                break
+            if tuple(estimates[step]) == tuple(positions[step]) and confidences[step] >= min_confidence:
+                result = j
+                break
+        else:
+            result = cap + 1
+        out.append(result)
+    return out
