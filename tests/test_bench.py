@@ -1,0 +1,115 @@
+"""The benchmark: JSON keys, consistent numbers, same seeds for every policy, the CLI."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from agents.bench import markdown_table, run_benchmark, run_episodes
+from agents.cli import main
+
+KEYS = {"env", "policy", "episodes", "success_rate", "truncated_rate", "mean_steps", "median_steps",
+        "mean_steps_ci95", "accuracy_at", "seconds", "localised_correct_rate"}
+
+
+def check_row(row, episodes):
+    assert KEYS <= set(row)
+    assert row["episodes"] == episodes
+    assert 0.0 <= row["success_rate"] <= 1.0 - row["truncated_rate"] + 1e-12
+    assert row["success_rate"] <= row["localised_rate"] + 1e-12
+    assert abs(row["localised_rate"] + row["truncated_rate"] - 1.0) < 1e-12
+    lo, hi = row["mean_steps_ci95"]
+    assert lo <= row["mean_steps"] <= hi
+    assert 1 <= row["median_steps"] <= row["max_episode_steps"]
+    assert 1 <= row["mean_steps"] <= row["max_episode_steps"]
+    assert set(row["accuracy_at"]) == {"5", "10", "25", "50"}
+    assert all(0.0 <= v <= 1.0 for v in row["accuracy_at"].values())
+    assert row["seconds"] >= 0
+    curve = row["localised_curve"]
+    assert len(curve) == row["max_episode_steps"] + 1 and np.all(np.diff(curve) >= 0)
+    assert abs(curve[-1] - row["localised_rate"]) < 1e-12
+    if row["localised_correct_rate"] is not None:
+        assert abs(row["localised_correct_rate"] * row["localised_rate"] - row["success_rate"]) < 1e-12
+
+
+def test_rows_have_the_keys_and_consistent_numbers():
+    rows = run_benchmark(["WindyMaze-v0"], ["random", "greedy", "greedy2", "ppo"], 6, progress=False)
+    assert [r["policy"] for r in rows] == ["random", "greedy", "greedy2", "ppo"]
+    for r in rows:
+        check_row(r, 6)
+    json.dumps(rows)  # serialisable
+
+
+def test_truncated_episodes_count_at_the_limit():
+    # A threshold the colour sensor can never reach: every episode is truncated at 100 steps.
+    row = run_episodes("ColourGrid-v0", "random", 3, env_kwargs={"localise_threshold": 1.0}, progress=False)
+    check_row(row, 3)
+    assert row["truncated_rate"] == 1.0 and row["success_rate"] == 0.0
+    assert row["mean_steps"] == row["median_steps"] == 100
+    assert row["localised_correct_rate"] is None
+
+
+def test_same_seeds_give_the_same_episodes():
+    a = run_episodes("ColourGrid-v0", "greedy", 5, seed_start=7, progress=False)
+    b = run_episodes("ColourGrid-v0", "greedy", 5, seed_start=7, progress=False)
+    for k in ("mean_steps", "accuracy_at", "localised_curve", "success_rate"):
+        assert a[k] == b[k]
+
+
+def test_steps_count_from_reset():
+    # Greedy on ColourGrid localises in a few steps; the first step counts as 1, never 0.
+    row = run_episodes("ColourGrid-v0", "greedy", 5, progress=False)
+    assert row["localised_curve"][0] == 0.0
+    assert row["mean_steps"] >= 1
+
+
+def test_markdown_table():
+    rows = run_benchmark(["ColourGrid-v0"], ["random"], 3, progress=False)
+    table = markdown_table(rows)
+    lines = table.splitlines()
+    assert lines[0].startswith("| env | policy |") and len(lines) == 3
+    assert "ColourGrid-v0 | random | 3 |" in lines[2]
+
+
+def test_cli_bench_writes_json_and_plot(tmp_path, capsys):
+    js, png = tmp_path / "b.json", tmp_path / "b.png"
+    code = main(["bench", "--env", "ColourGrid-v0", "--policies", "random,greedy", "--episodes", "4",
+                 "--json", str(js), "--plot", str(png), "--no-progress"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "| ColourGrid-v0 | greedy |" in out
+    rows = json.loads(js.read_text())
+    assert isinstance(rows, list) and len(rows) == 2
+    for r in rows:
+        check_row(r, 4)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_cli_bench_user_model(tmp_path, capsys):
+    from agents.policies import default_model_path
+
+    js = tmp_path / "b.json"
+    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "ppo", "--episodes", "2", "--no-progress",
+                 "--ppo-model", str(default_model_path("ColourGrid-v0")), "--json", str(js)]) == 0
+    assert json.loads(js.read_text())[0]["model"].endswith("ColourGrid-v0.zip")
+    # A model of another environment is refused before any episode runs.
+    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "ppo", "--episodes", "2", "--no-progress",
+                 "--ppo-model", str(default_model_path("WindyMaze-v0"))]) == 2
+    assert "trained for WindyMaze-v0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["bench", "--env", "Nope-v0"], "not a registered environment"),
+        (["bench", "--env", "ColourGrid-v0", "--policies", "random,smart"], "unknown policy 'smart'"),
+        (["bench", "--env", "ColourGrid-v0", "--episodes", "0"], "--episodes must be >= 1"),
+        (["bench"], "exactly one of --env ENV_ID or --all"),
+        (["bench", "--all", "--plot", "x.png"], "--plot takes one environment"),
+    ],
+)
+def test_cli_bench_bad_input(argv, message, capsys):
+    assert main([*argv, "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
