@@ -31,6 +31,8 @@ from gym_gridloc.wrappers import HMMBeliefWrapper
 from gym_gridloc.inference import FixedLagSmoother, fixed_lag_smooth, forward_backward, smooth, viterbi
 from gym_gridloc.particles import ParticleFilter
 from gym_gridloc.recording import RecordTrajectory, Trajectory
+from gym_gridloc.batch import BatchFilter
+from gym_gridloc.vector import GridLocVectorEnv
 
 __version__ = "0.1.0"
 
@@ -44,9 +46,16 @@ def _register() -> None:
         "RingSensor8x8-v0": ("gym_gridloc.envs.ring_sensor:RingSensorEnv", 400, {"size": (8, 8)}),
         "WindyMaze-v0": ("gym_gridloc.envs.windy_maze:WindyMazeEnv", 100, {}),
     }
+    # Native vector envs: gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point").
+    vector = {
+        "ColourGrid-v0": "gym_gridloc.vector:ColourGridVectorEnv",
+        "RingSensor8x8-v0": "gym_gridloc.vector:RingSensorVectorEnv",
+        "WindyMaze-v0": "gym_gridloc.vector:WindyMazeVectorEnv",
+    }
     for env_id, (entry_point, steps, kwargs) in specs.items():
         if env_id not in registry:
-            register(id=env_id, entry_point=entry_point, max_episode_steps=steps, kwargs=kwargs)
+            register(id=env_id, entry_point=entry_point, max_episode_steps=steps, kwargs=kwargs,
+                     vector_entry_point=vector[env_id])
 
 
 _register()
@@ -57,5 +66,5 @@ __all__ = [
     "MapError", "RingSensor", "RingSensorEnv", "Sensor", "Term", "WallSensor", "WindyMazeEnv",
     "colour_grid_model", "parse_colour_map", "parse_maze", "ring_sensor_model", "windy_maze_model",
     "FixedLagSmoother", "ParticleFilter", "RecordTrajectory", "Trajectory", "fixed_lag_smooth",
-    "forward_backward", "smooth", "viterbi",
+    "forward_backward", "smooth", "viterbi", "BatchFilter", "GridLocVectorEnv",
 ]
