@@ -48,6 +48,15 @@ TOP_KEYS = {
     "checkpoint_dir": "where checkpoints go (default runs/checkpoints/<output stem>)",
     "tensorboard_log": "a TensorBoard log directory, or null",
     "description": "free text, kept in the metadata",
+    "pretrain": "optional behaviour-cloning warm start: expert, episodes, epochs, batch_size, learning_rate",
+}
+
+PRETRAIN_KEYS = {
+    "expert": "greedy or greedy2: the policy to imitate",
+    "episodes": "expert episodes to collect (seeds 1_000_000 + i, disjoint from the benchmark's)",
+    "epochs": "passes over the collected data",
+    "batch_size": "minibatch size",
+    "learning_rate": "Adam learning rate of the warm start",
 }
 
 WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool}
@@ -220,4 +229,20 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         if cfg[key] is not None and not isinstance(cfg[key], str):
             raise ConfigError(f"{source}: {key} must be a path or null, got {cfg[key]!r}")
     cfg.setdefault("description", "")
+    pre = cfg.setdefault("pretrain", None)
+    if pre is not None:
+        if algo != "ppo" or not wrapper["flatten"]:
+            raise ConfigError(f"{source}: pretrain needs algo: ppo with wrapper.flatten: true")
+        if not isinstance(pre, dict):
+            raise ConfigError(f"{source}: pretrain must be a mapping, got {pre!r}")
+        bad = sorted(set(pre) - set(PRETRAIN_KEYS))
+        if bad:
+            raise ConfigError(f"{source}: unknown key(s) in pretrain: {', '.join(map(repr, bad))}; allowed: {', '.join(PRETRAIN_KEYS)}")
+        if pre.get("expert", "greedy2") not in ("greedy", "greedy2"):
+            raise ConfigError(f"{source}: pretrain.expert must be greedy or greedy2, got {pre.get('expert')!r}")
+        pre.setdefault("expert", "greedy2")
+        pre["episodes"] = _num(source, "pretrain.episodes", pre.get("episodes", 1000), integer=True, minimum=1)
+        pre["epochs"] = _num(source, "pretrain.epochs", pre.get("epochs", 10), integer=True, minimum=1)
+        pre["batch_size"] = _num(source, "pretrain.batch_size", pre.get("batch_size", 256), integer=True, minimum=1)
+        pre["learning_rate"] = _num(source, "pretrain.learning_rate", pre.get("learning_rate", 1e-3), integer=False, minimum=0)
     return cfg

@@ -186,7 +186,8 @@ def train(
     Algo = algo_class(cfg["algo"])
     venv = make_vec_env(cfg)
     ckpt_dir = default_checkpoint_dir(cfg)
-    previous_wall = 0.0
+    previous_wall = previous_cpu = 0.0
+    prev_pretrain = None
     resumed_from = None
     if resume is not None:
         resume = Path(resume)
@@ -202,6 +203,8 @@ def train(
                 )
         model = load_model(resume, algo=cfg["algo"], env=venv)[0]
         previous_wall = float(prev.get("wall_time_seconds", 0.0))
+        previous_cpu = float(prev.get("cpu_seconds", 0.0))
+        prev_pretrain = prev.get("pretrain")
         resumed_from = str(resume)
         if cfg["tensorboard_log"]:
             model.tensorboard_log = cfg["tensorboard_log"]
@@ -218,6 +221,12 @@ def train(
         )
 
     start = time.perf_counter()
+    cpu_start = time.process_time()
+    pretrain_info = None
+    if cfg.get("pretrain") and resume is None:
+        from agents.pretrain import behaviour_cloning
+
+        pretrain_info = behaviour_cloning(model, cfg, progress=progress_bar)
 
     def meta() -> dict[str, Any]:
         return {
@@ -231,6 +240,8 @@ def train(
             "total_timesteps": cfg["total_timesteps"],
             "num_timesteps": int(model.num_timesteps),
             "wall_time_seconds": round(previous_wall + time.perf_counter() - start, 2),
+            "cpu_seconds": round(previous_cpu + time.process_time() - cpu_start, 2),
+            "pretrain": pretrain_info if resume is None else prev_pretrain,
             "torch_threads": torch.get_num_threads(),
             "cpu_count": os.cpu_count(),
             "versions": versions(),
