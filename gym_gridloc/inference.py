@@ -306,14 +306,16 @@ def viterbi(
         terms = model.terms(a)
         if a not in log_terms:
             with np.errstate(divide="ignore"):
-                log_terms[a] = [np.log((1.0 - p_kid) * t.weight + (p_kid / n_states if p_kid > 0 else 0.0)) for t in terms]
-        lw = log_terms[a]
+                log_terms[a] = [
+                    (*t.slices(model.shape), np.log((1.0 - p_kid) * t.weight + (p_kid / n_states if p_kid > 0 else 0.0)))
+                    for t in terms
+                ]
         new = np.full(model.belief_shape, -np.inf)
         bp = pointers[k - 1]
         bp.fill(-2)
         for i, t in enumerate(terms):
-            src, dst = t.slices(model.shape)
-            cand = delta[t.src][src] + lw[i][src]
+            src, dst, lw = log_terms[a][i]
+            cand = delta[t.src][src] + lw[src]
             region = new[t.dst][dst]
             better = cand > region
             region[better] = cand[better]

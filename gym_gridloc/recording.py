@@ -117,28 +117,43 @@ def kidnap_steps(model, states, actions) -> list[int]:
 
 
 def steps_to_recover(
-    estimates, confidences, positions, kidnaps, *, cap: int = 50, min_confidence: float = 0.5
+    estimates,
+    confidences,
+    positions,
+    kidnaps,
+    *,
+    cap: int = 50,
+    min_confidence: float = 0.5,
+    localised_before: bool = True,
 ) -> list[int | None]:
     """For each kidnap step k, the number of steps ``j >= 0`` until the estimate is right again:
     the first ``k + j`` at which ``estimates[k + j] == positions[k + j]`` and
-    ``confidences[k + j] >= min_confidence``.
+    ``confidences[k + j] >= min_confidence`` ("localised").
 
     Returns one entry per kidnap: ``j``; ``cap + 1`` when the filter has not recovered within
-    ``cap`` steps (counted as a failure); or ``None`` when the measurement is cut short -- the
-    next kidnap or the end of the episode comes before recovery and before ``cap`` steps -- so
-    the event says nothing about this filter and is left out.
+    ``cap`` steps (counted as a failure); or ``None`` when the event says nothing about the
+    filter and is left out: the next kidnap or the end of the episode comes before recovery and
+    before ``cap`` steps, or (with ``localised_before``, the default: the classic kidnapped robot
+    is a localised robot carried off) the filter was not localised at step ``k - 1``.
     """
     cap = check_int("cap", cap, minimum=0)
     n = len(positions)
     out: list[int | None] = []
+
+    def localised(step: int) -> bool:
+        return tuple(estimates[step]) == tuple(positions[step]) and confidences[step] >= min_confidence
+
     for i, k in enumerate(kidnaps):
+        if localised_before and (k < 1 or not localised(k - 1)):
+            out.append(None)
+            continue
         nxt = kidnaps[i + 1] if i + 1 < len(kidnaps) else n
         result: int | None = None
         for j in range(cap + 1):
             step = k + j
             if step >= nxt:
                 break
-            if tuple(estimates[step]) == tuple(positions[step]) and confidences[step] >= min_confidence:
+            if localised(step):
                 result = j
                 break
         else:

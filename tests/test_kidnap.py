@@ -108,8 +108,13 @@ def test_kidnap_steps_and_steps_to_recover():
     # kidnap at 2: right at 4 but confidence 0.4 < 0.5, right and confident at 5
     assert steps_to_recover(estimates, confs, positions, [2], cap=10) == [3]
     assert steps_to_recover(estimates, confs, positions, [2], cap=2) == [3]  # cap + 1: not recovered
-    assert steps_to_recover(estimates, confs, positions, [2, 4], cap=10) == [None, 1]  # cut short by the next kidnap
+    # cut short by the next kidnap; the one at 4 did not find the filter localised at 3
+    assert steps_to_recover(estimates, confs, positions, [2, 4], cap=10) == [None, None]
+    assert steps_to_recover(estimates, confs, positions, [2, 4], cap=10, localised_before=False) == [None, 1]
     assert steps_to_recover(estimates[:4], confs[:4], positions[:4], [2], cap=10) == [None]  # by the end
+    confs[1] = 0.3  # not localised before the kidnap at 2
+    assert steps_to_recover(estimates, confs, positions, [2], cap=10) == [None]
+    assert steps_to_recover(estimates, confs, positions, [2], cap=10, localised_before=False) == [3]
     with pytest.raises(ValueError, match="one element fewer"):
         kidnap_steps(model, states, actions[:2])
 
