@@ -193,7 +193,7 @@ class BatchFilter:
         bad = ((acts < 0) | (acts >= self.model.n_actions)) & sel
         if np.any(bad):
             i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"action {acts[i]!r} of belief {i} is outside 0..{self.model.n_actions - 1} (0=N, 1=E, 2=S, 3=W)")
+            raise ValueError(f"action {int(acts[i])} of belief {i} is outside 0..{self.model.n_actions - 1} (0=N, 1=E, 2=S, 3=W)")
         acts = np.where(sel, acts, 0)
         readings = readings_of(self.model.sensor, observations, self.n)
         pred = self._spare

@@ -93,7 +93,7 @@ def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:
 
     A recursive backtracker (depth-first search with random neighbour order) on the lattice of
     cells at even (row, col); the walls between lattice cells it passes through are opened.  An
-    even side leaves a last row (column) outside the lattice: its cells next to a corridor are
+    even side leaves a last row (column) outside the lattice: its cells next to a lattice cell are
     opened with probability 1/2 (dead ends of length one), so every size is filled.
     """
     h, w = check_size("size", size, MAX_SIDE)
@@ -130,10 +130,11 @@ def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:
         free[r + rr, c + cc] = True  # the wall between (2r, 2c) and (2rr, 2cc)
         free[2 * rr, 2 * cc] = True
         stack.append(nxt)
+    # Dead ends into the extra row (column) only next to lattice cells: corridors stay one wide.
     if h % 2 == 0 and h > 1:
-        free[h - 1] = free[h - 2] & (rng.random(w) < 0.5)
+        free[h - 1] = free[h - 2] & (rng.random(w) < 0.5) & (np.arange(w) % 2 == 0)
     if w % 2 == 0 and w > 1:
-        free[:, w - 1] = free[:, w - 2] & (rng.random(h) < 0.5)
+        free[:, w - 1] = free[:, w - 2] & (rng.random(h) < 0.5) & (np.arange(h) % 2 == 0)
     return GridMap(np.where(free, 0, -1), ("O",))
 
 

@@ -381,7 +381,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         bad = ~resetting & ((acts < 0) | (acts >= self.model.n_actions))
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"action {acts[i]!r} of env {i} is not in the action space {self.single_action_space} (0=N, 1=E, 2=S, 3=W)")
+            raise ValueError(f"action {int(acts[i])} of env {i} is not in the action space {self.single_action_space} (0=N, 1=E, 2=S, 3=W)")
         moving = np.flatnonzero(~resetting)
         self._sample_moves(moving, acts[moving])
         self._sample_readings(moving)
@@ -455,3 +455,92 @@ class WindyMazeVectorEnv(GridLocVectorEnv):
     """Native vector version of ``WindyMaze-v0`` (see :class:`GridLocVectorEnv`)."""
 
     from gym_gridloc.envs.windy_maze import WindyMazeEnv as env_class  # noqa: N813
+
+
+def _sb3_vec_env_class():
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+    class SB3VecEnv(VecEnv):
+        """stable-baselines3 ``VecEnv`` over a :class:`GridLocVectorEnv` (SB3 takes its own VecEnv
+        API, not Gymnasium's ``VectorEnv``).
+
+        SB3 resets a finished environment in the same step: the returned observation is the new
+        episode's first, ``infos[i]["terminal_observation"]`` the last one of the finished episode
+        and ``infos[i]["TimeLimit.truncated"]`` says a time limit (not localisation) ended it.  The
+        wrapped env is switched to ``AutoresetMode.SAME_STEP`` for this.
+
+        >>> import gymnasium as gym, gym_gridloc
+        >>> from gym_gridloc.vector import SB3VecEnv
+        >>> venv = SB3VecEnv(gym.make_vec("WindyMaze-v0", num_envs=8, vectorization_mode="vector_entry_point"))
+        >>> venv.num_envs
+        8
+
+        ``SB3VecEnv.make(env_id, num_envs, **kwargs)`` builds the native env and the adapter.
+        """
+
+        def __init__(self, venv: GridLocVectorEnv) -> None:
+            env = getattr(venv, "unwrapped", venv)
+            if not isinstance(env, GridLocVectorEnv):
+                raise TypeError(f"SB3VecEnv needs a gym_gridloc native vector env (GridLocVectorEnv), got {type(venv).__name__}")
+            if env._autoreset.any():
+                raise ValueError("switch the vector env to SB3's same-step autoreset before an episode ends: wrap it right after creating it")
+            env.autoreset_mode = AutoresetMode.SAME_STEP
+            env.metadata = {**env.metadata, "autoreset_mode": AutoresetMode.SAME_STEP}
+            self.venv = env
+            super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
+            self._actions: np.ndarray | None = None
+
+        @classmethod
+        def make(cls, env_id: str, num_envs: int, **kwargs: Any) -> "SB3VecEnv":
+            return cls(gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs))
+
+        def reset(self):
+            seeds = self._seeds if any(s is not None for s in self._seeds) else None
+            obs, info = self.venv.reset(seed=seeds)
+            self._reset_seeds()
+            self._reset_options()
+            self.reset_infos = [{} for _ in range(self.num_envs)]
+            return obs
+
+        def step_async(self, actions: np.ndarray) -> None:
+            self._actions = np.asarray(actions).reshape(self.num_envs).astype(np.int64)
+
+        def step_wait(self):
+            obs, rewards, terminated, truncated, info = self.venv.step(self._actions)
+            dones = terminated | truncated
+            infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+            for i in np.flatnonzero(dones):
+                final = dict(info["final_info"][i])
+                final["terminal_observation"] = info["final_obs"][i]
+                final["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+                infos[i] = final
+            return obs, rewards.astype(np.float32), dones, infos
+
+        def close(self) -> None:
+            self.venv.close()
+
+        def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+            target = self.venv.template
+            if attr_name == "render_mode":
+                return [None for _ in self._get_indices(indices)]
+            return [getattr(target, attr_name) for _ in self._get_indices(indices)]
+
+        def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+            raise AttributeError(f"the native vector env's {self.num_envs} environments share one model; cannot set {attr_name!r} per environment")
+
+        def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+            raise AttributeError(f"the native vector env has no per-environment objects to call {method_name!r} on")
+
+        def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+            return [False for _ in self._get_indices(indices)]
+
+    return SB3VecEnv
+
+
+def __getattr__(name: str):
+    # SB3VecEnv imports stable-baselines3 (and torch) only when it is asked for.
+    if name == "SB3VecEnv":
+        cls = _sb3_vec_env_class()
+        globals()["SB3VecEnv"] = cls
+        return cls
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,116 @@
+"""Generated maps: reproducible from their seed, connected, and wired into the registered ids."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import gym_gridloc
+from gym_gridloc.generators import COLOUR_SYMBOLS, colour_map, is_connected, maze_map
+
+
+@pytest.mark.parametrize("size", [(1, 1), (1, 7), (5, 5), (17, 9), (64, 48)])
+@pytest.mark.parametrize("density", [0.0, 0.2, 0.45])
+def test_colour_maps_are_reproducible_and_connected(size, density):
+    a = colour_map(size, obstacle_density=density, n_colours=5, seed=11)
+    b = colour_map(size, obstacle_density=density, n_colours=5, seed=11)
+    assert np.array_equal(a.labels, b.labels)
+    assert a.shape == size
+    assert is_connected(a.free)
+    assert a.symbols == COLOUR_SYMBOLS[:5]
+    assert a.labels.max() < 5
+    if density == 0.0:
+        assert a.free.all()
+
+
+def test_colour_map_seeds_differ_and_density_is_roughly_kept():
+    a = colour_map((64, 64), obstacle_density=0.2, seed=1)
+    b = colour_map((64, 64), obstacle_density=0.2, seed=2)
+    assert not np.array_equal(a.labels, b.labels)
+    assert 0.15 < 1.0 - a.free.mean() < 0.3  # isolated pockets become obstacles too
+    assert set(np.unique(a.labels[a.free])) == {0, 1, 2, 3}
+
+
+@pytest.mark.parametrize("size", [(1, 1), (2, 2), (3, 3), (6, 7), (7, 6), (10, 10), (31, 31), (50, 41)])
+def test_mazes_are_reproducible_and_connected_with_walls(size):
+    a = maze_map(size, seed=5)
+    assert np.array_equal(a.labels, maze_map(size, seed=5).labels)
+    assert a.shape == size
+    assert is_connected(a.free)
+    if min(size) >= 3:
+        assert not a.free.all()  # walls between the corridors
+        # Corridors are one cell wide: no 2x2 block of free cells.
+        f = a.free
+        assert not np.any(f[:-1, :-1] & f[1:, :-1] & f[:-1, 1:] & f[1:, 1:])
+
+
+def test_maze_seeds_differ():
+    assert not np.array_equal(maze_map((21, 21), seed=1).labels, maze_map((21, 21), seed=2).labels)
+
+
+def test_generator_arguments_are_checked():
+    with pytest.raises(ValueError, match="obstacle_density"):
+        colour_map((5, 5), obstacle_density=1.0)
+    with pytest.raises(ValueError, match="n_colours"):
+        colour_map((5, 5), n_colours=0)
+    with pytest.raises(ValueError, match="n_colours"):
+        colour_map((5, 5), n_colours=27)
+    with pytest.raises(ValueError, match="size"):
+        maze_map((0, 5))
+    with pytest.raises(TypeError, match="map_seed"):
+        maze_map((5, 5), seed=-1)
+
+
+def test_registered_ids_take_generated_maps():
+    env = gym.make("ColourGrid-v0", size=(12, 10), obstacle_density=0.25, n_colours=6, map_seed=3)
+    grid = env.unwrapped.model.grid
+    assert grid.shape == (12, 10) and is_connected(grid.free)
+    assert env.observation_space == gym.spaces.Discrete(6)
+    same = gym.make("ColourGrid-v0", size=(12, 10), obstacle_density=0.25, n_colours=6, map_seed=3)
+    assert np.array_equal(grid.labels, same.unwrapped.model.grid.labels)
+    other = gym.make("ColourGrid-v0", size=(12, 10), obstacle_density=0.25, n_colours=6, map_seed=4)
+    assert not np.array_equal(grid.labels, other.unwrapped.model.grid.labels)
+    maze = gym.make("WindyMaze-v0", size=(9, 12), map_seed=1).unwrapped.model.grid
+    assert maze.shape == (9, 12) and is_connected(maze.free)
+    ring = gym.make("RingSensor8x8-v0", size=(12, 9))
+    assert ring.unwrapped.model.shape == (12, 9)
+    assert ring.observation_space == gym.spaces.Discrete(12 * 9 + 1)
+    # The default maps are still the seeds'.
+    assert gym.make("ColourGrid-v0").unwrapped.model.grid.n_free == 19
+    assert gym.make("WindyMaze-v0").unwrapped.model.grid.n_free == 31
+
+
+def test_layout_and_generated_map_together_is_an_error():
+    with pytest.raises(ValueError, match="layout"):
+        gym.make("ColourGrid-v0", layout=["R,G", "B,Y"], size=(5, 5))
+    with pytest.raises(ValueError, match="layout"):
+        gym.make("WindyMaze-v0", layout=["OO", "OO"], map_seed=2)
+    with pytest.raises(TypeError, match="new_map_each_reset"):
+        gym.make("WindyMaze-v0", new_map_each_reset="yes")
+
+
+@pytest.mark.parametrize("env_id,kwargs", [
+    ("ColourGrid-v0", {"size": (8, 9), "obstacle_density": 0.2}),
+    ("WindyMaze-v0", {"size": (9, 9)}),
+])
+def test_new_map_each_reset_follows_the_reset_seed(env_id, kwargs):
+    env = gym_gridloc.HMMBeliefWrapper(gym.make(env_id, new_map_each_reset=True, **kwargs))
+    maps = []
+    for seed in (1, 1, 2):
+        obs, _ = env.reset(seed=seed)
+        maps.append(env.unwrapped.model.grid.labels.copy())
+        # The wrapper follows the redrawn map: its belief is the environment's referee posterior.
+        assert env.model is env.unwrapped.model
+        for a in (0, 1, 2, 3, 0):
+            obs, *_ = env.step(a)
+        np.testing.assert_allclose(obs["belief"], env.unwrapped.posterior, atol=1e-6)
+        assert np.all(obs["belief"][~env.unwrapped.model.grid.free] == 0)
+    assert np.array_equal(maps[0], maps[1])
+    assert not np.array_equal(maps[0], maps[2])
+
+
+def test_generated_envs_pass_check_env():
+    check_env(gym.make("ColourGrid-v0", size=(6, 7), n_colours=3, new_map_each_reset=True).unwrapped, skip_render_check=True)
+    check_env(gym.make("WindyMaze-v0", size=(8, 8), map_seed=4).unwrapped, skip_render_check=True)
