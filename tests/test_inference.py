@@ -270,3 +270,23 @@ def test_impossible_observation_raises():
     # with kidnapping the same episode is possible
     post = smooth(model.with_kidnapping(0.1), [1], [0, 2])
     assert post[1][1, 0] == pytest.approx(1.0)
+
+
+def test_record_trajectory():
+    env = RecordTrajectory(gym.make("RingSensor8x8-v0", size=(4, 4), dynamics="seed"), max_episodes=2)
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(0)
+    for seed in range(3):
+        env.reset(seed=seed)
+        for _ in range(4 + seed):
+            env.step(0)
+    tr = env.trajectory
+    assert len(tr) == 6 and len(tr.observations) == 7 and len(tr.infos) == 7 and len(tr.rewards) == 6
+    assert [len(e) for e in env.episodes] == [4, 5]  # the last two finished episodes
+    assert tr.states[-1] == env.unwrapped.state  # heading included
+    assert tr.positions[-1] == env.unwrapped.state[1:]
+    # the recorded episode is exactly what the environment's referee filtered
+    post = smooth(env.unwrapped.model, tr.actions, tr.observations)
+    np.testing.assert_allclose(post[-1], env.unwrapped.posterior, atol=1e-12)
+    with pytest.raises(ValueError, match="max_episodes"):
+        RecordTrajectory(gym.make("WindyMaze-v0"), max_episodes=-1)
