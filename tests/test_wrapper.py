@@ -21,7 +21,10 @@ from gymnasium import spaces
 
 import gym_gridloc
 from gym_gridloc import ForwardFilter, HMMBeliefWrapper, colour_grid_model, ring_sensor_model, windy_maze_model
-from test_envs import CONFIG_IDS, CONFIGS, ENV_IDS, assert_same_rollouts, rollout, run_check_env
+try:  # tests/ is not a package (pytest puts it on sys.path); keep working if it becomes one
+    from test_envs import CONFIG_IDS, CONFIGS, ENV_IDS, assert_same_rollouts, rollout, run_check_env
+except ImportError:  # pragma: no cover
+    from tests.test_envs import CONFIG_IDS, CONFIGS, ENV_IDS, assert_same_rollouts, rollout, run_check_env
 
 WRAPPER_OPTIONS = [{}, {"flatten": True}, {"full_state": True}]
 OPTION_IDS = ["dict", "flatten", "full_state"]
