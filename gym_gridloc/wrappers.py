@@ -14,6 +14,9 @@ from gym_gridloc.core.validation import check_choice
 from gym_gridloc.filter import ForwardFilter
 
 
+_RESET_HINT = "pass on_impossible='reset' to HMMBeliefWrapper to restart the belief from the prior instead"
+
+
 def _encode(space: spaces.Space, obs: Any) -> np.ndarray:
     """An observation as a float32 vector in [0, 1] (one-hot for Discrete)."""
     if isinstance(space, spaces.Discrete):
@@ -156,9 +159,9 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             self.filter.seed(np.random.SeedSequence(seed, spawn_key=(1,)))
         try:
             self.filter.reset(self._sensor_obs(obs))
-        except ImpossibleObservationError:
+        except ImpossibleObservationError as exc:
             if self.on_impossible == "raise":
-                raise
+                raise ImpossibleObservationError(f"{exc}; {_RESET_HINT}") from exc
             self.filter.reset()
             self._reset_flag = True
         if self.on_impossible == "reset":
@@ -170,9 +173,9 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self._reset_flag = False
         try:
             self.filter.step(action, self._sensor_obs(obs))
-        except ImpossibleObservationError:
+        except ImpossibleObservationError as exc:
             if self.on_impossible == "raise":
-                raise
+                raise ImpossibleObservationError(f"{exc}; {_RESET_HINT}") from exc
             try:
                 self.filter.reset(self._sensor_obs(obs))
             except ImpossibleObservationError:

@@ -320,7 +320,8 @@ SHARP_MISMATCH = {
 @pytest.mark.parametrize("env_id", list(gym_gridloc.ENV_IDS))
 def test_impossible_observation_raises_by_default(env_id):
     env = HMMBeliefWrapper(gym.make(env_id).unwrapped, model=SHARP_MISMATCH[env_id]())
-    pattern = r"impossible under the filter's model .* \(model mismatch\?\)"
+    pattern = (r"impossible under the filter's model .* \(model mismatch\?\); "
+               r"pass on_impossible='reset' to HMMBeliefWrapper to restart the belief from the prior")
     seed = 0
     while True:  # find a start whose first reading the sharp model allows
         try:
