@@ -115,8 +115,8 @@ class ParticleFilter:
         self.n_reinitialisations = 0
 
     # -- sampling helpers -------------------------------------------------------------------------
-    def seed(self, seed: int | None) -> "ParticleFilter":
-        """Restart the random generator from ``seed``."""
+    def seed(self, seed: int | np.random.SeedSequence | None) -> "ParticleFilter":
+        """Restart the random generator from ``seed`` (anything ``numpy.random.default_rng`` takes)."""
         self.rng = np.random.default_rng(seed)
         return self
 
