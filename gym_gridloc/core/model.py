@@ -50,8 +50,8 @@ def merge_terms(terms: Sequence[Term], scale: float = 1.0) -> tuple[Term, ...]:
         key = (t.src, t.dst, t.dr, t.dc)
         if key in merged:
             merged[key] = merged[key] + t.weight * scale
-        else:
-            merged[key] = t.weight * scale
+        else:  # no copy at scale 1 (the weights are made read-only below)
+            merged[key] = t.weight if scale == 1.0 else t.weight * scale
     out = []
     for (src, dst, dr, dc), weight in merged.items():
         if np.any(weight):
@@ -125,20 +125,33 @@ class GridModel:
         self.transitions = tuple(merge_terms(t) for t in transitions)
         if not self.transitions:
             raise ValueError("a model needs at least one action")
-        self.mean_transition = merge_terms(
-            [t for terms in self.transitions for t in terms], 1.0 / len(self.transitions)
-        )
         self._slices = {}
-        for terms in (*self.transitions, self.mean_transition):
+        for terms in self.transitions:
             for t in terms:
                 self._slices[id(t)] = t.slices(grid.shape)
         self._check()
 
+    @property
+    def mean_transition(self) -> tuple[Term, ...]:
+        """The actions' average transition (for an unknown action), built on first use: on a
+        512 x 512 map it is as large as one action's."""
+        mean = self.__dict__.get("_mean_transition")
+        if mean is None:
+            if len(self.transitions) == 1:
+                mean = self.transitions[0]
+            else:
+                mean = merge_terms([t for terms in self.transitions for t in terms], 1.0 / len(self.transitions))
+            for t in mean:
+                self._slices[id(t)] = t.slices(self.grid.shape)
+            self.__dict__["_mean_transition"] = mean
+        return mean
+
     def __setstate__(self, state: dict) -> None:
         # ``_slices`` is keyed by ``id(term)``; after unpickling the terms are new objects.
         self.__dict__.update(state)
+        built = [self.__dict__["_mean_transition"]] if self.__dict__.get("_mean_transition") is not None else []
         self._slices = {
-            id(t): t.slices(self.grid.shape) for terms in (*self.transitions, self.mean_transition) for t in terms
+            id(t): t.slices(self.grid.shape) for terms in (*self.transitions, *built) for t in terms
         }
 
     def with_kidnapping(self, kidnap_prob: float) -> "GridModel":
