@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -73,11 +74,7 @@ class ForwardFilter:
             # einsum, not np.dot: a BLAS dot can be 100x slower on a busy machine (thread pools).
             z = float(np.einsum("lk,k->", f.reshape(f.shape[0], -1), lik.reshape(-1)))
         if not z > 0.0 or not np.isfinite(z):
-            raise ImpossibleObservationError(
-                f"observation {observation!r} is impossible under the filter's model "
-                f"({self.model!r}) given the belief so far: every state that could be reached "
-                "gives it probability 0 (model mismatch?)"
-            )
+            self._raise_impossible(observation)
         if f is self._spare:  # never write into the other buffer
             f = f.copy()
         if window is not None:
@@ -91,10 +88,33 @@ class ForwardFilter:
         self.log_likelihood += float(np.log(z))
         return self
 
+    def _raise_impossible(self, observation: Any) -> None:
+        raise ImpossibleObservationError(
+            f"observation {observation!r} is impossible under the filter's model "
+            f"({self.model!r}) given the belief so far: every state that could be reached "
+            "gives it probability 0 (model mismatch?)"
+        )
+
     def step(self, action: int | None, observation: Any) -> "ForwardFilter":
         """Predict with ``action``, then update with ``observation``.  On an impossible
         observation the belief is left as it was before the step."""
         before = self._belief()
+        model = self.model
+        if model.kidnap_prob == 0.0:
+            plan = model.stencil_plan(action)
+            if plan is not None:  # compiled predict + update + normalise in one call
+                reading = model.sensor.to_reading(observation)
+                if model.sensor.likelihood_window(reading) is None:
+                    out = self._spare
+                    if out is None or out is before or out.shape != before.shape:
+                        out = np.empty_like(before)
+                    z = plan.run(before, out, model.likelihood(reading))
+                    if not z > 0.0 or not np.isfinite(z):
+                        self._spare = out
+                        self._raise_impossible(observation)
+                    self._f, self._spare = out, before
+                    self.log_likelihood += math.log(z)
+                    return self
         self.predict(action)
         try:
             self.update(observation)

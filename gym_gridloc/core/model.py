@@ -61,6 +61,31 @@ def merge_terms(terms: Sequence[Term], scale: float = 1.0) -> tuple[Term, ...]:
     return tuple(out)
 
 
+_KERNELS = None
+
+
+def _kernels():
+    """:mod:`gym_gridloc.kernels`, imported on first use (numba loads only when a filter runs)."""
+    global _KERNELS
+    if _KERNELS is None:
+        from gym_gridloc import kernels
+
+        _KERNELS = kernels
+    return _KERNELS
+
+
+def _stacked(terms: tuple[Term, ...], shape: tuple[int, int]) -> tuple[Term, ...]:
+    """The same terms with their weights stored as one read-only (K, H, W) array (what the
+    compiled filter kernel reads, without a copy)."""
+    if not terms:
+        return terms
+    stack = np.empty((len(terms), *shape))
+    for k, t in enumerate(terms):
+        stack[k] = t.weight
+    stack.setflags(write=False)
+    return tuple(Term(t.src, t.dst, t.dr, t.dc, stack[k]) for k, t in enumerate(terms))
+
+
 def move_terms(grid: GridMap, direction_probs: np.ndarray, layer: int = 0, dst_layer: int | None = None) -> list[Term]:
     """Terms for "try direction d with probability ``direction_probs[d]``; a blocked move stays".
 
@@ -122,7 +147,7 @@ class GridModel:
         self.action_dependent = bool(action_dependent)
         self.layer_names = tuple(layer_names) if layer_names else tuple(str(i) for i in range(self.n_layers))
         self.params = dict(params or {})
-        self.transitions = tuple(merge_terms(t) for t in transitions)
+        self.transitions = tuple(_stacked(merge_terms(t), grid.shape) for t in transitions)
         if not self.transitions:
             raise ValueError("a model needs at least one action")
         self._slices = {}
@@ -140,7 +165,10 @@ class GridModel:
             if len(self.transitions) == 1:
                 mean = self.transitions[0]
             else:
-                mean = merge_terms([t for terms in self.transitions for t in terms], 1.0 / len(self.transitions))
+                mean = _stacked(
+                    merge_terms([t for terms in self.transitions for t in terms], 1.0 / len(self.transitions)),
+                    self.grid.shape,
+                )
             for t in mean:
                 self._slices[id(t)] = t.slices(self.grid.shape)
             self.__dict__["_mean_transition"] = mean
@@ -285,9 +313,27 @@ class GridModel:
         cache[key] = plan
         return plan
 
+    def stencil_plan(self, action: int | None):
+        """The compiled kernel's plan for ``action`` (:mod:`gym_gridloc.kernels`), or None
+        without numba."""
+        kernels = _kernels()
+        if not kernels.AVAILABLE:
+            return None
+        cache = self.__dict__.get("_stencil_plans")
+        if cache is None:
+            cache = self.__dict__["_stencil_plans"] = {}
+        plan = cache.get(action) if action is None or type(action) is int else None
+        if plan is None:
+            key = None if action is None else self.check_action(action)
+            plan = cache.get(key)
+            if plan is None:
+                plan = cache[key] = kernels.StencilPlan(self, self.terms(key))
+        return plan
+
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state.pop("_flat_plans", None)  # views into the weights: rebuilt on demand
+        state.pop("_stencil_plans", None)
         state.pop("_scratch", None)
         return state
 
@@ -300,6 +346,11 @@ class GridModel:
         belief = np.ascontiguousarray(belief, dtype=np.float64)
         if out is None:
             out = np.empty(self.belief_shape)
+        if self.kidnap_prob == 0.0 and belief.shape == self.belief_shape:
+            plan = self.stencil_plan(action)
+            if plan is not None:  # compiled: one pass over memory
+                plan.run(belief, out, None)
+                return out
         zero, plan = self.flat_plan(action)
         bf = belief.reshape(-1)
         of = out.reshape(-1)

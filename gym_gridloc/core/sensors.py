@@ -49,6 +49,10 @@ class Sensor(ABC):
 
     def to_reading(self, observation: Any) -> int:
         """The reading index of an observation as the environment emits it."""
+        space = self.observation_space
+        if type(observation) is int and type(space) is spaces.Discrete and space.start == 0:  # fast path
+            if 0 <= observation < space.n:
+                return observation
         try:
             ok = self.observation_space.contains(observation)
         except Exception:  # noqa: BLE001 - a malformed observation is reported below

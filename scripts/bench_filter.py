@@ -1,0 +1,190 @@
+"""Filter steps per second on generated ColourGrid maps, beside a dense and a CSR computation.
+
+For each grid size the same trajectory (actions and readings sampled from the model) is filtered
+four ways, all exact:
+
+* ``stencil``: ``ForwardFilter.step`` (predict over shifted arrays, update, normalise; the
+  public call, observation checks included);
+* ``csr step``: the same step with ``scipy.sparse`` CSR ``T_a^T @ f`` for the prediction;
+* ``csr product``: the bare CSR product ``T_a^T @ f`` alone (no update);
+* ``dense step``: ``O T_a^T f`` with dense S x S matrices, where they fit in ``--dense-max-gib``.
+
+Ratios are measured in this one run (best of ``--repeats`` timings).  A last part measures the
+peak resident memory (VmHWM) of a 512 x 512 environment with its ``HMMBeliefWrapper`` belief after a
+reset and 20 steps, per model, each in a fresh process.
+
+    .venv/bin/python scripts/bench_filter.py            # 8, 32, 64, 128, 512
+    .venv/bin/python scripts/bench_filter.py --sizes 8 64 --no-memory
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+
+import numpy as np
+from tqdm import tqdm
+
+import gym_gridloc
+from gym_gridloc.generators import colour_map
+
+MEMORY_SNIPPET = """
+import gymnasium as gym, gym_gridloc
+env = gym_gridloc.HMMBeliefWrapper(gym.make({env_id!r}, **{kwargs!r}))
+env.reset(seed=0)
+for t in range(20):
+    env.step(t % env.action_space.n)
+status = open("/proc/self/status").read().splitlines()
+print(next(int(l.split()[1]) for l in status if l.startswith("VmHWM:")) / 1024)
+"""
+
+
+def best_times(fns: dict, steps: dict, repeats: int) -> dict:
+    """Seconds per step of each ``fns[name]`` (which runs ``steps[name]`` steps): the best of
+    ``repeats`` rounds, the methods taking turns within a round so that a busy machine slows
+    them alike."""
+    best = {name: np.inf for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            best[name] = min(best[name], time.perf_counter() - t0)
+    return {name: best[name] / steps[name] for name in fns}
+
+
+def trajectory(model, steps: int, rng: np.random.Generator):
+    state = model.sample_initial_state(rng)
+    first = model.sample_reading(state, rng)
+    actions, readings = [], []
+    for _ in range(steps):
+        a = int(rng.integers(model.n_actions))
+        state = model.sample_next_state(state, a, rng)
+        actions.append(a)
+        readings.append(model.sample_reading(state, rng))
+    return first, actions, readings
+
+
+def bench_size(side: int, steps: int, repeats: int, dense_max_gib: float) -> dict:
+    model = gym_gridloc.colour_grid_model(colour_map((side, side), obstacle_density=0.2, seed=0))
+    S = model.n_states
+    rng = np.random.default_rng(side)
+    first, actions, readings = trajectory(model, steps, rng)
+    obs = [model.sensor.to_observation(r) for r in readings]
+    lik = np.stack([model.likelihood_vector(r) for r in range(model.sensor.n_readings)])
+
+    f = gym_gridloc.ForwardFilter(model)
+
+    def stencil():
+        f.reset(model.sensor.to_observation(first))
+        for a, o in zip(actions, obs):
+            f.step(a, o)
+
+    Tt = [model.transition_matrix(a).T.tocsr() for a in range(model.n_actions)]
+    v0 = model.to_vector(model.prior()) * lik[first]
+    v0 /= v0.sum()
+
+    def csr_step():
+        v = v0
+        for a, r in zip(actions, readings):
+            v = Tt[a] @ v
+            v *= lik[r]
+            v /= v.sum()
+        return v
+
+    def csr_product():
+        v = v0
+        for a in actions:
+            v = Tt[a] @ v
+        return v
+
+    out = {"side": side, "S": S}
+    # The three are the same filter: check before timing.
+    ref = csr_step()
+    stencil()
+    err = float(np.abs(f.belief - ref).max())
+    if err > 1e-12:
+        raise AssertionError(f"{side}x{side}: stencil and CSR filters differ by {err:.3g}")
+    out["err"] = err
+    fns = {"stencil": stencil, "csr_step": csr_step, "csr_product": csr_product}
+    counts = {"stencil": steps, "csr_step": steps, "csr_product": steps}
+    dense_bytes = model.n_actions * S * S * 8
+    out["dense_gib"] = dense_bytes / 2**30
+    out["dense"] = None
+    if dense_bytes <= dense_max_gib * 2**30:
+        D = [m.toarray() for m in Tt]
+        dense_steps = max(2, min(steps, int(2e9 // (S * S * 8)) + 2))
+
+        def dense_step():
+            v = v0
+            for a, r in zip(actions[:dense_steps], readings[:dense_steps]):
+                v = D[a] @ v
+                v = v * lik[r]
+                v /= v.sum()
+
+        fns["dense"] = dense_step
+        counts["dense"] = dense_steps
+    out.update(best_times(fns, counts, repeats))
+    return out
+
+
+def memory(env_id: str, kwargs: dict) -> float:
+    code = MEMORY_SNIPPET.format(env_id=env_id, kwargs=kwargs)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return float(res.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--sizes", type=int, nargs="+", default=[8, 32, 64, 128, 512], help="grid sides")
+    p.add_argument("--steps", type=int, default=200, help="filter steps per timing")
+    p.add_argument("--repeats", type=int, default=9, help="timings per method; the best counts")
+    p.add_argument("--dense-max-gib", type=float, default=1.0, help="largest dense matrices to build")
+    p.add_argument("--no-memory", action="store_true", help="skip the 512x512 memory part")
+    args = p.parse_args(argv)
+    for s in args.sizes:
+        if s < 2:
+            p.error(f"--sizes: each side must be at least 2, got {s}")
+
+    rows = []
+    for side in tqdm(args.sizes, desc="grid sizes", file=sys.stderr):
+        steps = args.steps if side <= 128 else max(20, args.steps // 4)
+        rows.append(bench_size(side, steps, args.repeats, args.dense_max_gib))
+
+    print(f"Filter step on generated ColourGrid maps (obstacle_density 0.2, map_seed 0); best of {args.repeats}")
+    print(f"{'grid':>9} {'states':>7} | {'stencil':>11} {'csr step':>11} {'csr prod':>11} {'dense':>11} | "
+          f"{'x csr step':>10} {'x csr prod':>10} {'x dense':>9}")
+    for r in rows:
+        rate = lambda t: f"{1.0 / t:9.0f}/s" if t else f"{'n/a':>11}"  # noqa: E731
+        dense_ratio = f"{r['dense'] / r['stencil']:9.1f}" if r["dense"] else f"{'n/a':>9}"
+        print(
+            f"{r['side']:>4}x{r['side']:<4} {r['S']:>7} | {rate(r['stencil'])} {rate(r['csr_step'])} "
+            f"{rate(r['csr_product'])} {rate(r['dense'])} | {r['csr_step'] / r['stencil']:10.2f} "
+            f"{r['csr_product'] / r['stencil']:10.2f} {dense_ratio}"
+        )
+    print("(steps per second; 'x ...' = how many times faster the stencil step is; dense n/a where "
+          f"S x S matrices exceed {args.dense_max_gib} GiB)")
+    by_side = {r["side"]: r for r in rows}
+    if 128 in by_side and 512 in by_side:
+        g = by_side[512]["stencil"] / by_side[128]["stencil"]
+        cells = by_side[512]["S"] / by_side[128]["S"]
+        print(f"128x128 -> 512x512: {cells:.1f}x the states, stencil step time x{g:.1f}")
+    print(f"largest |stencil - csr| belief difference: {max(r['err'] for r in rows):.2e}")
+
+    if not args.no_memory:
+        print("\nPeak resident memory, 512x512 environment + HMMBeliefWrapper, reset and 20 steps:")
+        cases = [
+            ("ColourGrid-v0", {"size": (512, 512)}),
+            ("WindyMaze-v0", {"size": (512, 512)}),
+            ("RingSensor8x8-v0", {"size": (512, 512)}),
+            ("RingSensor8x8-v0", {"size": (512, 512), "dynamics": "seed"}),
+        ]
+        for env_id, kwargs in tqdm(cases, desc="memory", file=sys.stderr):
+            mib = memory(env_id, kwargs)
+            extra = ", seed dynamics (4 headings)" if kwargs.get("dynamics") == "seed" else ""
+            print(f"  {env_id}{extra}: {mib:.0f} MiB")
+
+
+if __name__ == "__main__":
+    main()
