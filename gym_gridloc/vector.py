@@ -15,10 +15,9 @@ would be: ``reset(seed=s)`` seeds environment ``i`` with ``s + i`` (a list seeds
 later resets continue each stream.  With the same seeds and the same actions the observations,
 beliefs, rewards, terminations, truncations and infos equal those of ``SyncVectorEnv`` over
 ``HMMBeliefWrapper(gym.make(ENV_ID, ...))`` (beliefs within 1e-12; tests/test_vector.py).  The
-uniforms each environment consumes are drawn in blocks from its generator (a double consumes one
-64-bit output, so block draws give the single environment's numbers in the same order); where
-the single environment calls ``integers`` (a reset, a kidnapping) the generator is first moved to
-the exact position.
+64-bit outputs each environment consumes are drawn in blocks from its generator (a double consumes one
+output, so block draws give the single environment's numbers in the same order), and ``integers``
+(a reset, a kidnapping) is computed from the same outputs exactly as numpy does.
 
 Autoreset: Gymnasium's default ``AutoresetMode.NEXT_STEP`` (the step after an episode ends
 resets that environment, ignoring its action, with reward 0); ``autoreset_mode=SAME_STEP`` is
@@ -173,10 +172,10 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self.filter = BatchFilter(model, n)
 
         self._rngs: list[np.random.Generator | None] = [None] * n
-        self._buf = np.zeros((n, BLOCK))
-        self._pos = np.zeros(n, dtype=np.int64)
-        self._live = np.zeros(n, dtype=bool)
-        self._snap: list[dict | None] = [None] * n
+        self._buf = np.zeros((n, BLOCK), dtype=np.uint64)
+        self._pos = np.full(n, BLOCK, dtype=np.int64)
+        self._half = np.zeros(n, dtype=np.uint64)  # the bit generator's buffered 32-bit half
+        self._has_half = np.zeros(n, dtype=bool)
         self._layer = np.zeros(n, dtype=np.int64)
         self._row = np.zeros(n, dtype=np.int64)
         self._col = np.zeros(n, dtype=np.int64)
@@ -186,42 +185,77 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._started = False
 
     # -- random numbers: per-env streams, drawn in blocks -----------------------------------------
+    # A single env draws with ``random()`` (one 64-bit output x per double: (x >> 11) * 2**-53)
+    # and ``integers(n)`` (Lemire's method on 32-bit draws: the low half of an output, its high
+    # half kept by the bit generator for the next 32-bit draw).  The vector env reads each env's
+    # raw outputs in blocks (``random_raw``), keeps the buffered half itself, and computes the
+    # same doubles and integers with array operations.
     def _rng(self, i: int) -> np.random.Generator:
         if self._rngs[i] is None:
             self._rngs[i], _ = seeding.np_random(None)
         return self._rngs[i]
 
-    def _sync(self, i: int) -> np.random.Generator:
-        """Env i's generator moved to the position its single env would be at; block dropped."""
-        g = self._rng(i)
-        if self._live[i]:
-            g.bit_generator.state = self._snap[i]
-            if self._pos[i]:
-                g.random(int(self._pos[i]))  # doubles never touch the 32-bit buffer
-            self._live[i] = False
-        return g
+    def _restart_stream(self, i: int) -> None:
+        self._buf[i] = self._rng(i).bit_generator.random_raw(BLOCK)
+        self._pos[i] = 0
+        self._has_half[i] = False
+
+    def _raw(self, idx: np.ndarray, k: int) -> np.ndarray:
+        """(len(idx), k) uint64: each env's next k outputs."""
+        pos = self._pos[idx]
+        for j in np.flatnonzero(pos + k > BLOCK):  # refill: keep the unread tail, draw the rest
+            i = int(idx[j])
+            p = int(self._pos[i])
+            self._buf[i] = np.concatenate([self._buf[i, p:], self._rng(i).bit_generator.random_raw(p)])
+            self._pos[i] = 0
+        pos = self._pos[idx]
+        out = self._buf[idx[:, None], pos[:, None] + np.arange(k)]
+        self._pos[idx] = pos + k
+        return out
 
     def _uniforms(self, idx: np.ndarray, k: int) -> np.ndarray:
-        """(len(idx), k) uniforms, each env's next k doubles."""
-        need = idx[~self._live[idx] | (self._pos[idx] + k > BLOCK)]
-        for i in need:
-            g = self._sync(int(i))
-            self._snap[i] = g.bit_generator.state
-            self._buf[i] = g.random(BLOCK)
-            self._pos[i] = 0
-            self._live[i] = True
-        cols = self._pos[idx][:, None] + np.arange(k)
-        self._pos[idx] += k
-        return self._buf[idx[:, None], cols]
+        """(len(idx), k) doubles in [0, 1), exactly ``Generator.random()``'s."""
+        return (self._raw(idx, k) >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+
+    def _next32(self, idx: np.ndarray) -> np.ndarray:
+        """Each env's next 32-bit value as the bit generator's ``next_uint32`` gives it: the
+        high half of the last output when one is buffered, else the low half of a new output
+        (whose high half is then buffered)."""
+        has = self._has_half[idx]
+        out = np.empty(idx.size, dtype=np.uint64)
+        if has.any():
+            out[has] = self._half[idx[has]]
+            self._has_half[idx[has]] = False
+        need = idx[~has]
+        if need.size:
+            x = self._raw(need, 1)[:, 0]
+            out[~has] = x & np.uint64(0xFFFFFFFF)
+            self._half[need] = x >> np.uint64(32)
+            self._has_half[need] = True
+        return out
+
+    def _integers(self, idx: np.ndarray, n: int) -> np.ndarray:
+        """One ``Generator.integers(n)`` per env, exactly numpy's (Lemire's method on 32-bit draws)."""
+        if n == 1 or idx.size == 0:
+            return np.zeros(idx.size, dtype=np.int64)
+        m = self._next32(idx) * np.uint64(n)
+        out = (m >> np.uint64(32)).astype(np.int64)
+        threshold = ((1 << 32) - n) % n
+        for j in np.flatnonzero((m & np.uint64(0xFFFFFFFF)) < np.uint64(threshold)):  # rare: redraw
+            one = idx[j : j + 1]
+            mm = int(self._next32(one)[0]) * n
+            while (mm & 0xFFFFFFFF) < threshold:
+                mm = int(self._next32(one)[0]) * n
+            out[j] = mm >> 32
+        return out
 
     # -- sampling ---------------------------------------------------------------------------------
     def _sample_initial(self, idx: np.ndarray) -> None:
-        n_free = self.model.grid.n_free
-        for i in idx:
-            s = int(self._sync(int(i)).integers(self.model.n_states))
-            layer, cell = divmod(s, n_free)
-            self._layer[i] = layer
-            self._row[i], self._col[i] = self._free_cells[cell]
+        s = self._integers(idx, self.model.n_states)
+        layer, cell = np.divmod(s, self.model.grid.n_free)
+        self._layer[idx] = layer
+        self._row[idx] = self._free_cells[cell, 0]
+        self._col[idx] = self._free_cells[cell, 1]
 
     def _sample_moves(self, idx: np.ndarray, actions: np.ndarray) -> None:
         if idx.size == 0:
@@ -351,7 +385,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         for i, s in enumerate(seeds):
             if mask[i] and (s is not None or self._rngs[i] is None):
                 self._rngs[i], _ = seeding.np_random(s)
-                self._live[i] = False
+                self._restart_stream(i)
         idx = np.flatnonzero(mask)
         self._reset_envs(idx)
         self._autoreset[idx] = False

@@ -32,12 +32,15 @@ from gym_gridloc.generators import colour_map
 
 MEMORY_SNIPPET = """
 import gymnasium as gym, gym_gridloc
+from gym_gridloc import kernels  # imports numba when it is there and not switched off
+def status(key):
+    return next(int(l.split()[1]) for l in open("/proc/self/status").read().splitlines() if l.startswith(key)) / 1024
+base = status("VmRSS:")
 env = gym_gridloc.HMMBeliefWrapper(gym.make({env_id!r}, **{kwargs!r}))
 env.reset(seed=0)
 for t in range(20):
     env.step(t % env.action_space.n)
-status = open("/proc/self/status").read().splitlines()
-print(next(int(l.split()[1]) for l in status if l.startswith("VmHWM:")) / 1024)
+print(base, status("VmHWM:"), kernels.AVAILABLE)
 """
 
 
@@ -129,10 +132,17 @@ def bench_size(side: int, steps: int, repeats: int, dense_max_gib: float) -> dic
     return out
 
 
-def memory(env_id: str, kwargs: dict) -> float:
+def memory(env_id: str, kwargs: dict, numba: bool) -> tuple[float, float, bool]:
+    """(resident MiB after the imports, peak resident MiB, kernels used) in a fresh process."""
+    import os
+
+    env = dict(os.environ)
+    if not numba:
+        env["GYM_GRIDLOC_NO_NUMBA"] = "1"
     code = MEMORY_SNIPPET.format(env_id=env_id, kwargs=kwargs)
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    return float(res.stdout.strip().splitlines()[-1])
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    base, peak, used = res.stdout.strip().splitlines()[-1].split()
+    return float(base), float(peak), used == "True"
 
 
 def main(argv=None) -> None:
@@ -173,18 +183,22 @@ def main(argv=None) -> None:
     print(f"largest |stencil - csr| belief difference: {max(r['err'] for r in rows):.2e}")
 
     if not args.no_memory:
-        print("\nPeak resident memory, 512x512 environment + HMMBeliefWrapper, reset and 20 steps:")
+        print("\nPeak resident memory (VmHWM), 512x512 environment + HMMBeliefWrapper, reset and 20 steps,")
+        print("each in a fresh process; 'imports' = resident after importing gymnasium and gym_gridloc:")
         cases = [
             ("ColourGrid-v0", {"size": (512, 512)}),
             ("WindyMaze-v0", {"size": (512, 512)}),
             ("RingSensor8x8-v0", {"size": (512, 512)}),
             ("RingSensor8x8-v0", {"size": (512, 512), "dynamics": "seed"}),
         ]
+        print(f"  {'environment':<40} {'numpy kernels':>24} {'numba kernels':>24}")
         for env_id, kwargs in tqdm(cases, desc="memory", file=sys.stderr):
-            mib = memory(env_id, kwargs)
-            extra = ", seed dynamics (4 headings)" if kwargs.get("dynamics") == "seed" else ""
-            print(f"  {env_id}{extra}: {mib:.0f} MiB")
-
+            cols = []
+            for numba in (False, True):
+                base, peak, used = memory(env_id, kwargs, numba)
+                cols.append(f"{peak:4.0f} MiB (imports {base:3.0f})" if used == numba else f"{'n/a':>24}")
+            name = env_id + (" seed dynamics" if kwargs.get("dynamics") == "seed" else "")
+            print(f"  {name:<40} {cols[0]:>24} {cols[1]:>24}")
 
 if __name__ == "__main__":
     main()

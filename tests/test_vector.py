@@ -208,3 +208,29 @@ def test_stable_baselines3_trains_on_the_adapter():
                     batch_size=64, n_epochs=1, seed=0, device="cpu")
     model.learn(512)
     assert model.num_timesteps >= 512
+
+
+def test_vector_env_draws_the_same_numbers_as_numpy():
+    """The vector env computes ``random()`` and ``integers(n)`` from raw outputs in blocks; they
+    equal numpy's own draws, including Lemire's rare redraws (large n) and the buffered half."""
+    from gymnasium.utils import seeding
+
+    env = gym.make_vec("ColourGrid-v0", num_envs=2, vectorization_mode="vector_entry_point").unwrapped
+    env.reset(seed=[11, 12])
+    refs = [seeding.np_random(11)[0], seeding.np_random(12)[0]]
+    # Replay what the reset drew (a start state and a reading) on the reference generators.
+    for g in refs:
+        g.integers(env.model.n_states)
+        g.random()
+    idx = np.arange(2)
+    rng = np.random.default_rng(0)
+    for t in range(3000):
+        if rng.random() < 0.5:
+            n = int(rng.choice([2, 19, 1000, 3_000_000_000, 4_000_000_000]))
+            got = env._integers(idx, n)
+            want = [g.integers(n) for g in refs]
+        else:
+            k = int(rng.integers(1, 5))
+            got = env._uniforms(idx, k)
+            want = [g.random(k) for g in refs]
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
