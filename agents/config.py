@@ -48,6 +48,8 @@ TOP_KEYS = {
     "checkpoint_dir": "where checkpoints go (default runs/checkpoints/<output stem>)",
     "tensorboard_log": "a TensorBoard log directory, or null",
     "description": "free text, kept in the metadata",
+    "eval_freq": "steps between evaluations on held-out seeds; the best evaluated model is saved (0 = keep the last)",
+    "eval_episodes": "episodes per evaluation (seeds 2_000_000 + i)",
     "pretrain": "optional behaviour-cloning warm start: expert, episodes, epochs, batch_size, learning_rate",
 }
 
@@ -183,6 +185,8 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     if "total_timesteps" not in cfg:
         raise ConfigError(f"{source}: missing required key 'total_timesteps'")
     cfg["total_timesteps"] = _num(source, "total_timesteps", cfg["total_timesteps"], integer=True, minimum=1)
+    cfg["eval_freq"] = _num(source, "eval_freq", cfg.get("eval_freq", 0), integer=True, minimum=0)
+    cfg["eval_episodes"] = _num(source, "eval_episodes", cfg.get("eval_episodes", 200), integer=True, minimum=1)
     cfg["checkpoint_freq"] = _num(source, "checkpoint_freq", cfg.get("checkpoint_freq", 0), integer=True, minimum=0)
 
     default_policy = POLICIES[algo][0] if wrapper["flatten"] or not wrapper["belief"] else POLICIES[algo][1]

@@ -119,6 +119,63 @@ def default_checkpoint_dir(cfg: dict[str, Any]) -> Path:
     return Path("runs") / "checkpoints" / Path(cfg["output"]).stem
 
 
+# -- evaluation on held-out seeds -------------------------------------------------------------------
+EVAL_SEED_BASE = 2_000_000
+
+
+def evaluate(model, cfg: dict[str, Any], episodes: int) -> float:
+    """Mean steps to localise of ``model`` (deterministic) on seeds ``EVAL_SEED_BASE + i``, which
+    are disjoint from the benchmark's ``0..N-1``; a truncated episode counts at the step limit."""
+    import numpy as np
+
+    env = make_env_fn(cfg)()
+    recurrent = cfg["algo"] == "recurrent_ppo"
+    total = 0
+    for i in range(episodes):
+        obs, _ = env.reset(seed=EVAL_SEED_BASE + i)
+        state, start, t = None, np.ones((1,), dtype=bool), 0
+        while True:
+            if recurrent:
+                action, state = model.predict(np.asarray(obs), state=state, episode_start=start, deterministic=True)
+                start = np.zeros((1,), dtype=bool)
+            else:
+                action, _ = model.predict(obs, deterministic=True)
+            obs, _, terminated, truncated, _ = env.step(int(np.asarray(action).reshape(-1)[0]))
+            t += 1
+            if terminated or truncated:
+                break
+        total += t
+    env.close()
+    return total / episodes
+
+
+def _eval_callback(cfg: dict[str, Any], directory: Path, history: list):
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    freq, episodes = cfg["eval_freq"], cfg["eval_episodes"]
+
+    class Eval(BaseCallback):
+        next_at = None
+
+        def _on_step(self) -> bool:
+            if self.next_at is None:
+                self.next_at = (self.num_timesteps // freq + 1) * freq
+            if self.num_timesteps >= self.next_at:
+                record_evaluation(self.model, cfg, episodes, directory, history)
+                self.next_at = (self.num_timesteps // freq + 1) * freq
+            return True
+
+    return Eval()
+
+
+def record_evaluation(model, cfg, episodes, directory: Path, history: list) -> None:
+    mean = evaluate(model, cfg, episodes)
+    best = min((h["mean_steps"] for h in history), default=float("inf"))
+    history.append({"num_timesteps": int(model.num_timesteps), "mean_steps": round(mean, 4)})
+    if mean < best:
+        atomic_save_model(model, directory / "best.zip")
+
+
 # -- training -------------------------------------------------------------------------------------
 def _checkpoint_callback(freq: int, directory: Path, meta: Callable[[], dict[str, Any]]):
     from stable_baselines3.common.callbacks import BaseCallback
@@ -254,6 +311,9 @@ def train(
     cbs = list(callbacks or [])
     if cfg["checkpoint_freq"] > 0:
         cbs.append(_checkpoint_callback(cfg["checkpoint_freq"], ckpt_dir, meta))
+    evaluations: list[dict[str, Any]] = []
+    if cfg["eval_freq"] > 0:
+        cbs.append(_eval_callback(cfg, ckpt_dir, evaluations))
     remaining = cfg["total_timesteps"] - int(model.num_timesteps)
     try:
         if remaining > 0:
@@ -270,7 +330,19 @@ def train(
         atomic_write_json(path.with_suffix(".json"), {**meta(), "interrupted": True})
         venv.close()
         raise TrainingInterrupted(path, int(model.num_timesteps)) from None
-    info = {**meta(), "interrupted": False}
+    selected = None
+    if cfg["eval_freq"] > 0:
+        # Keep the best of the held-out evaluations (the final model included), as rl-zoo's
+        # best_model: PPO's evaluation curve is noisy from one update to the next.
+        if not evaluations or evaluations[-1]["num_timesteps"] != int(model.num_timesteps):
+            record_evaluation(model, cfg, cfg["eval_episodes"], ckpt_dir, evaluations)
+        best = min(evaluations, key=lambda h: h["mean_steps"])
+        selected = best["num_timesteps"]
+        final_timesteps = int(model.num_timesteps)
+        model = Algo.load(ckpt_dir / "best.zip", device="cpu")
+        model.num_timesteps = final_timesteps
+    info = {**meta(), "interrupted": False, "evaluations": evaluations, "selected_timesteps": selected,
+            "eval_seeds": f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + cfg['eval_episodes'] - 1}" if evaluations else None}
     if out.exists() and not force:  # appeared while training
         raise FileExistsError(f"{out} appeared during training; pass --force to overwrite it")
     atomic_save_model(model, out)

@@ -198,3 +198,17 @@ def test_shipped_configs_are_valid(path):
     cfg = load_config(path)
     assert Path(cfg["output"]).name.startswith(cfg["env_id"])
     assert np.isfinite(cfg["total_timesteps"])
+
+
+def test_held_out_evaluation_keeps_the_best_model(tmp_path):
+    info = train(tiny(tmp_path, total_timesteps=384, eval_freq=128, eval_episodes=3), progress_bar=False)
+    ev = info["evaluations"]
+    assert len(ev) >= 3 and ev[-1]["num_timesteps"] == info["num_timesteps"]
+    best = min(ev, key=lambda h: h["mean_steps"])
+    assert info["selected_timesteps"] == best["num_timesteps"]
+    assert info["eval_seeds"].startswith("2000000..")
+    from agents.train import evaluate, load_model
+
+    model, _ = load_model(tmp_path / "model.zip", env_id="ColourGrid-v0")
+    cfg = validate_config(tiny(tmp_path))
+    assert evaluate(model, cfg, 3) == pytest.approx(best["mean_steps"], abs=1e-3)
