@@ -161,28 +161,32 @@ class BatchFilter:
         return tuple(out)
 
     # -- the API ---------------------------------------------------------------------------------
-    def reset(self, observations: Any = None, mask: Any = None) -> "BatchFilter":
+    def reset(self, observations: Any = None, mask: Any = None, *, readings: Any = None) -> "BatchFilter":
         """Start the beliefs (those where ``mask`` is True; default all) from the prior, updated
-        with their observations when given (a batch of N, as for :meth:`step`)."""
+        with their observations when given (a batch of N, as for :meth:`step`).  ``readings``
+        (N reading indices, as :func:`readings_of` gives) may replace ``observations``."""
         sel = self._mask(mask)
         prior = self.model.prior().reshape(-1)
-        if observations is None:
+        if observations is None and readings is None:
             self._b[sel] = prior
             self.log_likelihood[sel] = 0.0
             self._ready[sel] = True
             return self
-        readings = readings_of(self.model.sensor, observations, self.n)
-        post = np.broadcast_to(prior, (self.n, self._size)).copy()
-        z = self._update(post, readings, sel)
-        self._b[sel] = post[sel]
-        self.log_likelihood[sel] = np.log(z[sel])
-        self._ready[sel] = True
+        readings = readings_of(self.model.sensor, observations, self.n) if readings is None \
+            else np.asarray(readings, dtype=np.int64)
+        idx = np.flatnonzero(sel)
+        post = np.tile(prior, (idx.size, 1))
+        z = self._update(post, readings[idx], np.ones(idx.size, dtype=bool), idx)
+        self._b[idx] = post
+        self.log_likelihood[idx] = np.log(z)
+        self._ready[idx] = True
         return self
 
-    def step(self, actions: Any, observations: Any, mask: Any = None) -> "BatchFilter":
+    def step(self, actions: Any, observations: Any = None, mask: Any = None, *, readings: Any = None) -> "BatchFilter":
         """Predict each belief with its action, then update it with its observation (only the
         beliefs where ``mask`` is True; default all).  On an impossible observation nothing
-        changes and :class:`ImpossibleObservationError` names the belief."""
+        changes and :class:`ImpossibleObservationError` names the belief.  ``readings`` (N
+        reading indices) may replace ``observations``."""
         sel = self._mask(mask)
         if not np.all(self._ready[sel]):
             raise RuntimeError("call BatchFilter.reset() before step() (some beliefs were never reset)")
@@ -195,7 +199,8 @@ class BatchFilter:
             i = int(np.flatnonzero(bad)[0])
             raise ValueError(f"action {int(acts[i])} of belief {i} is outside 0..{self.model.n_actions - 1} (0=N, 1=E, 2=S, 3=W)")
         acts = np.where(sel, acts, 0)
-        readings = readings_of(self.model.sensor, observations, self.n)
+        readings = readings_of(self.model.sensor, observations, self.n) if readings is None \
+            else np.asarray(readings, dtype=np.int64)
         pred = self._spare
         self.predict_into(self._b, acts, pred)
         z = self._update(pred, readings, sel)
@@ -232,16 +237,20 @@ class BatchFilter:
             out += (k / self.model.n_states) * beliefs.sum(axis=1, keepdims=True) * mask
         return out
 
-    def _update(self, post: np.ndarray, readings: np.ndarray, sel: np.ndarray) -> np.ndarray:
-        """Multiply by the likelihoods and normalise, in place; returns the normalisers."""
-        lik = batch_likelihood(self.model.sensor, readings, self._lik)
+    def _update(self, post: np.ndarray, readings: np.ndarray, sel: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """Multiply by the likelihoods and normalise, in place; returns the normalisers.
+        ``rows``: the beliefs the rows of ``post`` belong to (default all N)."""
+        m = post.shape[0]
+        lik = batch_likelihood(self.model.sensor, readings, self._lik[:m])
         L = self.model.n_layers
-        view = post.reshape(self.n, L, self._hw)
+        view = post.reshape(m, L, self._hw)
         np.multiply(view, lik[:, None, :], out=view)
         z = post.sum(axis=1)
         bad = sel & ~(z > 0.0) | sel & ~np.isfinite(z)
         if np.any(bad):
-            i = int(np.flatnonzero(bad)[0])
+            j = int(np.flatnonzero(bad)[0])
+            i = j if rows is None else int(rows[j])
+            readings = {i: readings[j]}
             raise ImpossibleObservationError(
                 f"observation (reading {int(readings[i])}) of belief {i} is impossible under the filter's "
                 f"model ({self.model!r}) given its belief so far (model mismatch?)"

@@ -342,8 +342,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         pb = self.filter.position_beliefs.reshape(n, -1)
         k = np.argmax(pb, axis=1)
         conf = pb[np.arange(n), k]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ent = -np.where(pb > 0, pb * np.log2(np.where(pb > 0, pb, 1.0)), 0.0).sum(axis=1)
+        ent = -np.einsum("ij,ij->i", pb, np.log2(np.where(pb > 0, pb, 1.0)))
         ent = np.maximum(ent, 0.0)
         w = self.model.shape[1]
         est = np.stack(np.divmod(k, w), axis=1)
@@ -400,7 +399,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._sample_readings(idx)
         mask = np.zeros(self.num_envs, dtype=bool)
         mask[idx] = True
-        self.filter.reset(self._sensor_obs(), mask=mask)
+        self.filter.reset(mask=mask, readings=self._readings)
         self._elapsed[idx] = 0
 
     def step(self, actions):
@@ -421,7 +420,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._sample_readings(moving)
         step_mask = ~resetting
         if moving.size:
-            self.filter.step(np.where(resetting, 0, acts), self._sensor_obs(), mask=step_mask)
+            self.filter.step(np.where(resetting, 0, acts), mask=step_mask, readings=self._readings)
         self._elapsed[moving] += 1
         self._reset_envs(np.flatnonzero(resetting))
         info, localised = self._infos()
