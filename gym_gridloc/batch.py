@@ -118,6 +118,14 @@ class BatchFilter:
         self._lik = np.empty((self.n, self._hw))
         self._ready = np.zeros(self.n, dtype=bool)
         self.log_likelihood = np.zeros(self.n)
+        # Compiled path (numba): one call for the whole step, where the padded per-action
+        # weights are small (they copy the model's: at most 32 MB).
+        self._compiled = None
+        plan = model.stencil_plan(0) if model.kidnap_prob == 0.0 else None
+        if plan is not None and model.n_actions * max(len(t) for t in model.transitions) * self._hw * 8 <= 32 * 2**20:
+            from gym_gridloc.kernels import BatchPlan
+
+            self._compiled = BatchPlan(model)
 
     def _batch_plan(self):
         """One entry per distinct flat shift over all actions, ordered as the single filter's
@@ -202,8 +210,19 @@ class BatchFilter:
         readings = readings_of(self.model.sensor, observations, self.n) if readings is None \
             else np.asarray(readings, dtype=np.int64)
         pred = self._spare
-        self.predict_into(self._b, acts, pred)
-        z = self._update(pred, readings, sel)
+        if self._compiled is not None:
+            lik = batch_likelihood(self.model.sensor, readings, self._lik)
+            z = self._compiled.run(self._b, acts, lik, pred, sel)
+            bad = sel & ~((z > 0.0) & np.isfinite(z))
+            if np.any(bad):
+                i = int(np.flatnonzero(bad)[0])
+                raise ImpossibleObservationError(
+                    f"observation (reading {int(readings[i])}) of belief {i} is impossible under the filter's "
+                    f"model ({self.model!r}) given its belief so far (model mismatch?)"
+                )
+        else:
+            self.predict_into(self._b, acts, pred)
+            z = self._update(pred, readings, sel)
         if sel.all():
             self._b, self._spare = pred, self._b
         else:

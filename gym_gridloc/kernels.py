@@ -145,6 +145,40 @@ if AVAILABLE:
         return z
 
 
+    @numba.njit(cache=True, nogil=True)
+    def _batch_update(beliefs, w, meta, actions, lik, out, n_layers, sel, z):  # pragma: no cover
+        for i in range(beliefs.shape[0]):
+            if sel[i]:
+                a = actions[i]
+                z[i] = _stencil_update(beliefs[i], w[a], meta[a], lik[i], out[i], n_layers, True)
+            else:
+                z[i] = 1.0
+
+
+class BatchPlan:
+    """Every action's stencil, padded to one shape, for :class:`gym_gridloc.BatchFilter`: one
+    compiled call updates N beliefs (predict with each one's action, update, normalise)."""
+
+    def __init__(self, model) -> None:
+        plans = [model.stencil_plan(a) for a in range(model.n_actions)]
+        k = max(p.w.shape[0] for p in plans)
+        hw = plans[0].hw
+        self.n_layers = model.n_layers
+        self.w = np.zeros((len(plans), k, hw))
+        self.meta = np.zeros((len(plans), 6, k), dtype=np.int64)
+        self.meta[:, 1, :] = -1  # padding terms feed no layer
+        for a, p in enumerate(plans):
+            n = p.w.shape[0]
+            self.w[a, :n] = p.w
+            self.meta[a, :, :n] = p.meta
+        self.meta[:, 5, :] = 0  # the float64 loop
+
+    def run(self, beliefs: np.ndarray, actions: np.ndarray, lik: np.ndarray, out: np.ndarray, sel: np.ndarray) -> np.ndarray:
+        z = np.empty(beliefs.shape[0])
+        _batch_update(beliefs, self.w, self.meta, actions, lik, out, self.n_layers, sel, z)
+        return z
+
+
 class StencilPlan:
     """The arrays a kernel call needs for one action's terms (built once per model and action)."""
 

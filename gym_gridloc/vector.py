@@ -416,13 +416,19 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             i = int(np.flatnonzero(bad)[0])
             raise ValueError(f"action {int(acts[i])} of env {i} is not in the action space {self.single_action_space} (0=N, 1=E, 2=S, 3=W)")
         moving = np.flatnonzero(~resetting)
+        restarting = np.flatnonzero(resetting)
+        # Each env draws in its single env's order: a move (or a start state), then a reading.
         self._sample_moves(moving, acts[moving])
-        self._sample_readings(moving)
+        if restarting.size:
+            self._sample_initial(restarting)
+        self._sample_readings(np.arange(n))
         step_mask = ~resetting
         if moving.size:
             self.filter.step(np.where(resetting, 0, acts), mask=step_mask, readings=self._readings)
         self._elapsed[moving] += 1
-        self._reset_envs(np.flatnonzero(resetting))
+        if restarting.size:
+            self.filter.reset(mask=resetting, readings=self._readings)
+            self._elapsed[restarting] = 0
         info, localised = self._infos()
         terminated = localised & step_mask
         truncated = step_mask & (self._elapsed >= self.max_episode_steps) if self.max_episode_steps else np.zeros(n, dtype=bool)
