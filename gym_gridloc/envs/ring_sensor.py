@@ -36,7 +36,8 @@ class RingSensorEnv(GridLocEnv):
     sensor is vague and a random walk needs a median of about 170 steps).
 
     ## Arguments
-    ``size`` ((8, 8)), ``dynamics`` (``"commanded"`` or ``"seed"``), ``keep_heading`` (0.7),
+    ``size`` ((8, 8)), ``layout`` (None: an empty grid; or a maze file / list of rows of ``O`` and
+    ``#`` whose obstacles the robot cannot enter and whose cells the sensor may still report), ``dynamics`` (``"commanded"`` or ``"seed"``), ``keep_heading`` (0.7),
     ``p_true`` (0.1), ``p_ring1`` (0.05), ``p_ring2`` (0.025), ``localise_threshold`` (0.9), ``kidnap_prob`` (0.0: after every move the
     robot is teleported to a uniformly chosen free state with this probability),
     ``render_mode``.
@@ -45,10 +46,10 @@ class RingSensorEnv(GridLocEnv):
     * v0: initial version.
     """
 
-    def __init__(self, size=(8, 8), *, dynamics: str = "commanded", keep_heading: float = 0.7,
+    def __init__(self, size=(8, 8), *, layout=None, dynamics: str = "commanded", keep_heading: float = 0.7,
                  p_true: float = 0.1, p_ring1: float = 0.05, p_ring2: float = 0.025,
                  localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
                  render_mode: str | None = None) -> None:
         model = ring_sensor_model(size, dynamics=dynamics, keep_heading=keep_heading,
-                                  p_true=p_true, p_ring1=p_ring1, p_ring2=p_ring2).with_kidnapping(kidnap_prob)
+                                  p_true=p_true, p_ring1=p_ring1, p_ring2=p_ring2, layout=layout).with_kidnapping(kidnap_prob)
         super().__init__(model, localise_threshold=localise_threshold, render_mode=render_mode)
