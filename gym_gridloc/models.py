@@ -138,9 +138,13 @@ def ring_sensor_model(
     p_true: float = 0.1,
     p_ring1: float = 0.05,
     p_ring2: float = 0.025,
-    layout: GridMap | None = None,
+    layout: str | os.PathLike | Sequence[str] | GridMap | None = None,
 ) -> GridModel:
     """Seeds 001/003's robot on an empty grid with a vague location sensor.
+
+    ``layout`` (optional) gives a map of ``O`` (free) and ``#`` (obstacle) rows, as a maze file or
+    a list of rows, in place of the empty ``size`` grid; its shape must then agree with ``size``
+    unless ``size`` is left at its default.
 
     ``dynamics="seed"``: the hidden state is (heading, position); the heading follows the seeds'
     rule (keep it with ``keep_heading`` unless it faces a wall, else a uniformly chosen heading that
@@ -149,11 +153,13 @@ def ring_sensor_model(
     """
     dynamics = check_choice("dynamics", dynamics, ("commanded", "seed"))
     keep = check_probability("keep_heading", keep_heading)
+    h, w = check_size("size", size)
     if layout is None:
-        h, w = check_size("size", size)
         grid = GridMap(np.zeros((h, w), dtype=np.int64), ("O",))
     else:
-        grid = layout
+        grid = layout if isinstance(layout, GridMap) else parse_maze(layout)
+        if grid.shape != (h, w) and (h, w) != (8, 8):
+            raise ValueError(f"size={size!r} disagrees with the layout's shape {grid.shape}; give one or the other")
     sensor = RingSensor(grid, p_true, p_ring1, p_ring2)
     hp = heading_probs(grid, keep)  # (4, 4, H, W)
     stuck = grid.blocked().all(axis=0) & grid.free
