@@ -38,12 +38,16 @@ class ForwardFilter:
         self.model = model
         self._f: np.ndarray | None = None
         self._spare: np.ndarray | None = None  # the other buffer of predict's double buffering
+        self._scale = 1.0  # the belief is self._f * self._scale (see step)
+        self._fast: dict = {}  # action -> compiled step (or False)
+        self._liks: dict = {}  # reading -> flat likelihood, for the compiled step
         self.log_likelihood = 0.0
 
     # -- the API ---------------------------------------------------------------------------------
     def reset(self, observation: Any = None) -> "ForwardFilter":
         """Start from the prior (uniform over free states), updated with ``observation`` if given."""
         self._f = self.model.prior()
+        self._scale = 1.0
         self.log_likelihood = 0.0
         if observation is not None:
             self.update(observation)
@@ -88,6 +92,20 @@ class ForwardFilter:
         self.log_likelihood += float(np.log(z))
         return self
 
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_fast"], state["_liks"] = {}, {}  # compiled closures and views: rebuilt on use
+        return state
+
+    def _fast_path(self, action: int | None):
+        """A call ``(belief, out, likelihood) -> sum`` of the compiled kernel for ``action``
+        (unnormalised output), or False where there is none (no numba, kidnapping)."""
+        model = self.model
+        plan = model.stencil_plan(action) if model.kidnap_prob == 0.0 else None
+        run = plan.run_flat if plan is not None else False
+        self._fast[None if action is None else model.check_action(action)] = run
+        return run
+
     def _raise_impossible(self, observation: Any) -> None:
         raise ImpossibleObservationError(
             f"observation {observation!r} is impossible under the filter's model "
@@ -98,23 +116,31 @@ class ForwardFilter:
     def step(self, action: int | None, observation: Any) -> "ForwardFilter":
         """Predict with ``action``, then update with ``observation``.  On an impossible
         observation the belief is left as it was before the step."""
+        run = self._fast.get(action) if action is None or type(action) is int else None
+        if run is None and self._f is not None:
+            run = self._fast_path(action)
+        if run:  # compiled predict + update in one pass
+            reading = self.model.sensor.to_reading(observation)
+            lik = self._liks.get(reading)
+            if lik is None and self.model.sensor.likelihood_window(reading) is None:
+                lik = self._liks[reading] = np.ascontiguousarray(self.model.likelihood(reading)).ravel()
+            if lik is not None:
+                before = self._f  # the belief is before * self._scale
+                out = self._spare
+                if out is None or out is before:
+                    out = np.empty_like(before)
+                z = run(before.ravel(), out.ravel(), lik)
+                if not z > 0.0 or z == math.inf:
+                    self._spare = out
+                    self._raise_impossible(observation)
+                self.log_likelihood += math.log(z * self._scale)
+                # Normalised lazily: the next read (or predict) multiplies by 1/z, a pass the
+                # filter-only loop never pays; at most one pass per step in any case.
+                self._f, self._spare, self._scale = out, before, 1.0 / z
+                if z < 1e-150:  # keep the raw numbers far from underflow
+                    self._belief()
+                return self
         before = self._belief()
-        model = self.model
-        if model.kidnap_prob == 0.0:
-            plan = model.stencil_plan(action)
-            if plan is not None:  # compiled predict + update + normalise in one call
-                reading = model.sensor.to_reading(observation)
-                if model.sensor.likelihood_window(reading) is None:
-                    out = self._spare
-                    if out is None or out is before or out.shape != before.shape:
-                        out = np.empty_like(before)
-                    z = plan.run(before, out, model.likelihood(reading))
-                    if not z > 0.0 or not np.isfinite(z):
-                        self._spare = out
-                        self._raise_impossible(observation)
-                    self._f, self._spare = out, before
-                    self.log_likelihood += math.log(z)
-                    return self
         self.predict(action)
         try:
             self.update(observation)
@@ -155,9 +181,13 @@ class ForwardFilter:
         if not z > 0:
             raise ValueError("belief must have positive total mass")
         self._f = b / z
+        self._scale = 1.0
         return self
 
     def _belief(self) -> np.ndarray:
         if self._f is None:
             raise RuntimeError("call ForwardFilter.reset() before using the filter")
+        if self._scale != 1.0:  # see step(): the belief is normalised on first read
+            self._f *= self._scale
+            self._scale = 1.0
         return self._f

@@ -33,7 +33,7 @@ if os.environ.get("GYM_GRIDLOC_NO_NUMBA", "") not in ("1", "true", "yes"):
 if AVAILABLE:
 
     @numba.njit(cache=True, nogil=True)
-    def _stencil_update(b, w, meta, lik, out, n_layers, use_lik):  # pragma: no cover
+    def _stencil_update(b, w, meta, lik, out, n_layers, mode):  # pragma: no cover
         K = w.shape[0]
         hw = out.shape[0] // n_layers
         src, dst, off, lo, hi = meta[0], meta[1], meta[2], meta[3], meta[4]
@@ -62,7 +62,7 @@ if AVAILABLE:
                     ov = out[base + a : base + e]
                     for i in range(e - a):
                         ov[i] += wv[i] * bv[i]
-                if use_lik:
+                if mode > 0:
                     lv = lik[c0:c1]
                     n = c1 - c0
                     for i in range(n):
@@ -77,7 +77,7 @@ if AVAILABLE:
                     for i in range(n4, n):
                         z0 += oc[i]
         z = (z0 + z1) + (z2 + z3)
-        if use_lik and z > 0.0 and np.isfinite(z):
+        if mode == 1 and z > 0.0 and np.isfinite(z):
             inv = 1.0 / z
             for i in range(n_layers * hw):
                 out[i] *= inv
@@ -85,7 +85,7 @@ if AVAILABLE:
 
 
     @numba.njit(cache=True, nogil=True)
-    def _stencil_update_codes(b, w, meta, codes, table, lik, out, n_layers, use_lik):  # pragma: no cover
+    def _stencil_update_codes(b, w, meta, codes, table, lik, out, n_layers, mode):  # pragma: no cover
         K = codes.shape[0]
         hw = out.shape[0] // n_layers
         src, dst, off, lo, hi, kind = meta[0], meta[1], meta[2], meta[3], meta[4], meta[5]
@@ -124,7 +124,7 @@ if AVAILABLE:
                         wv = w[k, a - o : e - o]
                         for i in range(e - a):
                             ov[i] += wv[i] * bv[i]
-                if use_lik:
+                if mode > 0:
                     lv = lik[c0:c1]
                     n = c1 - c0
                     for i in range(n):
@@ -138,7 +138,7 @@ if AVAILABLE:
                     for i in range(n4, n):
                         z0 += oc[i]
         z = (z0 + z1) + (z2 + z3)
-        if use_lik and z > 0.0 and np.isfinite(z):
+        if mode == 1 and z > 0.0 and np.isfinite(z):
             inv = 1.0 / z
             for i in range(n_layers * hw):
                 out[i] *= inv
@@ -150,7 +150,7 @@ if AVAILABLE:
         for i in range(beliefs.shape[0]):
             if sel[i]:
                 a = actions[i]
-                z[i] = _stencil_update(beliefs[i], w[a], meta[a], lik[i], out[i], n_layers, True)
+                z[i] = _stencil_update(beliefs[i], w[a], meta[a], lik[i], out[i], n_layers, 1)
             else:
                 z[i] = 1.0
 
@@ -228,13 +228,29 @@ class StencilPlan:
         self.meta = np.ascontiguousarray(np.stack([self.src, self.dst, self.off, self.lo, self.hi, self.kind]))
         self.use_codes = bool(self.kind.any())
 
-    def run(self, belief: np.ndarray, out: np.ndarray, lik: np.ndarray | None) -> float:
-        """``out = T^T belief`` (times ``lik`` and normalised when given); returns the normaliser."""
-        use = lik is not None
-        lk = lik.ravel() if use else _EMPTY
+    @property
+    def run_flat(self):
+        """``(belief, out, lik) -> sum`` over flat arrays, unnormalised: the kernel with its
+        plan bound (the fewest Python steps per call)."""
+        w, meta, n_layers = self.w, self.meta, self.n_layers
+        if self.use_codes:
+            codes, table = self.codes, self.table
+
+            def run(belief, out, lik):
+                return _stencil_update_codes(belief, w, meta, codes, table, lik, out, n_layers, 2)
+        else:
+            def run(belief, out, lik):
+                return _stencil_update(belief, w, meta, lik, out, n_layers, 2)
+        return run
+
+    def run(self, belief: np.ndarray, out: np.ndarray, lik: np.ndarray | None, normalise: bool = True) -> float:
+        """``out = T^T belief``; with ``lik``, times ``lik`` and (with ``normalise``) divided by the
+        sum, which is returned (0.0 without ``lik``)."""
+        mode = 0 if lik is None else 1 if normalise else 2
+        lk = _EMPTY if lik is None else lik.ravel()
         if self.use_codes:
             return _stencil_update_codes(belief.ravel(), self.w, self.meta, self.codes, self.table, lk,
-                                         out.ravel(), self.n_layers, use)
-        return _stencil_update(belief.ravel(), self.w, self.meta, lk, out.ravel(), self.n_layers, use)
+                                         out.ravel(), self.n_layers, mode)
+        return _stencil_update(belief.ravel(), self.w, self.meta, lk, out.ravel(), self.n_layers, mode)
 
 _EMPTY = np.zeros(1)

@@ -69,7 +69,8 @@ def trajectory(model, steps: int, rng: np.random.Generator):
     return first, actions, readings
 
 
-def bench_size(side: int, steps: int, repeats: int, dense_max_gib: float) -> dict:
+def setup_size(side: int, steps: int, dense_max_gib: float) -> tuple[dict, dict, dict]:
+    """``(row, fns, counts)``: the size's facts and the timed functions with their step counts."""
     model = gym_gridloc.colour_grid_model(colour_map((side, side), obstacle_density=0.2, seed=0))
     S = model.n_states
     rng = np.random.default_rng(side)
@@ -128,8 +129,7 @@ def bench_size(side: int, steps: int, repeats: int, dense_max_gib: float) -> dic
 
         fns["dense"] = dense_step
         counts["dense"] = dense_steps
-    out.update(best_times(fns, counts, repeats))
-    return out
+    return out, fns, counts
 
 
 def memory(env_id: str, kwargs: dict, numba: bool) -> tuple[float, float, bool]:
@@ -157,10 +157,25 @@ def main(argv=None) -> None:
         if s < 2:
             p.error(f"--sizes: each side must be at least 2, got {s}")
 
-    rows = []
-    for side in tqdm(args.sizes, desc="grid sizes", file=sys.stderr):
-        steps = args.steps if side <= 128 else max(20, args.steps // 4)
-        rows.append(bench_size(side, steps, args.repeats, args.dense_max_gib))
+    rows, fns, counts = [], {}, {}
+    for side in tqdm(args.sizes, desc="set up", file=sys.stderr):
+        steps = args.steps
+        row, f, c = setup_size(side, steps, args.dense_max_gib)
+        rows.append(row)
+        fns.update({(side, k): v for k, v in f.items()})
+        counts.update({(side, k): v for k, v in c.items()})
+    # Every size and method takes its turn in each round, so a busy machine slows them alike
+    # (the growth from 128x128 to 512x512 compares timings made side by side).
+    times = {}
+    for _ in tqdm(range(args.repeats), desc="rounds", file=sys.stderr):
+        times_round = best_times(fns, counts, 1)
+        for key, t in times_round.items():
+            times[key] = min(times.get(key, np.inf), t)
+    for row in rows:
+        row["dense"] = None
+        for (side, name), t in times.items():
+            if side == row["side"]:
+                row[name] = t
 
     print(f"Filter step on generated ColourGrid maps (obstacle_density 0.2, map_seed 0); best of {args.repeats}")
     print(f"{'grid':>9} {'states':>7} | {'stencil':>11} {'csr step':>11} {'csr prod':>11} {'dense':>11} | "
