@@ -95,6 +95,7 @@ class ForwardFilter:
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state["_fast"], state["_liks"] = {}, {}  # compiled closures and views: rebuilt on use
+        state.pop("_lik_form", None)
         return state
 
     def _fast_path(self, action: int | None):
@@ -103,6 +104,8 @@ class ForwardFilter:
         model = self.model
         plan = model.stencil_plan(action) if model.kidnap_prob == 0.0 else None
         run = plan.run_flat if plan is not None else False
+        if plan is not None:
+            self._lik_form = plan.likelihood_form
         self._fast[None if action is None else model.check_action(action)] = run
         return run
 
@@ -123,7 +126,7 @@ class ForwardFilter:
             reading = self.model.sensor.to_reading(observation)
             lik = self._liks.get(reading)
             if lik is None and self.model.sensor.likelihood_window(reading) is None:
-                lik = self._liks[reading] = np.ascontiguousarray(self.model.likelihood(reading)).ravel()
+                lik = self._liks[reading] = self._lik_form(self.model.likelihood(reading))
             if lik is not None:
                 before = self._f  # the belief is before * self._scale
                 out = self._spare

@@ -85,7 +85,8 @@ if AVAILABLE:
 
 
     @numba.njit(cache=True, nogil=True)
-    def _stencil_update_codes(b, w, meta, codes, table, lik, out, n_layers, mode):  # pragma: no cover
+    def _stencil_update_codes(b, w, meta, codes, table, lik, likc, likt, out, n_layers, mode):  # pragma: no cover
+        # mode 0: predict only; 1: times lik, normalised; 2: times lik; 3: times likt[likc].
         K = codes.shape[0]
         hw = out.shape[0] // n_layers
         src, dst, off, lo, hi, kind = meta[0], meta[1], meta[2], meta[3], meta[4], meta[5]
@@ -125,10 +126,15 @@ if AVAILABLE:
                         for i in range(e - a):
                             ov[i] += wv[i] * bv[i]
                 if mode > 0:
-                    lv = lik[c0:c1]
                     n = c1 - c0
-                    for i in range(n):
-                        oc[i] *= lv[i]
+                    if mode == 3:  # a likelihood of few values, as one-byte codes
+                        lc = likc[c0:c1]
+                        for i in range(n):
+                            oc[i] *= likt[lc[i]]
+                    else:
+                        lv = lik[c0:c1]
+                        for i in range(n):
+                            oc[i] *= lv[i]
                     n4 = n - n % 4
                     for i in range(0, n4, 4):
                         z0 += oc[i]
@@ -237,11 +243,23 @@ class StencilPlan:
             codes, table = self.codes, self.table
 
             def run(belief, out, lik):
-                return _stencil_update_codes(belief, w, meta, codes, table, lik, out, n_layers, 2)
+                if type(lik) is tuple:
+                    return _stencil_update_codes(belief, w, meta, codes, table, _EMPTY, lik[0], lik[1], out, n_layers, 3)
+                return _stencil_update_codes(belief, w, meta, codes, table, lik, _NO_CODES, _EMPTY, out, n_layers, 2)
         else:
             def run(belief, out, lik):
                 return _stencil_update(belief, w, meta, lik, out, n_layers, 2)
         return run
+
+    def likelihood_form(self, lik: np.ndarray):
+        """What :attr:`run_flat` takes for a likelihood: on grids read as codes, a likelihood of at
+        most 256 values becomes ``(codes, table)`` (1 byte per cell); else the flat float64s."""
+        flat = np.ascontiguousarray(lik, dtype=np.float64).ravel()
+        if self.use_codes:
+            vals, inv = np.unique(flat, return_inverse=True)
+            if len(vals) <= 256:
+                return inv.reshape(-1).astype(np.uint8), np.pad(vals, (0, 256 - len(vals)))
+        return flat
 
     def run(self, belief: np.ndarray, out: np.ndarray, lik: np.ndarray | None, normalise: bool = True) -> float:
         """``out = T^T belief``; with ``lik``, times ``lik`` and (with ``normalise``) divided by the
@@ -250,7 +268,8 @@ class StencilPlan:
         lk = _EMPTY if lik is None else lik.ravel()
         if self.use_codes:
             return _stencil_update_codes(belief.ravel(), self.w, self.meta, self.codes, self.table, lk,
-                                         out.ravel(), self.n_layers, mode)
+                                         _NO_CODES, _EMPTY, out.ravel(), self.n_layers, mode)
         return _stencil_update(belief.ravel(), self.w, self.meta, lk, out.ravel(), self.n_layers, mode)
 
 _EMPTY = np.zeros(1)
+_NO_CODES = np.zeros(1, dtype=np.uint8)
