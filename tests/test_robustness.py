@@ -473,3 +473,29 @@ def test_sharp_sensor_belief_never_all_zero():
         f.step(a, obs)
         b = f.position_belief
         assert np.all(np.isfinite(b)) and b.max() > 0 and abs(b.sum() - 1.0) < 1e-9
+
+
+@pytest.mark.parametrize("name", list(LONG_RUN.SHARP))
+def test_unread_filter_matches_a_filter_read_every_step(name):
+    """The filter may normalise lazily when nobody reads the belief: a filter left alone for 1,000
+    steps at a time agrees with one read (normalised) every step, and neither underflows."""
+    env_id, kwargs = LONG_RUN.SHARP[name]
+    model = gym.make(env_id, **kwargs).unwrapped.model
+    rng = np.random.default_rng(11)
+    eager, lazy = ForwardFilter(model), ForwardFilter(model)
+    state = model.sample_initial_state(rng)
+    first = model.sensor.to_observation(model.sample_reading(state, rng))
+    eager.reset(first)
+    lazy.reset(first)
+    for t in range(1, 5001):
+        a = int(rng.integers(model.n_actions))
+        state = model.sample_next_state(state, a, rng)
+        obs = model.sensor.to_observation(model.sample_reading(state, rng))
+        eager.step(a, obs)
+        lazy.step(a, obs)
+        b = eager.full_belief
+        assert np.all(np.isfinite(b)) and abs(b.sum() - 1.0) < 1e-9
+        if t % 1000 == 0:
+            c = lazy.full_belief
+            np.testing.assert_allclose(c, b, rtol=0, atol=1e-9)
+            assert lazy.log_likelihood == pytest.approx(eager.log_likelihood, rel=1e-9)
