@@ -434,3 +434,20 @@ def test_sensor_sampler_matches_distribution_everywhere(name):
             dof += 1
         dof -= 1
     assert stats.chi2.sf(chi2, dof) > 1e-6, (chi2, dof)
+
+
+@pytest.mark.parametrize("env_id,kwargs", CONFIGS, ids=CONFIG_IDS)
+def test_spaces_as_documented(env_id, kwargs):
+    env = gym.make(env_id, **kwargs)
+    model = env.unwrapped.model
+    seed_dynamics = kwargs.get("dynamics") == "seed"
+    # N, E, S, W everywhere; the seed dynamics ignore the action, so they offer just one.
+    assert env.action_space == gym.spaces.Discrete(1 if seed_dynamics else 4)
+    expected_obs = {
+        "ColourGrid-v0": gym.spaces.Discrete(4),
+        "RingSensor8x8-v0": gym.spaces.Discrete(8 * 8 + 1),
+        "WindyMaze-v0": gym.spaces.MultiBinary(4),
+    }[env_id]
+    assert env.observation_space == expected_obs
+    assert model.shape == {"ColourGrid-v0": (5, 5), "RingSensor8x8-v0": (8, 8), "WindyMaze-v0": (6, 7)}[env_id]
+    assert model.grid.n_free == {"ColourGrid-v0": 19, "RingSensor8x8-v0": 64, "WindyMaze-v0": 31}[env_id]
