@@ -33,6 +33,12 @@ class TrainingInterrupted(Exception):
 
 
 # -- atomic files ---------------------------------------------------------------------------------
+def _umask_mode() -> int:
+    old = os.umask(0)
+    os.umask(old)
+    return 0o666 & ~old
+
+
 def atomic_write_text(path: str | Path, text: str) -> None:
     """Write ``text`` to ``path`` via a temporary file in the same directory and a rename."""
     path = Path(path)
@@ -43,6 +49,7 @@ def atomic_write_text(path: str | Path, text: str) -> None:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
+        os.chmod(tmp, _umask_mode())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -62,6 +69,7 @@ def atomic_save_model(model, path: str | Path) -> None:
     os.close(fd)
     try:
         model.save(tmp)
+        os.chmod(tmp, _umask_mode())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -345,6 +353,10 @@ def train(
             "eval_seeds": f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + cfg['eval_episodes'] - 1}" if evaluations else None}
     if out.exists() and not force:  # appeared while training
         raise FileExistsError(f"{out} appeared during training; pass --force to overwrite it")
+    # The final model is for acting: drop Adam's moment estimates (two thirds of the file); the
+    # checkpoints keep them for resuming.
+    model.policy.optimizer.state.clear()
+    info["optimizer_state"] = "dropped (checkpoints keep it)"
     atomic_save_model(model, out)
     atomic_write_json(out.with_suffix(".json"), info)
     venv.close()
