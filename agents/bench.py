@@ -39,40 +39,36 @@ def _make_env(env_id: str, env_kwargs: dict[str, Any] | None):
     return gym_gridloc.HMMBeliefWrapper(gym.make(env_id, **(env_kwargs or {})))
 
 
-def run_episodes(
+def simulate(
     env_id: str,
     policy_name: str,
-    episodes: int,
+    seeds: Sequence[int],
     *,
-    seed_start: int = 0,
     env_kwargs: dict[str, Any] | None = None,
     model_path: str | Path | None = None,
     budgets: Sequence[int] = BUDGETS,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Run one policy for ``episodes`` episodes; returns one benchmark row (with curves)."""
+    """Run one policy on the given episode seeds; returns per-episode arrays."""
     from tqdm.auto import tqdm
 
-    if int(episodes) < 1:
-        raise ValueError(f"episodes must be >= 1, got {episodes!r}")
     env = _make_env(env_id, env_kwargs)
     max_steps = env.spec.max_episode_steps if env.spec is not None else None
     if not max_steps:
         raise ValueError(f"{env_id} has no max_episode_steps; the benchmark needs a step limit")
-    model = env.unwrapped.model
-    policy = make_policy(policy_name, model, env_id=env_id, path=model_path)
-    steps = np.zeros(episodes, dtype=np.int64)
-    localised = np.zeros(episodes, dtype=bool)
-    success = np.zeros(episodes, dtype=bool)
-    truncated_flags = np.zeros(episodes, dtype=bool)
+    policy = make_policy(policy_name, env.unwrapped.model, env_id=env_id, path=model_path)
+    n = len(seeds)
+    steps = np.zeros(n, dtype=np.int64)
+    localised = np.zeros(n, dtype=bool)
+    success = np.zeros(n, dtype=bool)
+    truncated_flags = np.zeros(n, dtype=bool)
     horizon = max(max_steps, max(budgets))
-    correct_at = np.zeros((episodes, horizon + 1), dtype=bool)
+    correct_at = np.zeros((n, horizon + 1), dtype=bool)
     start = time.perf_counter()
-    bar = tqdm(range(episodes), desc=f"{env_id} {policy_name}", unit="ep", disable=not progress, leave=False)
-    for i in bar:
-        seed = seed_start + i
-        obs, info = env.reset(seed=seed)
-        policy.reset(seed=seed)
+    bar = tqdm(seeds, desc=f"{env_id} {policy_name}", unit="ep", disable=not progress, leave=False)
+    for i, seed in enumerate(bar):
+        obs, info = env.reset(seed=int(seed))
+        policy.reset(seed=int(seed))
         history = [info["error"] == 0]
         t = 0
         while True:
@@ -88,19 +84,33 @@ def run_episodes(
         steps[i] = t if terminated else max_steps
         correct_at[i, : len(history)] = history
         correct_at[i, len(history):] = history[-1]
-    seconds = time.perf_counter() - start
     env.close()
-    n = episodes
+    return {
+        "steps": steps, "localised": localised, "success": success, "truncated": truncated_flags,
+        "correct_at": correct_at, "max_steps": int(max_steps), "seconds": time.perf_counter() - start,
+        "model": str(getattr(policy, "path", "")) or None,
+    }
+
+
+def summarise(env_id: str, policy_name: str, parts: Sequence[dict[str, Any]], *, seed_start: int,
+              budgets: Sequence[int] = BUDGETS) -> dict[str, Any]:
+    """One benchmark row from the per-episode arrays of one or more :func:`simulate` runs."""
+    steps = np.concatenate([p["steps"] for p in parts])
+    localised = np.concatenate([p["localised"] for p in parts])
+    success = np.concatenate([p["success"] for p in parts])
+    truncated = np.concatenate([p["truncated"] for p in parts])
+    correct_at = np.concatenate([p["correct_at"] for p in parts])
+    max_steps = parts[0]["max_steps"]
+    n = len(steps)
     mean = float(steps.mean())
     sd = float(steps.std(ddof=1)) if n > 1 else 0.0
     half = 1.96 * sd / math.sqrt(n)
-    localised_curve = [float(np.mean(localised & (steps <= s))) for s in range(max_steps + 1)]
-    row = {
+    return {
         "env": env_id,
         "policy": policy_name,
         "episodes": int(n),
         "success_rate": float(success.mean()),
-        "truncated_rate": float(truncated_flags.mean()),
+        "truncated_rate": float(truncated.mean()),
         "localised_rate": float(localised.mean()),
         "localised_correct_rate": float(success.sum() / localised.sum()) if localised.any() else None,
         "mean_steps": mean,
@@ -110,17 +120,36 @@ def run_episodes(
         "accuracy_at": {str(k): float(correct_at[:, k].mean()) for k in budgets},
         "max_episode_steps": int(max_steps),
         "seed_start": int(seed_start),
-        "seconds": round(seconds, 3),
-        "model": str(getattr(policy, "path", "")) or None,
-        "localised_curve": localised_curve,
+        "seconds": round(sum(p["seconds"] for p in parts), 3),
+        "model": parts[0]["model"],
+        "localised_curve": [float(np.mean(localised & (steps <= s))) for s in range(max_steps + 1)],
         "accuracy_curve": [float(x) for x in correct_at[:, : max_steps + 1].mean(axis=0)],
     }
-    return row
 
 
-def _row_job(args: tuple) -> dict[str, Any]:
-    env_id, name, episodes, kwargs = args
-    return run_episodes(env_id, name, episodes, **kwargs)
+def run_episodes(
+    env_id: str,
+    policy_name: str,
+    episodes: int,
+    *,
+    seed_start: int = 0,
+    env_kwargs: dict[str, Any] | None = None,
+    model_path: str | Path | None = None,
+    budgets: Sequence[int] = BUDGETS,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Run one policy for ``episodes`` episodes (seeds ``seed_start + i``); returns one row."""
+    if int(episodes) < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes!r}")
+    seeds = range(seed_start, seed_start + int(episodes))
+    part = simulate(env_id, policy_name, seeds, env_kwargs=env_kwargs, model_path=model_path,
+                    budgets=budgets, progress=progress)
+    return summarise(env_id, policy_name, [part], seed_start=seed_start, budgets=budgets)
+
+
+def _chunk_job(args: tuple) -> dict[str, Any]:
+    env_id, name, seeds, model_path = args
+    return simulate(env_id, name, seeds, model_path=model_path, progress=False)
 
 
 def run_benchmark(
@@ -134,32 +163,43 @@ def run_benchmark(
     progress: bool = True,
     jobs: int = 1,
 ) -> list[dict[str, Any]]:
-    """Rows for every environment x policy, in that order."""
+    """Rows for every environment x policy, in that order.  With ``jobs > 1`` the episodes are
+    split into chunks run in parallel processes (the same seeds, so the same numbers)."""
     for name in policies:
         if name not in POLICY_NAMES:
             raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")
     if len(set(policies)) != len(policies):
         raise ValueError(f"policies must not repeat, got {list(policies)}")
-    tasks = []
+    if int(episodes) < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes!r}")
+    pairs = []
     for env_id in env_ids:
         for name in policies:
             path = ppo_model if name == "ppo" else recurrent_model if name == "recurrent" else None
-            tasks.append((env_id, name, int(episodes), {"seed_start": seed_start, "model_path": path, "progress": progress}))
+            pairs.append((env_id, name, path))
     # Fail before any long run if a model is missing or does not fit.
-    for env_id, name, _, kw in tasks:
+    for env_id, name, path in pairs:
         if name in ("ppo", "recurrent"):
-            make_policy(name, _make_env(env_id, None).unwrapped.model, env_id=env_id, path=kw["model_path"])
-    if jobs <= 1 or len(tasks) == 1:
-        return [_row_job(t) for t in tasks]
+            make_policy(name, _make_env(env_id, None).unwrapped.model, env_id=env_id, path=path)
+    if jobs <= 1:
+        return [run_episodes(e, n, episodes, seed_start=seed_start, model_path=p, progress=progress) for e, n, p in pairs]
     import multiprocessing as mp
 
     from tqdm.auto import tqdm
 
+    chunk = max(1, math.ceil(episodes / (4 * jobs)))
+    tasks = []
+    for e, n, p in pairs:
+        for lo in range(0, episodes, chunk):
+            tasks.append((e, n, range(seed_start + lo, seed_start + min(episodes, lo + chunk)), p))
     ctx = mp.get_context("spawn")
-    quiet = [(e, n, k, {**kw, "progress": False}) for e, n, k, kw in tasks]
-    with ctx.Pool(min(jobs, len(tasks))) as pool:
-        results = list(tqdm(pool.imap(_row_job, quiet), total=len(tasks), desc="benchmark rows", disable=not progress))
-    return results
+    with ctx.Pool(jobs) as pool:
+        parts = list(tqdm(pool.imap(_chunk_job, tasks), total=len(tasks), desc="benchmark chunks", disable=not progress))
+    rows = []
+    for e, n, _ in pairs:
+        mine = [part for task, part in zip(tasks, parts) if task[0] == e and task[1] == n]
+        rows.append(summarise(e, n, mine, seed_start=seed_start))
+    return rows
 
 
 def public_row(row: dict[str, Any]) -> dict[str, Any]:

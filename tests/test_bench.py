@@ -113,3 +113,11 @@ def test_cli_bench_user_model(tmp_path, capsys):
 def test_cli_bench_bad_input(argv, message, capsys):
     assert main([*argv, "--no-progress"]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_parallel_chunks_give_the_same_numbers():
+    one = run_benchmark(["ColourGrid-v0"], ["random", "greedy"], 5, seed_start=3, progress=False)
+    two = run_benchmark(["ColourGrid-v0"], ["random", "greedy"], 5, seed_start=3, progress=False, jobs=2)
+    for a, b in zip(one, two):
+        a.pop("seconds"), b.pop("seconds")
+        assert a == b
