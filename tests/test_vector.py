@@ -18,6 +18,7 @@ CASES = [
     ("WindyMaze-v0", {"size": (9, 8), "map_seed": 2}),
     ("RingSensor8x8-v0", {"size": (5, 6), "localise_threshold": 0.6}),
     ("RingSensor8x8-v0", {"size": (5, 5), "dynamics": "seed", "localise_threshold": 0.5}),
+    ("RingSensor8x8-v0", {"layout": ["OOOOO", "O#O#O", "OOOOO", "O#OOO"], "localise_threshold": 0.6}),
 ]
 
 
