@@ -88,58 +88,62 @@ class RandomPolicy(Policy):
 
 # -- exact expected entropy -----------------------------------------------------------------------
 def _xlogx(x: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(x)
-    np.multiply(x, np.log2(x, where=x > 0, out=np.zeros_like(x)), out=out, where=x > 0)
-    return out
+    """``x * log2(x)`` elementwise with ``0 log 0 = 0`` (x >= 0)."""
+    return x * np.log2(np.where(x > 0.0, x, 1.0))
 
 
 class _Lookahead:
-    """Batched prediction and the exact expected entropy for one model.
+    """The model as matrices over free states, and the exact expected entropy.
 
-    For an unnormalised predicted position mass ``c(x)`` and the sensor ``P(z | x)`` (the
-    likelihoods stacked once, ``Lz``), the expected posterior entropy times the mass is
+    ``T[a]`` is the sparse transition of action ``a`` (``model.transition_matrix``, kidnapping
+    included), ``TP[a] = T[a] @ P`` the same followed by the projection of hidden states onto
+    positions.  For an unnormalised predicted position mass ``c(x)`` and the sensor ``P(z | x)``
+    (the likelihoods stacked once, ``Lz``), the expected posterior entropy times the mass is
     ``E_z[H(X | z)] * m = sum_x c(x) h(x) - sum_x c log c + sum_z q(z) log q(z)`` with
     ``q = Lz @ c`` and ``h(x)`` the entropy of the reading at ``x`` (in bits): the
     ``(readings x cells)`` joint is never formed.
     """
 
     def __init__(self, model: GridModel) -> None:
+        from scipy import sparse
+
         self.model = model
-        h, w = model.shape
         free = model.grid.free
         self.free = free
+        n_free = model.grid.n_free
         lz = np.stack([model.likelihood(z)[free] for z in range(model.sensor.n_readings)])  # (Z, F)
         self.lz = lz
         self.lz_t = np.ascontiguousarray(lz.T)
+        self.lz_states = np.tile(lz, (1, model.n_layers))  # (Z, S): the sensor sees the position only
         self.sensor_entropy = -_xlogx(lz).sum(axis=0)  # (F,) bits
-        self.terms = [
-            [(t.src, t.dst, *t.slices((h, w)), t.weight) for t in model.transitions[a]] for a in range(model.n_actions)
-        ]
-
-    def predict(self, belief: np.ndarray, action: int) -> np.ndarray:
-        """``model.predict`` over any leading batch dimensions of ``(..., L, H, W)``."""
-        out = np.zeros_like(belief)
-        for src, dst, s_sl, d_sl, weight in self.terms[action]:
-            out[..., dst, d_sl[0], d_sl[1]] += weight[s_sl] * belief[..., src, s_sl[0], s_sl[1]]
-        kp = self.model.kidnap_prob
-        if kp > 0.0:
-            mass = belief.sum(axis=(-3, -2, -1), keepdims=True)
-            out *= 1.0 - kp
-            out += (kp / self.model.n_states) * mass * self.model.state_mask
-        return out
-
-    def predict_all(self, belief: np.ndarray) -> np.ndarray:
-        """``(..., L, H, W) -> (..., A, L, H, W)``: the prediction under every action."""
-        return np.stack([self.predict(belief, a) for a in range(self.model.n_actions)], axis=-4)
+        proj = sparse.csr_matrix(
+            (np.ones(model.n_states), (np.arange(model.n_states), np.tile(np.arange(n_free), model.n_layers))),
+            shape=(model.n_states, n_free),
+        )
+        self.T = [model.transition_matrix(a).tocsr() for a in range(model.n_actions)]
+        self.TP = [(t @ proj).tocsr() for t in self.T]
 
     def weighted_entropy(self, c: np.ndarray) -> np.ndarray:
         """``m * E_z[H(position | z)]`` for unnormalised position masses ``c`` of shape (..., F)."""
         q = c @ self.lz_t  # (..., Z)
         return c @ self.sensor_entropy - _xlogx(c).sum(axis=-1) + _xlogx(q).sum(axis=-1)
 
-    def positions(self, full: np.ndarray) -> np.ndarray:
-        """``(..., L, H, W) -> (..., F)`` position masses on the free cells."""
-        return full.sum(axis=-3)[..., self.free]
+    def one_step(self, b: np.ndarray) -> np.ndarray:
+        """Expected position entropy after each action, for a hidden-state vector ``b`` (S,)."""
+        c = np.stack([np.asarray(tp.T @ b) for tp in self.TP])  # (A, F)
+        return self.weighted_entropy(c)
+
+    def two_step(self, b: np.ndarray) -> np.ndarray:
+        """``sum_{z1} min_{a2} W(a1, z1, a2)`` for each first action ``a1`` (see Greedy2Policy)."""
+        pred1 = np.stack([np.asarray(t.T @ b) for t in self.T])  # (A1, S)
+        joint1 = pred1[:, None, :] * self.lz_states[None]  # (A1, Z1, S), mass p(z1 | a1)
+        keep = joint1.sum(axis=2).max(axis=0) > 0.0  # readings possible after some action
+        joint1 = joint1[:, keep]
+        a1, z1, n = joint1.shape
+        flat = joint1.reshape(a1 * z1, n)
+        c2 = np.stack([np.asarray((tp.T @ flat.T).T) for tp in self.TP], axis=1)  # (A1*Z1, A2, F)
+        w = self.weighted_entropy(c2).reshape(a1, z1, -1)
+        return w.min(axis=-1).sum(axis=-1)
 
 
 class GreedyPolicy(Policy):
@@ -158,10 +162,8 @@ class GreedyPolicy(Policy):
 
     def expected_entropies(self, belief: np.ndarray) -> np.ndarray:
         """Expected position entropy (bits) after each action's move and reading, shape (A,)."""
-        b = self._full_belief(belief)
-        b = b / b.sum()
-        c = self.look.positions(self.look.predict_all(b))  # (A, F)
-        return self.look.weighted_entropy(c)
+        b = self.model.to_vector(self._full_belief(belief))
+        return self.look.one_step(b / b.sum())
 
     def act(self, observation: Any, belief: np.ndarray) -> int:
         return self._break_ties(self.expected_entropies(belief))
@@ -179,19 +181,8 @@ class Greedy2Policy(GreedyPolicy):
     name = "greedy2"
 
     def expected_entropies(self, belief: np.ndarray) -> np.ndarray:
-        b = self._full_belief(belief)
-        b = b / b.sum()
-        look = self.look
-        pred1 = look.predict_all(b)  # (A1, L, H, W)
-        full_lz = np.zeros((look.lz.shape[0], *self.model.shape))
-        full_lz[:, look.free] = look.lz
-        joint1 = pred1[:, None] * full_lz[None, :, None]  # (A1, Z1, L, H, W), mass p(z1 | a1)
-        mass1 = joint1.sum(axis=(-3, -2, -1))  # (A1, Z1)
-        keep = mass1.max(axis=0) > 0.0  # readings possible after some action
-        joint1 = joint1[:, keep]
-        c2 = look.positions(look.predict_all(joint1))  # (A1, Z1', A2, F)
-        w = look.weighted_entropy(c2)  # (A1, Z1', A2)
-        return w.min(axis=-1).sum(axis=-1)
+        b = self.model.to_vector(self._full_belief(belief))
+        return self.look.two_step(b / b.sum())
 
 
 class PPOPolicy(Policy):
