@@ -111,6 +111,11 @@ class _Lookahead:
         free = model.grid.free
         self.free = free
         n_free = model.grid.n_free
+        if model.sensor.n_readings * model.n_states > 20_000_000:
+            raise ValueError(
+                f"greedy lookahead keeps a (readings x states) table: {model.sensor.n_readings} x {model.n_states} "
+                f"is too large for {model!r}; use greedy policies on maps with fewer cells or readings"
+            )
         lz = np.stack([model.likelihood(z)[free] for z in range(model.sensor.n_readings)])  # (Z, F)
         self.lz = lz
         self.lz_t = np.ascontiguousarray(lz.T)

@@ -198,3 +198,8 @@ def test_ppo_encoding_matches_the_wrapper():
 def test_unknown_policy_name():
     with pytest.raises(ValueError, match="unknown policy 'smart'"):
         make_policy("smart", gym_gridloc.colour_grid_model())
+
+
+def test_greedy_refuses_maps_too_large_for_its_table():
+    with pytest.raises(ValueError, match="10001 x 10000 is too large"):
+        GreedyPolicy(gym_gridloc.ring_sensor_model((100, 100)))
