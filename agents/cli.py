@@ -40,7 +40,9 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--plot", metavar="PATH.png", help="write the plot (one environment)")
     b.add_argument("--ppo-model", metavar="PATH", help="benchmark this PPO model instead of the shipped one")
     b.add_argument("--recurrent-model", metavar="PATH", help="benchmark this RecurrentPPO model instead of the shipped one")
-    b.add_argument("--jobs", type=int, default=1, help="rows to run in parallel processes (default 1)")
+    b.add_argument("--jobs", type=int, default=1, help="parallel processes, each running chunks of episodes (default 1)")
+    b.add_argument("--update", action="store_true",
+                   help="merge the new rows into the existing JSON file (same env and policy: replaced) and plot the merged rows")
     b.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
@@ -104,21 +106,49 @@ def _bench(args) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"gridloc bench: error: {exc}", file=sys.stderr)
         return 2
-    print(markdown_table(rows))
     json_path = args.json or (str(RESULTS / "bench.json") if args.all else None)
+    if args.update:
+        if not json_path:
+            print("gridloc bench: error: --update needs --json PATH (or --all)", file=sys.stderr)
+            return 2
+        rows = merge_rows(json_path, rows)
+    print(markdown_table(rows))
     if json_path:
         atomic_write_json(json_path, rows)
         print(f"\nwrote {json_path}", file=sys.stderr)
     if args.plot:
-        plot(rows, args.plot)
+        plot([r for r in rows if r["env"] == envs[0]], args.plot)
         print(f"wrote {args.plot}", file=sys.stderr)
     if args.all:
-        for e in envs:
+        for e in sorted({r["env"] for r in rows}):
             path = RESULTS / f"bench_{e}.png"
             plot([r for r in rows if r["env"] == e], path)
             print(f"wrote {path}", file=sys.stderr)
         atomic_write_json(RESULTS / "bench_table.json", [public_row(r) for r in rows])
     return 0
+
+
+def merge_rows(path: str, new: list[dict]) -> list[dict]:
+    """Rows of the JSON at ``path`` with ``new`` merged in (same env and policy: replaced), in
+    the order environment, then policy as in POLICY_NAMES."""
+    import json
+
+    import gym_gridloc
+    from agents.policies import POLICY_NAMES
+
+    old = []
+    if Path(path).exists():
+        old = json.loads(Path(path).read_text(encoding="utf-8"))
+    keyed = {(r["env"], r["policy"]): r for r in old}
+    keyed.update({(r["env"], r["policy"]): r for r in new})
+    envs = list(gym_gridloc.ENV_IDS)
+
+    def order(key):
+        env, pol = key
+        return (envs.index(env) if env in envs else len(envs), env,
+                POLICY_NAMES.index(pol) if pol in POLICY_NAMES else len(POLICY_NAMES))
+
+    return [keyed[k] for k in sorted(keyed, key=order)]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -121,3 +121,14 @@ def test_parallel_chunks_give_the_same_numbers():
     for a, b in zip(one, two):
         a.pop("seconds"), b.pop("seconds")
         assert a == b
+
+
+def test_cli_update_merges_rows(tmp_path, capsys):
+    js = tmp_path / "b.json"
+    base = ["bench", "--env", "ColourGrid-v0", "--episodes", "3", "--no-progress", "--json", str(js)]
+    assert main([*base, "--policies", "greedy"]) == 0
+    assert main([*base, "--policies", "random", "--update"]) == 0
+    rows = json.loads(js.read_text())
+    assert [r["policy"] for r in rows] == ["random", "greedy"]
+    assert main([*base, "--policies", "random"]) == 0  # without --update: replaced
+    assert [r["policy"] for r in json.loads(js.read_text())] == ["random"]
