@@ -118,14 +118,18 @@ class BatchFilter:
         self._lik = np.empty((self.n, self._hw))
         self._ready = np.zeros(self.n, dtype=bool)
         self.log_likelihood = np.zeros(self.n)
-        # Compiled path (numba): one call for the whole step, where the padded per-action
-        # weights are small (they copy the model's: at most 32 MB).
+        # Compiled path (numba, on models small enough for it: kernels.uses_numba): one call for
+        # the whole step, where the padded per-action weights are small (they copy the model's:
+        # at most 32 MB).
         self._compiled = None
-        plan = model.stencil_plan(0) if model.kidnap_prob == 0.0 else None
-        if plan is not None and model.n_actions * max(len(t) for t in model.transitions) * self._hw * 8 <= 32 * 2**20:
-            from gym_gridloc.kernels import BatchPlan
+        from gym_gridloc import kernels
 
-            self._compiled = BatchPlan(model)
+        if (
+            model.kidnap_prob == 0.0
+            and kernels.uses_numba(model)
+            and model.n_actions * max(len(t) for t in model.transitions) * self._hw * 8 <= 32 * 2**20
+        ):
+            self._compiled = kernels.BatchPlan(model)
 
     def _batch_plan(self):
         """One entry per distinct flat shift over all actions, ordered as the single filter's

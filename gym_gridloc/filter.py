@@ -39,8 +39,8 @@ class ForwardFilter:
         self._f: np.ndarray | None = None
         self._spare: np.ndarray | None = None  # the other buffer of predict's double buffering
         self._scale = 1.0  # the belief is self._f * self._scale (see step)
-        self._fast: dict = {}  # action -> compiled step (or False)
-        self._liks: dict = {}  # reading -> flat likelihood, for the compiled step
+        self._fast: dict = {}  # action -> kernel step (or False)
+        self._liks: dict = {}  # reading -> flat likelihood, for the kernel step
         self.log_likelihood = 0.0
 
     # -- the API ---------------------------------------------------------------------------------
@@ -94,13 +94,13 @@ class ForwardFilter:
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
-        state["_fast"], state["_liks"] = {}, {}  # compiled closures and views: rebuilt on use
+        state["_fast"], state["_liks"] = {}, {}  # kernel closures and views: rebuilt on use
         state.pop("_lik_form", None)
         return state
 
     def _fast_path(self, action: int | None):
-        """A call ``(belief, out, likelihood) -> sum`` of the compiled kernel for ``action``
-        (unnormalised output), or False where there is none (no numba, kidnapping)."""
+        """A call ``(belief, out, likelihood) -> sum`` of the model's kernel plan for ``action``
+        (predict and update in one call, unnormalised output), or False with kidnapping."""
         model = self.model
         plan = model.stencil_plan(action) if model.kidnap_prob == 0.0 else None
         run = plan.run_flat if plan is not None else False
@@ -122,7 +122,7 @@ class ForwardFilter:
         run = self._fast.get(action) if action is None or type(action) is int else None
         if run is None and self._f is not None:
             run = self._fast_path(action)
-        if run:  # compiled predict + update in one pass
+        if run:  # predict + update in one kernel call
             reading = self.model.sensor.to_reading(observation)
             lik = self._liks.get(reading)
             if lik is None and self.model.sensor.likelihood_window(reading) is None:

@@ -1,192 +1,177 @@
-"""Compiled filter kernels (numba), with the numpy stencil as the fallback.
+"""Filter kernels: the one place that decides how a model's transition is applied to a belief.
 
-The numpy stencil in :meth:`GridModel.predict` makes one pass over memory per ufunc call (a
-multiply and an add per term); a compiled loop makes one pass in all.  :func:`stencil_update`
-walks the belief in cache-sized chunks: for each chunk it sums the terms' contributions
-(contiguous, vectorisable loops), multiplies by the likelihood and adds up the normaliser, so each
-weight, belief and likelihood value is read once per step.  Results equal the numpy path within
-rounding (1e-15; tests/test_filter.py compares both against a dense reference within 1e-12).
+Two paths give the same numbers (within rounding; tests compare both with each other and with a
+dense reference within 1e-12):
 
-``numba`` is optional (the ``fast`` extra).  Without it, or with the environment variable
-``GYM_GRIDLOC_NO_NUMBA=1``, :data:`AVAILABLE` is False and the filter uses numpy.
+* **numba** (the optional ``fast`` extra), for models whose belief has fewer than
+  :data:`NUMBA_MAX_CELLS` cells, where numpy's per-call overhead dominates: one compiled pass per
+  step (predict, likelihood, sum) over cache-sized chunks (:mod:`gym_gridloc._numba_kernels`).
+  numba is imported the first time such a model is filtered, never at import: it costs about
+  100 MiB of resident memory, so a process that only builds large grids never loads it.
+* **diagonals** (every larger model, and every model without numba or with
+  ``GYM_GRIDLOC_NO_NUMBA=1``): a stencil term ``(dr, dc)`` is one diagonal of ``T^T`` over the
+  flat belief, at offset ``-(dr*W + dc)``, whose values are the term's own weight array (the cells
+  where a shift wraps round a row edge have weight 0).  scipy's DIA matrix-vector loop adds
+  ``w * x`` for each diagonal in one fused pass straight into the output buffer, reading the
+  model's weights in place (no copy); a ``(0, 0)`` term is written first with one multiply.  Then
+  one multiply by the likelihood and one sum.  Measured on the 512 x 512 grids this beats a
+  blocked numpy loop (two ufunc passes per term): see README, "Scale and speed".
+
+:func:`uses_numba` decides; :meth:`GridModel.stencil_plan` builds and caches the plan.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
 
 import numpy as np
 
-AVAILABLE = False
-_CHUNK = 2048
-#: Grids with at least this many cells read their weights as masks and codes (see StencilPlan).
-CODES_MIN_CELLS = 1 << 14
+#: numba is installed and not switched off by ``GYM_GRIDLOC_NO_NUMBA`` (it is not imported here).
+AVAILABLE = (
+    os.environ.get("GYM_GRIDLOC_NO_NUMBA", "") not in ("1", "true", "yes")
+    and importlib.util.find_spec("numba") is not None
+)
+#: Models whose belief (layers x rows x columns) has fewer cells use the numba kernels.
+NUMBA_MAX_CELLS = 128 * 128
 
-if os.environ.get("GYM_GRIDLOC_NO_NUMBA", "") not in ("1", "true", "yes"):
-    try:
-        import numba
-
-        AVAILABLE = True
-    except ImportError:  # pragma: no cover - exercised where numba is absent
-        AVAILABLE = False
-
-if AVAILABLE:
-
-    @numba.njit(cache=True, nogil=True)
-    def _stencil_update(b, w, meta, lik, out, n_layers, mode):  # pragma: no cover
-        K = w.shape[0]
-        hw = out.shape[0] // n_layers
-        src, dst, off, lo, hi = meta[0], meta[1], meta[2], meta[3], meta[4]
-        z0 = 0.0
-        z1 = 0.0
-        z2 = 0.0
-        z3 = 0.0
-        for layer in range(n_layers):
-            base = layer * hw
-            for c0 in range(0, hw, _CHUNK):
-                c1 = min(hw, c0 + _CHUNK)
-                oc = out[base + c0 : base + c1]
-                for i in range(c1 - c0):
-                    oc[i] = 0.0
-                for k in range(K):
-                    if dst[k] != layer:
-                        continue
-                    a = max(c0, lo[k])
-                    e = min(c1, hi[k])
-                    if e <= a:
-                        continue
-                    o = off[k]
-                    # Slices indexed from 0: no negative-index checks, so the loop vectorises.
-                    wv = w[k, a - o : e - o]
-                    bv = b[src[k] * hw + a - o : src[k] * hw + e - o]
-                    ov = out[base + a : base + e]
-                    for i in range(e - a):
-                        ov[i] += wv[i] * bv[i]
-                if mode > 0:
-                    lv = lik[c0:c1]
-                    n = c1 - c0
-                    for i in range(n):
-                        oc[i] *= lv[i]
-                    # Four running sums: the additions overlap instead of waiting on each other.
-                    n4 = n - n % 4
-                    for i in range(0, n4, 4):
-                        z0 += oc[i]
-                        z1 += oc[i + 1]
-                        z2 += oc[i + 2]
-                        z3 += oc[i + 3]
-                    for i in range(n4, n):
-                        z0 += oc[i]
-        z = (z0 + z1) + (z2 + z3)
-        if mode == 1 and z > 0.0 and np.isfinite(z):
-            inv = 1.0 / z
-            for i in range(n_layers * hw):
-                out[i] *= inv
-        return z
+_COMPILED = None
 
 
-    @numba.njit(cache=True, nogil=True)
-    def _stencil_update_codes(b, w, meta, codes, table, lik, likc, likt, out, n_layers, mode):  # pragma: no cover
-        # mode 0: predict only; 1: times lik, normalised; 2: times lik; 3: times likt[likc].
-        K = codes.shape[0]
-        hw = out.shape[0] // n_layers
-        src, dst, off, lo, hi, kind = meta[0], meta[1], meta[2], meta[3], meta[4], meta[5]
-        z0 = 0.0
-        z1 = 0.0
-        z2 = 0.0
-        z3 = 0.0
-        for layer in range(n_layers):
-            base = layer * hw
-            for c0 in range(0, hw, _CHUNK):
-                c1 = min(hw, c0 + _CHUNK)
-                oc = out[base + c0 : base + c1]
-                for i in range(c1 - c0):
-                    oc[i] = 0.0
-                for k in range(K):
-                    if dst[k] != layer:
-                        continue
-                    a = max(c0, lo[k])
-                    e = min(c1, hi[k])
-                    if e <= a:
-                        continue
-                    o = off[k]
-                    bv = b[src[k] * hw + a - o : src[k] * hw + e - o]
-                    ov = out[base + a : base + e]
-                    if kind[k] == 1:  # weight c on a mask, 0 elsewhere
-                        cv = codes[k, a - o : e - o]
-                        c = table[k, 1]
-                        for i in range(e - a):
-                            ov[i] += (c * cv[i]) * bv[i]
-                    elif kind[k] == 2:  # a few values: one-byte codes into the table
-                        cv = codes[k, a - o : e - o]
-                        tk = table[k]
-                        for i in range(e - a):
-                            ov[i] += tk[cv[i]] * bv[i]
-                    else:
-                        wv = w[k, a - o : e - o]
-                        for i in range(e - a):
-                            ov[i] += wv[i] * bv[i]
-                if mode > 0:
-                    n = c1 - c0
-                    if mode == 3:  # a likelihood of few values, as one-byte codes
-                        lc = likc[c0:c1]
-                        for i in range(n):
-                            oc[i] *= likt[lc[i]]
-                    else:
-                        lv = lik[c0:c1]
-                        for i in range(n):
-                            oc[i] *= lv[i]
-                    n4 = n - n % 4
-                    for i in range(0, n4, 4):
-                        z0 += oc[i]
-                        z1 += oc[i + 1]
-                        z2 += oc[i + 2]
-                        z3 += oc[i + 3]
-                    for i in range(n4, n):
-                        z0 += oc[i]
-        z = (z0 + z1) + (z2 + z3)
-        if mode == 1 and z > 0.0 and np.isfinite(z):
-            inv = 1.0 / z
-            for i in range(n_layers * hw):
-                out[i] *= inv
-        return z
+def uses_numba(model) -> bool:
+    """Whether ``model`` is filtered by the compiled kernels (else by :class:`DiagonalPlan`)."""
+    h, w = model.shape
+    return AVAILABLE and model.n_layers * h * w < NUMBA_MAX_CELLS
 
 
-    @numba.njit(cache=True, nogil=True)
-    def _batch_update(beliefs, w, meta, actions, lik, out, n_layers, sel, z):  # pragma: no cover
-        for i in range(beliefs.shape[0]):
-            if sel[i]:
-                a = actions[i]
-                z[i] = _stencil_update(beliefs[i], w[a], meta[a], lik[i], out[i], n_layers, 1)
-            else:
-                z[i] = 1.0
+def make_plan(model, terms):
+    """The plan that applies ``terms`` (one action's transition of ``model``) on its path."""
+    return StencilPlan(model, terms) if uses_numba(model) else DiagonalPlan(model, terms)
 
 
-class BatchPlan:
-    """Every action's stencil, padded to one shape, for :class:`gym_gridloc.BatchFilter`: one
-    compiled call updates N beliefs (predict with each one's action, update, normalise)."""
+def _compiled():
+    """:mod:`gym_gridloc._numba_kernels`, imported (with numba) on first use."""
+    global _COMPILED
+    if _COMPILED is None:
+        from gym_gridloc import _numba_kernels
 
-    def __init__(self, model) -> None:
-        plans = [model.stencil_plan(a) for a in range(model.n_actions)]
-        k = max(p.w.shape[0] for p in plans)
-        hw = plans[0].hw
+        _COMPILED = _numba_kernels
+    return _COMPILED
+
+
+def _dia_matvec_numpy(n_row, n_col, n_diags, length, offsets, data, x, y):
+    """``y[i] += data[k, j] * x[j]`` for ``j = i + offsets[k]``: scipy's ``dia_matvec`` in numpy
+    (used only if a scipy release drops that function)."""
+    for k in range(n_diags):
+        o = int(offsets[k])
+        i0, j0 = max(0, -o), max(0, o)
+        j1 = min(n_row + o, n_col, length)
+        if j1 > j0:
+            y[i0 : i0 + j1 - j0] += data[k, j0:j1] * x[j0:j1]
+
+
+try:  # the loop behind scipy.sparse.dia_array @ x, called on our own buffers (no allocation)
+    from scipy.sparse._sparsetools import dia_matvec as _dia_matvec
+except ImportError:  # pragma: no cover - depends on the scipy release
+    _dia_matvec = _dia_matvec_numpy
+
+
+def _weight_rows(weights: list[np.ndarray], hw: int, copy: bool = True) -> np.ndarray | None:
+    """The weights as one C-contiguous (K, hw) array: a view of the model's stacked weights when
+    they are consecutive rows of it, else a copy (or None without ``copy``)."""
+    base = weights[0].base
+    if isinstance(base, np.ndarray) and base.flags.c_contiguous and base.size % hw == 0:
+        rows = base.reshape(-1, hw)
+        start = (weights[0].ctypes.data - rows.ctypes.data) // (hw * 8)
+        view = rows[start : start + len(weights)] if 0 <= start <= rows.shape[0] - len(weights) else None
+        if view is not None and all(
+            wt.base is base and wt.ctypes.data == view[k].ctypes.data for k, wt in enumerate(weights)
+        ):
+            return view
+    return np.ascontiguousarray(np.stack([wt.reshape(hw) for wt in weights])) if copy else None
+
+
+class DiagonalPlan:
+    """One action's transition as diagonals of ``T^T`` (see the module docstring): ``writes``
+    are ``(src, dst, weight)`` for the ``(0, 0)`` terms written first (one per destination
+    layer), ``adds`` are ``(src, dst, offsets, weights)``, consecutive terms between the same
+    layers in one call; ``zero`` are the layers no written term covers (cleared first)."""
+
+    path = "numpy"
+
+    def __init__(self, model, terms) -> None:
+        h, w = model.shape
+        self.hw = hw = h * w
         self.n_layers = model.n_layers
-        self.w = np.zeros((len(plans), k, hw))
-        self.meta = np.zeros((len(plans), 6, k), dtype=np.int64)
-        self.meta[:, 1, :] = -1  # padding terms feed no layer
-        for a, p in enumerate(plans):
-            n = p.w.shape[0]
-            self.w[a, :n] = p.w
-            self.meta[a, :, :n] = p.meta
-        self.meta[:, 5, :] = 0  # the float64 loop
+        writes, groups, covered = [], [], set()
+        for t in terms:
+            if t.dr == 0 and t.dc == 0 and t.dst not in covered:
+                covered.add(t.dst)
+                writes.append((t.src, t.dst, t.weight.reshape(hw)))
+            elif groups and groups[-1][:2] == (t.src, t.dst):
+                groups[-1][2].append(-(t.dr * w + t.dc))
+                groups[-1][3].append(t.weight)
+            else:
+                groups.append((t.src, t.dst, [-(t.dr * w + t.dc)], [t.weight]))
+        adds = []
+        for src, dst, offsets, weights in groups:
+            # Split where the weights are not consecutive rows of one array (each part a view).
+            rows = _weight_rows(weights, hw, copy=False)
+            if rows is None:
+                for o, wt in zip(offsets, weights):
+                    adds.append((src, dst, np.array([o], dtype=np.int32), wt.reshape(1, hw)))
+            else:
+                adds.append((src, dst, np.array(offsets, dtype=np.int32), rows))
+        self.writes = tuple(writes)
+        self.adds = tuple(adds)
+        self.zero = tuple(layer for layer in range(self.n_layers) if layer not in covered)
 
-    def run(self, beliefs: np.ndarray, actions: np.ndarray, lik: np.ndarray, out: np.ndarray, sel: np.ndarray) -> np.ndarray:
-        z = np.empty(beliefs.shape[0])
-        _batch_update(beliefs, self.w, self.meta, actions, lik, out, self.n_layers, sel, z)
+    def predict(self, b: np.ndarray, out: np.ndarray) -> None:
+        """``out = T^T b`` over flat (L*H*W,) float64 arrays (``out`` not ``b``)."""
+        hw = self.hw
+        for layer in self.zero:
+            out[layer * hw : (layer + 1) * hw] = 0.0
+        for src, dst, wt in self.writes:
+            np.multiply(wt, b[src * hw : (src + 1) * hw], out=out[dst * hw : (dst + 1) * hw])
+        for src, dst, offsets, rows in self.adds:
+            _dia_matvec(hw, hw, len(offsets), hw, offsets, rows, b[src * hw : (src + 1) * hw], out[dst * hw : (dst + 1) * hw])
+
+    @property
+    def run_flat(self):
+        """``(belief, out, lik) -> sum`` over flat arrays: predict, times ``lik``, unnormalised."""
+        layers = (self.n_layers, self.hw)
+        predict = self.predict
+
+        def run(belief, out, lik):
+            predict(belief, out)
+            view = out.reshape(layers)
+            np.multiply(view, lik, out=view)
+            return float(np.add.reduce(out))
+
+        return run
+
+    def likelihood_form(self, lik: np.ndarray) -> np.ndarray:
+        """What :attr:`run_flat` takes for a likelihood: the flat float64 array."""
+        return np.ascontiguousarray(lik, dtype=np.float64).ravel()
+
+    def run(self, belief: np.ndarray, out: np.ndarray, lik: np.ndarray | None, normalise: bool = True) -> float:
+        """``out = T^T belief``; with ``lik``, times ``lik`` and (with ``normalise``) divided by the
+        sum, which is returned (0.0 without ``lik``)."""
+        b, o = belief.reshape(-1), out.reshape(-1)
+        if lik is None:
+            self.predict(b, o)
+            return 0.0
+        z = self.run_flat(b, o, self.likelihood_form(lik))
+        if normalise and z > 0.0 and np.isfinite(z):
+            o *= 1.0 / z
         return z
 
 
 class StencilPlan:
-    """The arrays a kernel call needs for one action's terms (built once per model and action)."""
+    """The arrays a compiled kernel call needs for one action's terms (built once per model and
+    action)."""
+
+    path = "numba"
 
     def __init__(self, model, terms) -> None:
         h, w = model.shape
@@ -194,36 +179,7 @@ class StencilPlan:
         self.hw = hw
         self.n_layers = model.n_layers
         weights = [t.weight for t in terms]
-        base = weights[0].base if weights else None
-        if (
-            isinstance(base, np.ndarray)
-            and base.shape == (len(weights), h, w)
-            and base.flags.c_contiguous
-            and all(wt.base is base and wt.ctypes.data == base[k].ctypes.data for k, wt in enumerate(weights))
-        ):
-            self.w = base.reshape(len(weights), hw)  # the model's own stacked weights, no copy
-        else:
-            self.w = np.ascontiguousarray(np.stack(weights).reshape(len(weights), hw)) if weights else np.zeros((0, hw))
-        # Weights read as 8-byte floats cost most of a large grid's memory traffic.  A term whose
-        # weight is one value c on a mask (0 elsewhere) is read as a one-byte mask (kind 1); one
-        # with at most 256 values as one-byte codes into a small table (kind 2); others as
-        # float64 (kind 0).  On grids that fit in cache the float64 loop is fastest: there every
-        # term is kind 0.  The numbers multiplied are the same float64s in every kind.
-        k_terms = len(weights)
-        self.kind = np.zeros(k_terms, dtype=np.int64)
-        self.codes = np.zeros((k_terms, hw if hw >= CODES_MIN_CELLS else 1), dtype=np.uint8)
-        self.table = np.zeros((k_terms, 256))
-        if hw >= CODES_MIN_CELLS:
-            for k, wt in enumerate(weights):
-                vals, inv = np.unique(wt, return_inverse=True)
-                if len(vals) == 2 and vals[0] == 0.0:
-                    self.kind[k] = 1
-                elif len(vals) <= 256:
-                    self.kind[k] = 2
-                else:
-                    continue
-                self.table[k, : len(vals)] = vals
-                self.codes[k] = inv.reshape(-1)
+        self.w = _weight_rows(weights, hw) if weights else np.zeros((0, hw))
         self.src = np.array([t.src for t in terms], dtype=np.int64)
         self.dst = np.array([t.dst for t in terms], dtype=np.int64)
         self.off = np.array([t.dr * w + t.dc for t in terms], dtype=np.int64)
@@ -231,45 +187,57 @@ class StencilPlan:
         self.lo = np.maximum(self.off, 0)
         self.hi = np.minimum(hw + self.off, hw)
         # One int array for the kernel (fewer arguments: a numba call costs per argument).
-        self.meta = np.ascontiguousarray(np.stack([self.src, self.dst, self.off, self.lo, self.hi, self.kind]))
-        self.use_codes = bool(self.kind.any())
+        self.meta = np.ascontiguousarray(np.stack([self.src, self.dst, self.off, self.lo, self.hi]))
+        self._kernel = _compiled().stencil_update
 
     @property
     def run_flat(self):
         """``(belief, out, lik) -> sum`` over flat arrays, unnormalised: the kernel with its
         plan bound (the fewest Python steps per call)."""
-        w, meta, n_layers = self.w, self.meta, self.n_layers
-        if self.use_codes:
-            codes, table = self.codes, self.table
+        w, meta, n_layers, kernel = self.w, self.meta, self.n_layers, self._kernel
 
-            def run(belief, out, lik):
-                if type(lik) is tuple:
-                    return _stencil_update_codes(belief, w, meta, codes, table, _EMPTY, lik[0], lik[1], out, n_layers, 3)
-                return _stencil_update_codes(belief, w, meta, codes, table, lik, _NO_CODES, _EMPTY, out, n_layers, 2)
-        else:
-            def run(belief, out, lik):
-                return _stencil_update(belief, w, meta, lik, out, n_layers, 2)
+        def run(belief, out, lik):
+            return kernel(belief, w, meta, lik, out, n_layers, 2)
+
         return run
 
-    def likelihood_form(self, lik: np.ndarray):
-        """What :attr:`run_flat` takes for a likelihood: on grids read as codes, a likelihood of at
-        most 256 values becomes ``(codes, table)`` (1 byte per cell); else the flat float64s."""
-        flat = np.ascontiguousarray(lik, dtype=np.float64).ravel()
-        if self.use_codes:
-            vals, inv = np.unique(flat, return_inverse=True)
-            if len(vals) <= 256:
-                return inv.reshape(-1).astype(np.uint8), np.pad(vals, (0, 256 - len(vals)))
-        return flat
+    def likelihood_form(self, lik: np.ndarray) -> np.ndarray:
+        """What :attr:`run_flat` takes for a likelihood: the flat float64 array."""
+        return np.ascontiguousarray(lik, dtype=np.float64).ravel()
 
     def run(self, belief: np.ndarray, out: np.ndarray, lik: np.ndarray | None, normalise: bool = True) -> float:
         """``out = T^T belief``; with ``lik``, times ``lik`` and (with ``normalise``) divided by the
         sum, which is returned (0.0 without ``lik``)."""
         mode = 0 if lik is None else 1 if normalise else 2
         lk = _EMPTY if lik is None else lik.ravel()
-        if self.use_codes:
-            return _stencil_update_codes(belief.ravel(), self.w, self.meta, self.codes, self.table, lk,
-                                         _NO_CODES, _EMPTY, out.ravel(), self.n_layers, mode)
-        return _stencil_update(belief.ravel(), self.w, self.meta, lk, out.ravel(), self.n_layers, mode)
+        return self._kernel(belief.reshape(-1), self.w, self.meta, lk, out.reshape(-1), self.n_layers, mode)
+
+
+class BatchPlan:
+    """Every action's stencil, padded to one shape, for :class:`gym_gridloc.BatchFilter`: one
+    compiled call updates N beliefs (predict with each one's action, update, normalise).  Only
+    for models on the numba path (:func:`uses_numba`)."""
+
+    def __init__(self, model) -> None:
+        plans = [model.stencil_plan(a) for a in range(model.n_actions)]
+        if not all(isinstance(p, StencilPlan) for p in plans):
+            raise ValueError(f"{model!r} is not filtered by the compiled kernels (see kernels.uses_numba)")
+        k = max(p.w.shape[0] for p in plans)
+        hw = plans[0].hw
+        self.n_layers = model.n_layers
+        self.w = np.zeros((len(plans), k, hw))
+        self.meta = np.zeros((len(plans), 5, k), dtype=np.int64)
+        self.meta[:, 1, :] = -1  # padding terms feed no layer
+        for a, p in enumerate(plans):
+            n = p.w.shape[0]
+            self.w[a, :n] = p.w
+            self.meta[a, :, :n] = p.meta
+        self._kernel = _compiled().batch_update
+
+    def run(self, beliefs: np.ndarray, actions: np.ndarray, lik: np.ndarray, out: np.ndarray, sel: np.ndarray) -> np.ndarray:
+        z = np.empty(beliefs.shape[0])
+        self._kernel(beliefs, self.w, self.meta, actions, lik, out, self.n_layers, sel, z)
+        return z
+
 
 _EMPTY = np.zeros(1)
-_NO_CODES = np.zeros(1, dtype=np.uint8)

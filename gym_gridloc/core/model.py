@@ -65,7 +65,8 @@ _KERNELS = None
 
 
 def _kernels():
-    """:mod:`gym_gridloc.kernels`, imported on first use (numba loads only when a filter runs)."""
+    """:mod:`gym_gridloc.kernels`, imported on first use (it imports numba only when a small
+    model is first filtered; see :func:`gym_gridloc.kernels.uses_numba`)."""
     global _KERNELS
     if _KERNELS is None:
         from gym_gridloc import kernels
@@ -287,7 +288,7 @@ class GridModel:
         Returns ``(zero_layers, entries)``; an entry is ``(first, src_lo, dst_lo, n, weight_slice)``
         over flat indices: ``first`` marks a (0, 0) term that covers its whole destination layer
         and is written rather than added (such terms come first); ``zero_layers`` are the layers
-        no such term covers, cleared first.  Used by :meth:`predict` and :class:`BatchFilter`.
+        no such term covers, cleared first.  Used by :class:`BatchFilter`'s batched numpy path.
         """
         key = -1 if action is None else self.check_action(action)
         cache = self.__dict__.setdefault("_flat_plans", {})
@@ -314,60 +315,42 @@ class GridModel:
         return plan
 
     def stencil_plan(self, action: int | None):
-        """The compiled kernel's plan for ``action`` (:mod:`gym_gridloc.kernels`), or None
-        without numba."""
+        """The plan that applies ``action``'s transition (None: the average) to a flat belief,
+        cached: compiled (numba) on small models, scipy's diagonal kernel on the others
+        (:func:`gym_gridloc.kernels.uses_numba` decides; :mod:`gym_gridloc.kernels`)."""
         kernels = _kernels()
-        if not kernels.AVAILABLE:
-            return None
         cache = self.__dict__.get("_stencil_plans")
         if cache is None:
             cache = self.__dict__["_stencil_plans"] = {}
-        plan = cache.get(action) if action is None or type(action) is int else None
+        numba = kernels.uses_numba(self)
+        plan = cache.get((numba, action)) if action is None or type(action) is int else None
         if plan is None:
-            key = None if action is None else self.check_action(action)
+            key = (numba, None if action is None else self.check_action(action))
             plan = cache.get(key)
             if plan is None:
-                plan = cache[key] = kernels.StencilPlan(self, self.terms(key))
+                plan = cache[key] = kernels.make_plan(self, self.terms(key[1]))
         return plan
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state.pop("_flat_plans", None)  # views into the weights: rebuilt on demand
         state.pop("_stencil_plans", None)
-        state.pop("_scratch", None)
         return state
 
     def predict(self, belief: np.ndarray, action: int | None, out: np.ndarray | None = None) -> np.ndarray:
         """One transition step of an (L, H, W) belief (sum over the stencil's shifted arrays).
 
-        ``out`` (an (L, H, W) float64 array, not ``belief``) receives the result without a new
-        allocation.  Each term is one multiply and one add over contiguous slices.
+        ``out`` (a C-contiguous (L, H, W) float64 array, not ``belief``) receives the result
+        without a new allocation.  The plan of :meth:`stencil_plan` does the work.
         """
         belief = np.ascontiguousarray(belief, dtype=np.float64)
+        if belief.size != self.n_layers * self.grid.free.size:
+            raise ValueError(f"belief must have shape {self.belief_shape}, got {belief.shape}")
         if out is None:
             out = np.empty(self.belief_shape)
-        if self.kidnap_prob == 0.0 and belief.shape == self.belief_shape:
-            plan = self.stencil_plan(action)
-            if plan is not None:  # compiled: one pass over memory
-                plan.run(belief, out, None)
-                return out
-        zero, plan = self.flat_plan(action)
-        bf = belief.reshape(-1)
-        of = out.reshape(-1)
-        hw = bf.shape[0] // self.n_layers
-        for layer in zero:
-            of[layer * hw : (layer + 1) * hw] = 0.0
-        scratch = self.__dict__.get("_scratch")
-        if scratch is None or scratch.shape[0] < hw:
-            scratch = self.__dict__["_scratch"] = np.empty(hw)
-        for first, s0, d0, n, wf in plan:
-            if first:
-                np.multiply(wf, bf[s0 : s0 + n], out=of[d0 : d0 + n])
-            else:
-                tmp = scratch[:n]
-                np.multiply(wf, bf[s0 : s0 + n], out=tmp)
-                dst = of[d0 : d0 + n]
-                np.add(dst, tmp, out=dst)
+        elif out.dtype != np.float64 or not out.flags.c_contiguous or out.size != belief.size or np.may_share_memory(out, belief):
+            raise ValueError(f"out must be a C-contiguous float64 array of shape {self.belief_shape}, apart from belief")
+        self.stencil_plan(action).run(belief, out, None)
         if self.kidnap_prob > 0.0:
             out *= 1.0 - self.kidnap_prob
             out += (self.kidnap_prob / self.n_states) * belief.sum() * self.state_mask
