@@ -11,10 +11,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import inspect
 import math
 import os
+import signal
+import threading
 import tempfile
 import tracemalloc
 import warnings
@@ -165,11 +168,31 @@ def maze_ok(rows: list[str]) -> bool:
 
 
 # -- the property ----------------------------------------------------------------------------------
+@contextlib.contextmanager
+def hard_timeout(seconds: int):
+    """Fail (instead of hanging forever) if the block runs longer than ``seconds``; hypothesis's
+    deadline only judges an example after it returns."""
+    if not hasattr(signal, "SIGALRM") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def on_alarm(signum, frame):
+        raise TimeoutError(f"an example ran for more than {seconds} s (a hang?)")
+
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
 def exercise(make, bad_names: set[str], map_ok: bool, source: str | None = None) -> None:
     """``make()`` either fails with ValueError/TypeError naming something bad, or gives an
     environment that resets, steps, and keeps finite beliefs summing to 1."""
     expect_error = bool(bad_names) or not map_ok
-    with warnings.catch_warnings():
+    with hard_timeout(30), warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)  # divide by zero, invalid value, overflow
         try:
             env = make()
