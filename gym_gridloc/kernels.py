@@ -76,26 +76,11 @@ except ImportError:  # pragma: no cover - depends on the scipy release
     _dia_matvec = _dia_matvec_numpy
 
 
-def _weight_rows(weights: list[np.ndarray], hw: int, copy: bool = True) -> np.ndarray | None:
-    """The weights as one C-contiguous (K, hw) array: a view of the model's stacked weights when
-    they are consecutive rows of it, else a copy (or None without ``copy``)."""
-    base = weights[0].base
-    if isinstance(base, np.ndarray) and base.flags.c_contiguous and base.size % hw == 0:
-        rows = base.reshape(-1, hw)
-        start = (weights[0].ctypes.data - rows.ctypes.data) // (hw * 8)
-        view = rows[start : start + len(weights)] if 0 <= start <= rows.shape[0] - len(weights) else None
-        if view is not None and all(
-            wt.base is base and wt.ctypes.data == view[k].ctypes.data for k, wt in enumerate(weights)
-        ):
-            return view
-    return np.ascontiguousarray(np.stack([wt.reshape(hw) for wt in weights])) if copy else None
-
-
 class DiagonalPlan:
     """One action's transition as diagonals of ``T^T`` (see the module docstring): ``writes``
     are ``(src, dst, weight)`` for the ``(0, 0)`` terms written first (one per destination
-    layer), ``adds`` are ``(src, dst, offsets, weights)``, consecutive terms between the same
-    layers in one call; ``zero`` are the layers no written term covers (cleared first)."""
+    layer), ``adds`` are ``(src, dst, offsets, weights)``, one diagonal each; ``zero`` are the
+    layers no written term covers (cleared first)."""
 
     path = "numpy"
 
@@ -103,25 +88,13 @@ class DiagonalPlan:
         h, w = model.shape
         self.hw = hw = h * w
         self.n_layers = model.n_layers
-        writes, groups, covered = [], [], set()
+        writes, adds, covered = [], [], set()
         for t in terms:
             if t.dr == 0 and t.dc == 0 and t.dst not in covered:
                 covered.add(t.dst)
                 writes.append((t.src, t.dst, t.weight.reshape(hw)))
-            elif groups and groups[-1][:2] == (t.src, t.dst):
-                groups[-1][2].append(-(t.dr * w + t.dc))
-                groups[-1][3].append(t.weight)
-            else:
-                groups.append((t.src, t.dst, [-(t.dr * w + t.dc)], [t.weight]))
-        adds = []
-        for src, dst, offsets, weights in groups:
-            # Split where the weights are not consecutive rows of one array (each part a view).
-            rows = _weight_rows(weights, hw, copy=False)
-            if rows is None:
-                for o, wt in zip(offsets, weights):
-                    adds.append((src, dst, np.array([o], dtype=np.int32), wt.reshape(1, hw)))
-            else:
-                adds.append((src, dst, np.array(offsets, dtype=np.int32), rows))
+            else:  # one diagonal; the weights are the model's own (H, W) arrays, not copied
+                adds.append((t.src, t.dst, np.array([-(t.dr * w + t.dc)], dtype=np.int32), t.weight.reshape(1, hw)))
         self.writes = tuple(writes)
         self.adds = tuple(adds)
         self.zero = tuple(layer for layer in range(self.n_layers) if layer not in covered)
@@ -179,7 +152,8 @@ class StencilPlan:
         self.hw = hw
         self.n_layers = model.n_layers
         weights = [t.weight for t in terms]
-        self.w = _weight_rows(weights, hw) if weights else np.zeros((0, hw))
+        # A copy as one (K, H*W) array: this path is for small models only.
+        self.w = np.stack([wt.reshape(hw) for wt in weights]) if weights else np.zeros((0, hw))
         self.src = np.array([t.src for t in terms], dtype=np.int64)
         self.dst = np.array([t.dst for t in terms], dtype=np.int64)
         self.off = np.array([t.dr * w + t.dc for t in terms], dtype=np.int64)

@@ -9,9 +9,10 @@ four ways, all exact:
 * ``csr product``: the bare CSR product ``T_a^T @ f`` alone (no update);
 * ``dense step``: ``O T_a^T f`` with dense S x S matrices, where they fit in ``--dense-max-gib``.
 
-Ratios are measured in this one run (best of ``--repeats`` timings).  A last part measures the
-peak resident memory (VmHWM) of a 512 x 512 environment with its ``HMMBeliefWrapper`` belief after a
-reset and 20 steps, per model, each in a fresh process.
+Ratios are measured in this one run (best of ``--repeats`` timings); ``path`` is the kernel the
+model's filter uses (``numba`` or ``numpy``, see ``gym_gridloc/kernels.py``).  A last part measures
+the peak resident memory (VmHWM) of a 512 x 512 environment with its ``HMMBeliefWrapper`` belief
+after a reset and 20 steps, per model, each in a fresh process, and whether numba was loaded.
 
     .venv/bin/python scripts/bench_filter.py            # 8, 32, 64, 128, 512
     .venv/bin/python scripts/bench_filter.py --sizes 8 64 --no-memory
@@ -31,8 +32,8 @@ import gym_gridloc
 from gym_gridloc.generators import colour_map
 
 MEMORY_SNIPPET = """
+import sys
 import gymnasium as gym, gym_gridloc
-from gym_gridloc import kernels  # imports numba when it is there and not switched off
 def status(key):
     return next(int(l.split()[1]) for l in open("/proc/self/status").read().splitlines() if l.startswith(key)) / 1024
 base = status("VmRSS:")
@@ -40,7 +41,7 @@ env = gym_gridloc.HMMBeliefWrapper(gym.make({env_id!r}, **{kwargs!r}))
 env.reset(seed=0)
 for t in range(20):
     env.step(t % env.action_space.n)
-print(base, status("VmHWM:"), kernels.AVAILABLE)
+print(base, status("VmHWM:"), "numba" in sys.modules)
 """
 
 
@@ -103,7 +104,7 @@ def setup_size(side: int, steps: int, dense_max_gib: float) -> tuple[dict, dict,
             v = Tt[a] @ v
         return v
 
-    out = {"side": side, "S": S}
+    out = {"side": side, "S": S, "path": model.stencil_plan(0).path}
     # The three are the same filter: check before timing.
     ref = csr_step()
     stencil()
@@ -133,10 +134,11 @@ def setup_size(side: int, steps: int, dense_max_gib: float) -> tuple[dict, dict,
 
 
 def memory(env_id: str, kwargs: dict, numba: bool) -> tuple[float, float, bool]:
-    """(resident MiB after the imports, peak resident MiB, kernels used) in a fresh process."""
+    """(resident MiB after the imports, peak resident MiB, numba loaded) in a fresh process."""
     import os
 
     env = dict(os.environ)
+    env.pop("GYM_GRIDLOC_NO_NUMBA", None)
     if not numba:
         env["GYM_GRIDLOC_NO_NUMBA"] = "1"
     code = MEMORY_SNIPPET.format(env_id=env_id, kwargs=kwargs)
@@ -178,13 +180,13 @@ def main(argv=None) -> None:
                 row[name] = t
 
     print(f"Filter step on generated ColourGrid maps (obstacle_density 0.2, map_seed 0); best of {args.repeats}")
-    print(f"{'grid':>9} {'states':>7} | {'stencil':>11} {'csr step':>11} {'csr prod':>11} {'dense':>11} | "
+    print(f"{'grid':>9} {'states':>7} {'path':>5} | {'stencil':>11} {'csr step':>11} {'csr prod':>11} {'dense':>11} | "
           f"{'x csr step':>10} {'x csr prod':>10} {'x dense':>9}")
     for r in rows:
         rate = lambda t: f"{1.0 / t:9.0f}/s" if t else f"{'n/a':>11}"  # noqa: E731
         dense_ratio = f"{r['dense'] / r['stencil']:9.1f}" if r["dense"] else f"{'n/a':>9}"
         print(
-            f"{r['side']:>4}x{r['side']:<4} {r['S']:>7} | {rate(r['stencil'])} {rate(r['csr_step'])} "
+            f"{r['side']:>4}x{r['side']:<4} {r['S']:>7} {r['path']:>5} | {rate(r['stencil'])} {rate(r['csr_step'])} "
             f"{rate(r['csr_product'])} {rate(r['dense'])} | {r['csr_step'] / r['stencil']:10.2f} "
             f"{r['csr_product'] / r['stencil']:10.2f} {dense_ratio}"
         )
@@ -196,24 +198,37 @@ def main(argv=None) -> None:
         cells = by_side[512]["S"] / by_side[128]["S"]
         print(f"128x128 -> 512x512: {cells:.1f}x the states, stencil step time x{g:.1f}")
     print(f"largest |stencil - csr| belief difference: {max(r['err'] for r in rows):.2e}")
+    verdict = lambda ok: "met" if ok else "NOT met"  # noqa: E731
+    if 64 in by_side and by_side[64]["dense"]:
+        x = by_side[64]["dense"] / by_side[64]["stencil"]
+        print(f"target 64x64 at least 100x the dense step: x{x:.0f}, {verdict(x >= 100)}")
+    if 128 in by_side and 512 in by_side:
+        print(f"target 128x128 -> 512x512 step time at most x20: x{g:.1f}, {verdict(g <= 20)}")
+    worst = min(rows, key=lambda r: r["csr_product"] / r["stencil"])
+    x = worst["csr_product"] / worst["stencil"]
+    print(f"target at least the CSR product's speed at every size: lowest x{x:.2f} ({worst['side']}x{worst['side']}), "
+          f"{verdict(x >= 1)}")
 
     if not args.no_memory:
         print("\nPeak resident memory (VmHWM), 512x512 environment + HMMBeliefWrapper, reset and 20 steps,")
-        print("each in a fresh process; 'imports' = resident after importing gymnasium and gym_gridloc:")
+        print("each in a fresh process; 'imports' = resident after importing gymnasium and gym_gridloc;")
+        print("1 MiB = 1.049 MB (target: under 200 MB):")
         cases = [
             ("ColourGrid-v0", {"size": (512, 512)}),
             ("WindyMaze-v0", {"size": (512, 512)}),
             ("RingSensor8x8-v0", {"size": (512, 512)}),
             ("RingSensor8x8-v0", {"size": (512, 512), "dynamics": "seed"}),
         ]
-        print(f"  {'environment':<40} {'numpy kernels':>24} {'numba kernels':>24}")
+        print(f"  {'environment':<32} {'default install':>38} {'GYM_GRIDLOC_NO_NUMBA=1':>24}")
         for env_id, kwargs in tqdm(cases, desc="memory", file=sys.stderr):
             cols = []
-            for numba in (False, True):
-                base, peak, used = memory(env_id, kwargs, numba)
-                cols.append(f"{peak:4.0f} MiB (imports {base:3.0f})" if used == numba else f"{'n/a':>24}")
+            for numba in (True, False):
+                base, peak, loaded = memory(env_id, kwargs, numba)
+                note = f", numba {'loaded' if loaded else 'not loaded'}" if numba else ""
+                cols.append(f"{peak * 1.048576:4.0f} MB (imports {base * 1.048576:3.0f}){note}")
             name = env_id + (" seed dynamics" if kwargs.get("dynamics") == "seed" else "")
-            print(f"  {name:<40} {cols[0]:>24} {cols[1]:>24}")
+            print(f"  {name:<32} {cols[0]:>38} {cols[1]:>24}")
+
 
 if __name__ == "__main__":
     main()

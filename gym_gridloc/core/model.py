@@ -75,16 +75,24 @@ def _kernels():
     return _KERNELS
 
 
-def _stacked(terms: tuple[Term, ...], shape: tuple[int, int]) -> tuple[Term, ...]:
-    """The same terms with their weights stored as one read-only (K, H, W) array (what the
-    compiled filter kernel reads, without a copy)."""
-    if not terms:
-        return terms
-    stack = np.empty((len(terms), *shape))
-    for k, t in enumerate(terms):
-        stack[k] = t.weight
-    stack.setflags(write=False)
-    return tuple(Term(t.src, t.dst, t.dr, t.dc, stack[k]) for k, t in enumerate(terms))
+def _share_equal(transitions: tuple[tuple[Term, ...], ...]) -> tuple[tuple[Term, ...], ...]:
+    """The actions' terms with every weight array equal to an earlier action's weight of the
+    same ``(src, dst, dr, dc)`` replaced by that array (held once: e.g. on a colour grid the
+    three actions that slip north share one north weight)."""
+    seen: dict[tuple[int, int, int, int], list[np.ndarray]] = {}
+    out = []
+    for terms in transitions:
+        shared = []
+        for t in terms:
+            key = (t.src, t.dst, t.dr, t.dc)
+            same = next((w for w in seen.get(key, ()) if np.array_equal(w, t.weight)), None)
+            if same is None:
+                seen.setdefault(key, []).append(t.weight)
+                shared.append(t)
+            else:
+                shared.append(Term(t.src, t.dst, t.dr, t.dc, same))
+        out.append(tuple(shared))
+    return tuple(out)
 
 
 def move_terms(grid: GridMap, direction_probs: np.ndarray, layer: int = 0, dst_layer: int | None = None) -> list[Term]:
@@ -148,7 +156,8 @@ class GridModel:
         self.action_dependent = bool(action_dependent)
         self.layer_names = tuple(layer_names) if layer_names else tuple(str(i) for i in range(self.n_layers))
         self.params = dict(params or {})
-        self.transitions = tuple(_stacked(merge_terms(t), grid.shape) for t in transitions)
+        # No copies: merge_terms keeps the given arrays (read-only) where nothing merges.
+        self.transitions = _share_equal(tuple(merge_terms(t) for t in transitions))
         if not self.transitions:
             raise ValueError("a model needs at least one action")
         self._slices = {}
@@ -166,10 +175,7 @@ class GridModel:
             if len(self.transitions) == 1:
                 mean = self.transitions[0]
             else:
-                mean = _stacked(
-                    merge_terms([t for terms in self.transitions for t in terms], 1.0 / len(self.transitions)),
-                    self.grid.shape,
-                )
+                mean = merge_terms([t for terms in self.transitions for t in terms], 1.0 / len(self.transitions))
             for t in mean:
                 self._slices[id(t)] = t.slices(self.grid.shape)
             self.__dict__["_mean_transition"] = mean
