@@ -77,70 +77,37 @@ except ImportError:  # pragma: no cover - depends on the scipy release
 
 
 class DiagonalPlan:
-    """One action's transition on the numpy path (see the module docstring).
-
-    ``writes`` are ``(src, dst, weight)`` for the ``(0, 0)`` terms written first (one per
-    destination layer); ``zero`` the layers no such term covers (cleared first).  A term whose
-    weight is one value ``c`` on every move that stays on free cells (and 0 elsewhere, as
-    :meth:`GridModel._check` requires) is *uniform*: its weight array is never read; ``c`` times
-    the source layer is formed once per ``(src, c)`` and added as a shifted 2-D slice.  What it
-    adds to obstacle cells is removed by the likelihood (made zero on obstacles) or, for a
-    prediction alone, by clearing the obstacles.  The other terms, ``adds``, are one DIA diagonal
-    each, over the model's own weight arrays (not copied).  Beliefs are zero on obstacles.
-    """
+    """One action's transition as diagonals of ``T^T`` (see the module docstring): ``writes``
+    are ``(src, dst, weight)`` for the ``(0, 0)`` terms written first (one per destination
+    layer), ``adds`` are ``(src, dst, offsets, weights)``, one diagonal each; ``zero`` are the
+    layers no written term covers (cleared first)."""
 
     path = "numpy"
 
     def __init__(self, model, terms) -> None:
         h, w = model.shape
         self.hw = hw = h * w
-        self.shape = (h, w)
         self.n_layers = model.n_layers
-        free = model.grid.free
-        writes, adds, uniform, covered = [], [], {}, set()
+        writes, adds, covered = [], [], set()
         for t in terms:
             if t.dr == 0 and t.dc == 0 and t.dst not in covered:
                 covered.add(t.dst)
                 writes.append((t.src, t.dst, t.weight.reshape(hw)))
-                continue
-            src_sl, dst_sl = t.slices((h, w))
-            moves = np.zeros((h, w), dtype=bool)  # free cells whose move stays on free cells
-            moves[src_sl] = free[dst_sl]
-            moves &= free
-            vals = t.weight[moves]
-            if vals.size and vals[0] > 0.0 and np.all(vals == vals[0]):
-                uniform.setdefault((t.src, float(vals[0])), []).append((t.dst, src_sl, dst_sl))
             else:  # one diagonal; the weights are the model's own (H, W) arrays, not copied
                 adds.append((t.src, t.dst, np.array([-(t.dr * w + t.dc)], dtype=np.int32), t.weight.reshape(1, hw)))
         self.writes = tuple(writes)
         self.adds = tuple(adds)
-        self.uniform = tuple((src, c, tuple(shifts)) for (src, c), shifts in uniform.items())
         self.zero = tuple(layer for layer in range(self.n_layers) if layer not in covered)
-        self._free = free.reshape(-1) if self.uniform else None
-        self._obstacles = ~free if self.uniform and not free.all() else None
-        self._scratch = model.__dict__.setdefault("_scratch", np.empty((h, w))) if self.uniform else None
 
-    def predict(self, b: np.ndarray, out: np.ndarray, clear_obstacles: bool = True) -> None:
-        """``out = T^T b`` over flat (L*H*W,) float64 arrays (``out`` not ``b``).  Without
-        ``clear_obstacles``, obstacle cells may hold what uniform terms moved into them."""
+    def predict(self, b: np.ndarray, out: np.ndarray) -> None:
+        """``out = T^T b`` over flat (L*H*W,) float64 arrays (``out`` not ``b``)."""
         hw = self.hw
         for layer in self.zero:
             out[layer * hw : (layer + 1) * hw] = 0.0
         for src, dst, wt in self.writes:
             np.multiply(wt, b[src * hw : (src + 1) * hw], out=out[dst * hw : (dst + 1) * hw])
-        if self.uniform:
-            planes = out.reshape(self.n_layers, *self.shape)
-            x = self._scratch
-            for src, c, shifts in self.uniform:
-                np.multiply(b[src * hw : (src + 1) * hw].reshape(self.shape), c, out=x)
-                for dst, src_sl, dst_sl in shifts:
-                    o = planes[dst][dst_sl]
-                    np.add(o, x[src_sl], out=o)
         for src, dst, offsets, rows in self.adds:
             _dia_matvec(hw, hw, len(offsets), hw, offsets, rows, b[src * hw : (src + 1) * hw], out[dst * hw : (dst + 1) * hw])
-        if clear_obstacles and self._obstacles is not None:
-            for plane in out.reshape(self.n_layers, *self.shape):
-                np.copyto(plane, 0.0, where=self._obstacles)
 
     @property
     def run_flat(self):
@@ -149,7 +116,7 @@ class DiagonalPlan:
         predict = self.predict
 
         def run(belief, out, lik):
-            predict(belief, out, False)  # the likelihood is zero on obstacles
+            predict(belief, out)
             view = out.reshape(layers)
             np.multiply(view, lik, out=view)
             return float(np.add.reduce(out))
@@ -157,10 +124,8 @@ class DiagonalPlan:
         return run
 
     def likelihood_form(self, lik: np.ndarray) -> np.ndarray:
-        """What :attr:`run_flat` takes for a likelihood: the flat float64 array, zero on
-        obstacles."""
-        flat = np.ascontiguousarray(lik, dtype=np.float64).ravel()
-        return flat * self._free if self._free is not None else flat
+        """What :attr:`run_flat` takes for a likelihood: the flat float64 array."""
+        return np.ascontiguousarray(lik, dtype=np.float64).ravel()
 
     def run(self, belief: np.ndarray, out: np.ndarray, lik: np.ndarray | None, normalise: bool = True) -> float:
         """``out = T^T belief``; with ``lik``, times ``lik`` and (with ``normalise``) divided by the

@@ -146,29 +146,18 @@ def test_the_two_paths_agree_on_a_filter_run(name, monkeypatch):
     assert abs(runs[0].log_likelihood - runs[1].log_likelihood) < 1e-9
 
 
-def test_diagonal_plan_uniform_and_diagonal_terms_equal_the_model():
-    # Terms straight from move_terms (not merged or shared by a model); the moves have one
-    # probability each (uniform terms), the stay term varies (a DIA diagonal is not needed for
-    # it: it is written).  Then the same moves with a probability that varies by cell.
+def test_diagonal_plan_of_raw_terms_equals_the_model():
+    # Terms straight from move_terms (not merged or shared by a model): one diagonal each.
     model = gym_gridloc.colour_grid_model(colour_map((19, 24), obstacle_density=0.3, seed=2))
     probs = np.array([0.925, 0.025, 0.025, 0.025])  # action 0 with slip 0.1
-    b = model.prior() * np.random.default_rng(0).random(model.belief_shape)
-    ref = model.from_vector(model.transition_matrix(0).T @ model.to_vector(b))
     plan = kernels.DiagonalPlan(model, move_terms(model.grid, probs))
-    assert len(plan.uniform) == 2 and not plan.adds  # (layer 0, 0.925) and (layer 0, 0.025)
+    assert len(plan.writes) == 1 and len(plan.adds) == 4
+    b = model.prior() * np.random.default_rng(0).random(model.belief_shape)
     out = np.full(model.belief_shape, np.nan)
     plan.run(b, out, None)
+    ref = model.from_vector(model.transition_matrix(0).T @ model.to_vector(b))
     np.testing.assert_allclose(out, ref, rtol=0, atol=1e-15)
     assert np.all(out[:, ~model.grid.free] == 0.0)
-    varying = np.broadcast_to(probs.reshape(4, 1, 1), (4, *model.shape)).copy()
-    varying[:, 5:8, :] = 0.25  # rows 5-7 move uniformly at random
-    other = gym_gridloc.GridModel(model.grid, [move_terms(model.grid, varying)], model.sensor)
-    plan = kernels.DiagonalPlan(other, move_terms(other.grid, varying))
-    assert len(plan.adds) == 4 and not plan.uniform
-    out = np.full(model.belief_shape, np.nan)
-    plan.run(b, out, None)
-    ref = other.from_vector(other.transition_matrix(0).T @ other.to_vector(b))
-    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-15)
 
 
 def test_numpy_fallback_equals_scipy_dia_matvec():

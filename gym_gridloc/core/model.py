@@ -341,7 +341,6 @@ class GridModel:
         state = dict(self.__dict__)
         state.pop("_flat_plans", None)  # views into the weights: rebuilt on demand
         state.pop("_stencil_plans", None)
-        state.pop("_scratch", None)  # the numpy kernel's buffer
         return state
 
     def predict(self, belief: np.ndarray, action: int | None, out: np.ndarray | None = None) -> np.ndarray:
