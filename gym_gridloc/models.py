@@ -173,7 +173,7 @@ def ring_sensor_model(
                 terms.append(Term(hd, nh, int(dr), int(dc), weight))
             terms.append(Term(hd, hd, 0, 0, np.where(stuck, 1.0, 0.0)))
         return GridModel(
-            grid, [terms], sensor, n_layers=4, name="RingSensor", action_dependent=False,
+            grid, [terms] * 4, sensor, n_layers=4, name="RingSensor", action_dependent=False,
             layer_names=("N", "E", "S", "W"), params=params,
         )
     transitions = []

@@ -13,6 +13,7 @@ import pytest
 import gym_gridloc
 from gym_gridloc import (
     ColourGridEnv,
+    GridModel,
     HMMBeliefWrapper,
     MapError,
     RingSensorEnv,
@@ -294,8 +295,10 @@ def test_wrapper_model_with_another_observation_space():
 
 
 def test_wrapper_model_with_another_number_of_actions():
-    with pytest.raises(ValueError, match=r"the model has 1 actions but the environment's action space is Discrete\(4\)"):
-        HMMBeliefWrapper(gym.make("RingSensor8x8-v0"), model=ring_sensor_model((8, 8), dynamics="seed"))
+    ring = ring_sensor_model((8, 8))
+    two_actions = GridModel(ring.grid, ring.transitions[:2], ring.sensor)
+    with pytest.raises(ValueError, match=r"the model has 2 actions but the environment's action space is Discrete\(4\)"):
+        HMMBeliefWrapper(gym.make("RingSensor8x8-v0"), model=two_actions)
 
 
 def test_wrapper_on_an_env_without_a_model():

@@ -441,8 +441,8 @@ def test_spaces_as_documented(env_id, kwargs):
     env = gym.make(env_id, **kwargs)
     model = env.unwrapped.model
     seed_dynamics = kwargs.get("dynamics") == "seed"
-    # N, E, S, W everywhere; the seed dynamics ignore the action, so they offer just one.
-    assert env.action_space == gym.spaces.Discrete(1 if seed_dynamics else 4)
+    # N, E, S, W everywhere (SPEC section 1); the seed dynamics ignore the action.
+    assert env.action_space == gym.spaces.Discrete(4)
     expected_obs = {
         "ColourGrid-v0": gym.spaces.Discrete(4),
         "RingSensor8x8-v0": gym.spaces.Discrete(8 * 8 + 1),

@@ -138,7 +138,7 @@ TIED = [((3, 3), 0), ((4, 4), 2), ((5, 5), 0)]
 def test_plain_hmm_equals_hmmlearn(size, seed):
     hmm = pytest.importorskip("hmmlearn.hmm")
     model = ring_sensor_model(size, dynamics="seed")  # the action plays no part: a plain HMM
-    actions, obs, _ = simulate(model, 40, seed)
+    actions, obs, _ = simulate(model, 40, seed, actions=[0] * 40)
     S = model.n_states
     ref = hmm.CategoricalHMM(n_components=S, init_params="", params="")
     ref.n_features = model.sensor.n_readings

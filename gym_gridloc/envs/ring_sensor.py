@@ -16,8 +16,8 @@ class RingSensorEnv(GridLocEnv):
     action plays the role of the heading: the robot follows it with ``keep_heading`` (0.7) when it
     does not face a wall, otherwise it takes a uniformly chosen heading that does not face a wall;
     then it moves one cell.  With ``dynamics="seed"`` the robot keeps a hidden heading and follows
-    the seeds' rule whatever the action: the action plays no part, and the action space is
-    ``Discrete(1)`` (a passive tracking task).
+    the seeds' rule whatever the action: the action space is still ``Discrete(4)``, as in every
+    environment, but the action plays no part (a passive tracking task).
 
     ## Observation Space
     ``Discrete(H * W + 1)``: ``r * W + c`` is a reported cell, ``H * W`` is "nothing".  The true
