@@ -102,12 +102,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.on_impossible = check_choice("on_impossible", on_impossible, ("raise", "reset"))
         self.model = model
         self.belief = check_choice("belief", belief, ("exact", "particles"))
-        if self.belief == "particles":
-            from gym_gridloc.particles import ParticleFilter
-
-            self.filter = ParticleFilter(model, n_particles, resample_threshold=resample_threshold)
-        else:
-            self.filter = ForwardFilter(model)
+        self.filter = self._make_filter(model)
         self.flatten = bool(flatten)
         self.full_state = bool(full_state)
         self.key = key
@@ -137,6 +132,14 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self._reset_flag = False
 
     # -- filtering -------------------------------------------------------------------------------
+    def _make_filter(self, model: GridModel):
+        if self.belief == "particles":
+            from gym_gridloc.particles import ParticleFilter
+
+            n, threshold = self._filter_args
+            return ParticleFilter(model, n, resample_threshold=threshold)
+        return ForwardFilter(model)
+
     def _sensor_obs(self, observation):
         if isinstance(observation, dict):
             return observation["observation"]
@@ -147,13 +150,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         env_model = getattr(self.env.unwrapped, "model", None) if self._follows_env else None
         if env_model is not None and env_model is not self.model:  # the map was redrawn at reset
             self.model = env_model
-            if self.belief == "particles":
-                from gym_gridloc.particles import ParticleFilter
-
-                n, threshold = self._filter_args
-                self.filter = ParticleFilter(env_model, n, resample_threshold=threshold)
-            else:
-                self.filter = ForwardFilter(env_model)
+            self.filter = self._make_filter(env_model)
         self._reset_flag = False
         if seed is not None and self.belief == "particles":  # a stream of its own, fixed by the seed
             self.filter.seed(np.random.SeedSequence(seed, spawn_key=(1,)))
