@@ -64,6 +64,8 @@ def test_a_small_model_loads_numba_on_first_filter_step():
 
 
 def test_uses_numba_by_belief_cells(monkeypatch):
+    if importlib.util.find_spec("numba") is None:
+        pytest.skip("numba is not installed")
     small = gym_gridloc.ring_sensor_model((64, 64))  # 4,096 cells
     seed = gym_gridloc.ring_sensor_model((64, 64), dynamics="seed")  # 4 layers: 16,384 cells
     big = gym_gridloc.ring_sensor_model((128, 128))
