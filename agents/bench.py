@@ -266,6 +266,9 @@ def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None 
     os.close(fd)
     try:
         fig.savefig(tmp, format="png")
+        from agents.train import _umask_mode
+
+        os.chmod(tmp, _umask_mode())
         os.replace(tmp, path)
     finally:
         plt.close(fig)
