@@ -248,6 +248,12 @@ def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None 
         ax2.plot(np.arange(len(r["accuracy_curve"])), r["accuracy_curve"], color=line.get_color(), label=r["policy"])
         ks = [int(k) for k in r["accuracy_at"]]
         ax2.plot(ks, [r["accuracy_at"][str(k)] for k in ks], "o", color=line.get_color(), ms=4)
+    # Show the steps where the curves still move (short episodes would be squeezed to the left).
+    last = 0
+    for r in rows:
+        c = np.asarray(r["localised_curve"])
+        last = max(last, int(np.searchsorted(c, 0.995 * c[-1])) if c[-1] > 0 else len(c) - 1)
+    ax1.set_xlim(0, min(len(rows[0]["localised_curve"]) - 1, max(10, int(last * 1.15) + 1)))
     ax1.set_xlabel("steps from reset")
     ax1.set_ylabel("fraction of episodes localised")
     ax1.set_ylim(0, 1.02)
