@@ -212,3 +212,8 @@ def test_held_out_evaluation_keeps_the_best_model(tmp_path):
     model, _ = load_model(tmp_path / "model.zip", env_id="ColourGrid-v0")
     cfg = validate_config(tiny(tmp_path))
     assert evaluate(model, cfg, 3) == pytest.approx(best["mean_steps"], abs=1e-3)
+
+
+def test_tensorboard_logging(tmp_path):
+    train(tiny(tmp_path), progress_bar=False, tensorboard_log=tmp_path / "tb")
+    assert list((tmp_path / "tb").rglob("events.out.tfevents.*"))
