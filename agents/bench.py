@@ -26,7 +26,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from agents.policies import POLICY_NAMES, make_policy
+from agents.policies import POLICY_DIR, POLICY_NAMES, make_policy
 
 BUDGETS = (5, 10, 25, 50)
 
@@ -88,8 +88,19 @@ def simulate(
     return {
         "steps": steps, "localised": localised, "success": success, "truncated": truncated_flags,
         "correct_at": correct_at, "max_steps": int(max_steps), "seconds": time.perf_counter() - start,
-        "model": str(getattr(policy, "path", "")) or None,
+        "model": _model_name(getattr(policy, "path", None)),
     }
+
+
+def _model_name(path) -> str | None:
+    """How a results file names a model: shipped ones as ``agents/policies/<file>`` (not this
+    machine's install path), a user's as given."""
+    if not path:
+        return None
+    p = Path(path)
+    if p.resolve().parent == POLICY_DIR:
+        return f"agents/policies/{p.name}"
+    return str(path)
 
 
 def summarise(env_id: str, policy_name: str, parts: Sequence[dict[str, Any]], *, seed_start: int,
