@@ -206,6 +206,8 @@ def run_benchmark(
     ctx = mp.get_context("spawn")
     with ctx.Pool(jobs) as pool:
         parts = list(tqdm(pool.imap(_chunk_job, tasks), total=len(tasks), desc="benchmark chunks", disable=not progress))
+        pool.close()  # let the workers exit on their own (``with`` alone terminates them)
+        pool.join()
     rows = []
     for e, n, _ in pairs:
         mine = [part for task, part in zip(tasks, parts) if task[0] == e and task[1] == n]
