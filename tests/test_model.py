@@ -71,8 +71,9 @@ def test_transition_rows_sum_to_one(name):
 @ALL
 def test_outcomes_sum_to_one_and_match_the_matrix(name):
     model = VARIANTS[name]()
-    if model.kidnap_prob > 0:
-        pytest.skip("outcomes() lists the moves; teleporting is drawn separately by sample_next_state")
+    # outcomes() lists the moves; teleporting (kidnap_prob) is drawn apart by sample_next_state and
+    # mixed into the matrix as (1 - p) * moves + p / S.
+    p_kidnap = model.kidnap_prob
     for a in actions(model):
         dense = model.transition_matrix(a).toarray()
         for s in range(model.n_states):
@@ -87,7 +88,8 @@ def test_outcomes_sum_to_one_and_match_the_matrix(name):
                 assert p > 0.0
                 row[model.state_index(nxt)] += p
             assert abs(row.sum() - 1.0) <= 1e-12, (name, a, state)
-            np.testing.assert_allclose(row, dense[s], rtol=0, atol=1e-15)
+            expected = (1.0 - p_kidnap) * row + p_kidnap / model.n_states
+            np.testing.assert_allclose(expected, dense[s], rtol=0, atol=1e-15)
 
 
 @ALL
