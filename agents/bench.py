@@ -243,9 +243,6 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
 def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None = None) -> None:
     """Fraction localised against steps (left) and accuracy against the step budget (right),
     one curve per policy, for the rows of ONE environment.  Written atomically."""
-    import os
-    import tempfile
-
     import matplotlib
 
     matplotlib.use("Agg")
@@ -279,17 +276,10 @@ def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None 
     ax2.grid(alpha=0.3)
     fig.suptitle(title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy", fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format="png")
-        from agents.train import _umask_mode
+    from agents.train import atomic_path
 
-        os.chmod(tmp, _umask_mode())
-        os.replace(tmp, path)
+    try:
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, format="png")
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)

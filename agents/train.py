@@ -41,7 +41,7 @@ def _umask_mode() -> int:
 
 
 @contextlib.contextmanager
-def _atomic_target(path: str | Path, suffix: str):
+def atomic_path(path: str | Path, suffix: str):
     """Yield a temporary path beside ``path``; on success give it the usual file mode and rename
     it onto ``path`` (atomic), on any error remove it and leave ``path`` as it was."""
     path = Path(path)
@@ -60,7 +60,7 @@ def _atomic_target(path: str | Path, suffix: str):
 
 def atomic_write_text(path: str | Path, text: str) -> None:
     """Write ``text`` to ``path`` via a temporary file in the same directory and a rename."""
-    with _atomic_target(path, ".tmp") as tmp, open(tmp, "w", encoding="utf-8") as fh:
+    with atomic_path(path, ".tmp") as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.write(text)
         fh.flush()
         os.fsync(fh.fileno())
@@ -72,7 +72,7 @@ def atomic_write_json(path: str | Path, data: Any) -> None:
 
 def atomic_save_model(model, path: str | Path) -> None:
     """``model.save`` to a temporary ``.zip`` beside ``path``, then rename."""
-    with _atomic_target(path, ".tmp.zip") as tmp:
+    with atomic_path(path, ".tmp.zip") as tmp:
         model.save(tmp)
 
 
