@@ -14,6 +14,8 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 
 import math
 import pickle
+import subprocess
+import sys
 import warnings
 
 import gymnasium as gym
@@ -99,6 +101,17 @@ def test_registry_is_complete():
 def test_make_without_import_prefix():
     env = gym.make("gym_gridloc:WindyMaze-v0")
     assert env.unwrapped.spec.id == "WindyMaze-v0"
+    # In a fresh interpreter, where nothing has imported gym_gridloc yet.
+    code = (
+        "import sys, gymnasium as gym\n"
+        "assert 'gym_gridloc' not in sys.modules\n"
+        "for i in ('ColourGrid-v0', 'RingSensor8x8-v0', 'WindyMaze-v0'):\n"
+        "    env = gym.make('gym_gridloc:' + i)\n"
+        "    env.reset(seed=0); env.step(0)\n"
+        "    print(env.spec.id, env.spec.max_episode_steps)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["ColourGrid-v0", "100", "RingSensor8x8-v0", "400", "WindyMaze-v0", "100"]
 
 
 # -- determinism, pickling, vector envs ----------------------------------------------------------
