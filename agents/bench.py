@@ -103,6 +103,19 @@ def _model_name(path) -> str | None:
     return str(path)
 
 
+def wilson_ci95(successes: int, n: int) -> list[float]:
+    """The Wilson score 95% interval of a proportion ``successes / n``."""
+    if n <= 0:
+        return [0.0, 1.0]
+    z = 1.959963984540054
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    lo = 0.0 if successes == 0 else max(0.0, centre - half)  # exact ends, no rounding residue
+    hi = 1.0 if successes == n else min(1.0, centre + half)
+    return [lo, hi]
+
+
 def summarise(env_id: str, policy_name: str, parts: Sequence[dict[str, Any]], *, seed_start: int,
               budgets: Sequence[int] = BUDGETS) -> dict[str, Any]:
     """One benchmark row from the per-episode arrays of one or more :func:`simulate` runs."""
@@ -129,6 +142,8 @@ def summarise(env_id: str, policy_name: str, parts: Sequence[dict[str, Any]], *,
         "mean_steps_ci95": [mean - half, mean + half],
         "std_steps": sd,
         "accuracy_at": {str(k): float(correct_at[:, k].mean()) for k in budgets},
+        "accuracy_at_ci95": {str(k): wilson_ci95(int(correct_at[:, k].sum()), n) for k in budgets},
+        "success_rate_ci95": wilson_ci95(int(success.sum()), n),
         "max_episode_steps": int(max_steps),
         "seed_start": int(seed_start),
         "seconds": round(sum(p["seconds"] for p in parts), 3),

@@ -26,6 +26,11 @@ def check_row(row, episodes):
     assert 1 <= row["mean_steps"] <= row["max_episode_steps"]
     assert set(row["accuracy_at"]) == {"5", "10", "25", "50"}
     assert all(0.0 <= v <= 1.0 for v in row["accuracy_at"].values())
+    for k, v in row["accuracy_at"].items():
+        lo, hi = row["accuracy_at_ci95"][k]
+        assert 0.0 <= lo <= v <= hi <= 1.0
+    lo, hi = row["success_rate_ci95"]
+    assert 0.0 <= lo <= row["success_rate"] <= hi <= 1.0
     assert row["seconds"] >= 0
     curve = row["localised_curve"]
     assert len(curve) == row["max_episode_steps"] + 1 and np.all(np.diff(curve) >= 0)
@@ -132,3 +137,13 @@ def test_cli_update_merges_rows(tmp_path, capsys):
     assert [r["policy"] for r in rows] == ["random", "greedy"]
     assert main([*base, "--policies", "random"]) == 0  # without --update: replaced
     assert [r["policy"] for r in json.loads(js.read_text())] == ["random"]
+
+
+def test_wilson_interval_matches_known_values():
+    from agents.bench import wilson_ci95
+
+    # 0 of 10 and 10 of 10: the interval still has width (the normal approximation's would not).
+    assert wilson_ci95(0, 10)[0] == 0.0 and abs(wilson_ci95(0, 10)[1] - 0.27753) < 1e-4
+    assert abs(wilson_ci95(10, 10)[0] - 0.72247) < 1e-4 and wilson_ci95(10, 10)[1] == 1.0
+    lo, hi = wilson_ci95(930, 1000)
+    assert abs(lo - 0.9125) < 1e-3 and abs(hi - 0.9442) < 1e-3
