@@ -151,8 +151,27 @@ def merge_rows(path: str, new: list[dict]) -> list[dict]:
     return [keyed[k] for k in sorted(keyed, key=order)]
 
 
+#: What ``gridloc`` needs beyond the core install (the ``rl`` extra), by import name.
+RL_MODULES = ("tqdm", "yaml", "matplotlib", "torch", "stable_baselines3", "sb3_contrib")
+
+
+def missing_rl_modules() -> list[str]:
+    import importlib.util
+
+    return [m for m in RL_MODULES if importlib.util.find_spec(m) is None]
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    missing = missing_rl_modules()
+    if missing:
+        print(
+            f"gridloc {args.command} needs the 'rl' extra (missing: {', '.join(missing)}). Install it with\n"
+            "  pip install torch==2.13.0 && pip install 'gym_gridloc[rl]'\n"
+            "(torch first and pinned: an unpinned torch resolves to a multi-GB CUDA build).",
+            file=sys.stderr,
+        )
+        return 2
     if args.command == "train":
         return _train(args)
     return _bench(args)

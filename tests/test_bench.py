@@ -147,3 +147,15 @@ def test_wilson_interval_matches_known_values():
     assert abs(wilson_ci95(10, 10)[0] - 0.72247) < 1e-4 and wilson_ci95(10, 10)[1] == 1.0
     lo, hi = wilson_ci95(930, 1000)
     assert abs(lo - 0.9125) < 1e-3 and abs(hi - 0.9442) < 1e-3
+
+
+def test_cli_without_the_rl_extra_says_what_to_install(monkeypatch, capsys):
+    import importlib.util
+
+    import agents.cli as cli
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "tqdm" else real(name, *a))
+    assert cli.main(["bench", "--env", "WindyMaze-v0", "--policies", "random", "--episodes", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "needs the 'rl' extra (missing: tqdm)" in err and "pip install torch==2.13.0" in err
