@@ -307,7 +307,7 @@ def viterbi(
         if a not in log_terms:
             with np.errstate(divide="ignore"):
                 log_terms[a] = [
-                    (*t.slices(model.shape), np.log((1.0 - p_kid) * t.weight + (p_kid / n_states if p_kid > 0 else 0.0)))
+                    (*t.slices, np.log((1.0 - p_kid) * t.weight + (p_kid / n_states if p_kid > 0 else 0.0)))
                     for t in terms
                 ]
         new = np.full(model.belief_shape, -np.inf)

@@ -13,6 +13,7 @@ as a ``scipy.sparse`` matrix for anyone who wants one.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -34,9 +35,10 @@ class Term:
     dc: int
     weight: np.ndarray
 
-    def slices(self, shape: tuple[int, int]) -> tuple[tuple[slice, slice], tuple[slice, slice]]:
-        """``(source, destination)`` slices of an (H, W) array for this shift."""
-        h, w = shape
+    @functools.cached_property
+    def slices(self) -> tuple[tuple[slice, slice], tuple[slice, slice]]:
+        """``(source, destination)`` slices of an (H, W) array (the weight's shape) for this shift."""
+        h, w = self.weight.shape
         dr, dc = self.dr, self.dc
         src = (slice(max(0, -dr), h - max(0, dr)), slice(max(0, -dc), w - max(0, dc)))
         dst = (slice(max(0, dr), h - max(0, -dr)), slice(max(0, dc), w - max(0, -dc)))
@@ -160,10 +162,6 @@ class GridModel:
         self.transitions = _share_equal(tuple(merge_terms(t) for t in transitions))
         if not self.transitions:
             raise ValueError("a model needs at least one action")
-        self._slices = {}
-        for terms in self.transitions:
-            for t in terms:
-                self._slices[id(t)] = t.slices(grid.shape)
         self._check()
 
     @property
@@ -176,18 +174,8 @@ class GridModel:
                 mean = self.transitions[0]
             else:
                 mean = merge_terms([t for terms in self.transitions for t in terms], 1.0 / len(self.transitions))
-            for t in mean:
-                self._slices[id(t)] = t.slices(self.grid.shape)
             self.__dict__["_mean_transition"] = mean
         return mean
-
-    def __setstate__(self, state: dict) -> None:
-        # ``_slices`` is keyed by ``id(term)``; after unpickling the terms are new objects.
-        self.__dict__.update(state)
-        built = [self.__dict__["_mean_transition"]] if self.__dict__.get("_mean_transition") is not None else []
-        self._slices = {
-            id(t): t.slices(self.grid.shape) for terms in (*self.transitions, *built) for t in terms
-        }
 
     def with_kidnapping(self, kidnap_prob: float) -> "GridModel":
         """A copy of this model in which, after every move, the robot is teleported with
@@ -236,7 +224,7 @@ class GridModel:
                     raise ValueError(f"action {a}: a term names layer {t.src}->{t.dst}, outside 0..{self.n_layers - 1}")
                 if np.any(t.weight < 0) or not np.all(np.isfinite(t.weight)):
                     raise ValueError(f"action {a}: a transition probability is negative or not finite")
-                src, dst = self._slices[id(t)]
+                src, dst = t.slices
                 inside = np.zeros((h, w), dtype=bool)
                 inside[src] = free[dst]
                 if np.any(t.weight[~(inside & free)] != 0):
@@ -367,7 +355,7 @@ class GridModel:
         (L, H, W) message (the backward pass of smoothing; kidnapping included)."""
         out = np.zeros_like(message)
         for t in self.terms(action):
-            src, dst = self._slices[id(t)]
+            src, dst = t.slices
             out[t.src][src] += t.weight[src] * message[t.dst][dst]
         if self.kidnap_prob > 0.0:
             out *= 1.0 - self.kidnap_prob
