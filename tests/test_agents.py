@@ -25,35 +25,32 @@ def _entropy_bits(p: np.ndarray) -> float:
     return float(-(p * np.log2(p)).sum())
 
 
-def brute_expected_entropy(model, belief, action) -> float:
-    """E_z[H(position | b, a, z)] by an explicit loop over readings with the filter itself."""
+def _after(model, belief, action):
+    """``(P(z), posterior hidden-state belief)`` for every reading z possible after ``action``,
+    by the filter itself."""
     f = ForwardFilter(model)
     f.reset()
     f.set_belief(belief)
     f.predict(action)
     pred = f.full_belief
-    total = 0.0
     for z in range(model.sensor.n_readings):
         joint = pred * model.likelihood(z)[None]
         pz = joint.sum()
         if pz > 0:
-            total += pz * _entropy_bits((joint / pz).sum(axis=0).ravel())
-    return total
+            yield pz, joint / pz
+
+
+def brute_expected_entropy(model, belief, action) -> float:
+    """E_z[H(position | b, a, z)] by an explicit loop over readings."""
+    return sum(pz * _entropy_bits(post.sum(axis=0).ravel()) for pz, post in _after(model, belief, action))
 
 
 def brute_two_step(model, belief, a1) -> float:
-    f = ForwardFilter(model)
-    f.reset()
-    f.set_belief(belief)
-    f.predict(a1)
-    pred = f.full_belief
-    total = 0.0
-    for z1 in range(model.sensor.n_readings):
-        joint = pred * model.likelihood(z1)[None]
-        pz = joint.sum()
-        if pz > 0:
-            total += pz * min(brute_expected_entropy(model, joint / pz, a2) for a2 in range(model.n_actions))
-    return total
+    """E_z1[min_a2 E_z2[H]] by explicit loops."""
+    return sum(
+        pz * min(brute_expected_entropy(model, post, a2) for a2 in range(model.n_actions))
+        for pz, post in _after(model, belief, a1)
+    )
 
 
 def _beliefs(env_id, n_steps, seed=0, **kwargs):
