@@ -377,7 +377,7 @@ def load_model(
     if not path.is_file():
         hint = ""
         if path.parent.name == "policies":
-            hint = f" (train it with `gridloc train configs/...`, or pass --ppo-model PATH)"
+            hint = " (train it with `gridloc train configs/...`, or pass --ppo-model PATH)"
         raise FileNotFoundError(f"model file {str(path)!r} does not exist{hint}")
     meta: dict[str, Any] = {}
     meta_path = path.with_suffix(".json")

@@ -17,7 +17,7 @@ from gymnasium import spaces
 
 from gym_gridloc.core.errors import ImpossibleObservationError
 from gym_gridloc.core.model import GridModel
-from gym_gridloc.core.sensors import RingSensor, Sensor, WallSensor
+from gym_gridloc.core.sensors import RingSensor, Sensor
 
 
 def readings_of(sensor: Sensor, observations: Any, n: int) -> np.ndarray:

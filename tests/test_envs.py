@@ -453,7 +453,6 @@ def test_sensor_sampler_matches_distribution_everywhere(name):
 def test_spaces_as_documented(env_id, kwargs):
     env = gym.make(env_id, **kwargs)
     model = env.unwrapped.model
-    seed_dynamics = kwargs.get("dynamics") == "seed"
     # N, E, S, W everywhere (SPEC section 1); the seed dynamics ignore the action.
     assert env.action_space == gym.spaces.Discrete(4)
     expected_obs = {

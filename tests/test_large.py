@@ -8,8 +8,13 @@ import numpy as np
 import pytest
 
 import gym_gridloc
-from gym_gridloc import BatchFilter, ForwardFilter, kernels
+from gym_gridloc import ForwardFilter, kernels
 from gym_gridloc.generators import colour_map, maze_map
+
+try:  # tests/ is not a package: pytest puts it on sys.path
+    from test_vector import assert_batch_equals_singles
+except ImportError:  # pragma: no cover - run as tests.test_large
+    from tests.test_vector import assert_batch_equals_singles
 
 
 def _arrays(obj, seen=None):
@@ -103,21 +108,7 @@ def test_compiled_kernel_equals_numpy_stencil_on_large_grids(make, monkeypatch):
 
 def test_batch_filter_on_a_large_grid_equals_single_filters():
     model = gym_gridloc.windy_maze_model(maze_map((129, 128), seed=1))
-    rng = np.random.default_rng(2)
-    n = 3
-    states = [model.sample_initial_state(rng) for _ in range(n)]
-    obs = [model.sensor.to_observation(model.sample_reading(s, rng)) for s in states]
-    singles = [ForwardFilter(model).reset(o) for o in obs]
-    batch = BatchFilter(model, n).reset(np.array(obs))
-    for _ in range(6):
-        acts = rng.integers(0, 4, n)
-        states = [model.sample_next_state(s, int(a), rng) for s, a in zip(states, acts)]
-        obs = [model.sensor.to_observation(model.sample_reading(s, rng)) for s in states]
-        for f, a, o in zip(singles, acts, obs):
-            f.step(int(a), o)
-        batch.step(acts, np.array(obs))
-    for i, f in enumerate(singles):
-        np.testing.assert_allclose(batch.beliefs[i], f.full_belief, rtol=0, atol=1e-12)
+    assert_batch_equals_singles(model, n=3, steps=6, seed=2)
 
 
 def test_native_vector_env_on_a_256x256_ring_grid():

@@ -15,7 +15,6 @@ import contextlib
 import importlib.util
 import inspect
 import math
-import os
 import signal
 import threading
 import tempfile

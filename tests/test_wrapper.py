@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-import gym_gridloc
+import gym_gridloc  # noqa: F401  (registers the environments)
 from gym_gridloc import ForwardFilter, HMMBeliefWrapper, colour_grid_model, ring_sensor_model, windy_maze_model
 try:  # tests/ is not a package (pytest puts it on sys.path); keep working if it becomes one
     from test_envs import CONFIG_IDS, CONFIGS, ENV_IDS, assert_same_rollouts, rollout, run_check_env
