@@ -19,7 +19,7 @@ from gym_gridloc.core import (
     WallSensor,
 )
 from gym_gridloc.envs import ColourGridEnv, GridLocEnv, RingSensorEnv, WindyMazeEnv
-from gym_gridloc.filter import ForwardFilter
+from gym_gridloc.filter import BatchFilter, ForwardFilter
 from gym_gridloc.models import (
     colour_grid_model,
     parse_colour_map,
@@ -31,7 +31,6 @@ from gym_gridloc.wrappers import HMMBeliefWrapper
 from gym_gridloc.inference import FixedLagSmoother, fixed_lag_smooth, forward_backward, smooth, viterbi
 from gym_gridloc.particles import ParticleFilter
 from gym_gridloc.recording import RecordTrajectory, Trajectory
-from gym_gridloc.batch import BatchFilter
 from gym_gridloc.vector import GridLocVectorEnv
 
 __version__ = "0.1.0"

@@ -11,9 +11,10 @@ _CHUNK = 2048
 
 
 @numba.njit(cache=True, nogil=True)
-def stencil_update(b, w, meta, lik, out, n_layers, mode):  # pragma: no cover - compiled
+def stencil_update(b, w, meta, lik, layered, out, n_layers, mode):  # pragma: no cover - compiled
     """``out = T^T b`` over flat arrays in cache-sized chunks (one pass over memory); mode 0:
-    predict only; 1: times ``lik``, normalised; 2: times ``lik``.  Returns the sum (modes 1, 2)."""
+    predict only; 1: times ``lik``, normalised; 2: times ``lik``.  Returns the sum (modes 1, 2).
+    ``lik`` holds one (H*W) likelihood, or one per layer when ``layered`` is 1."""
     K = w.shape[0]
     hw = out.shape[0] // n_layers
     src, dst, off, lo, hi = meta[0], meta[1], meta[2], meta[3], meta[4]
@@ -23,6 +24,7 @@ def stencil_update(b, w, meta, lik, out, n_layers, mode):  # pragma: no cover - 
     z3 = 0.0
     for layer in range(n_layers):
         base = layer * hw
+        lbase = base * layered
         for c0 in range(0, hw, _CHUNK):
             c1 = min(hw, c0 + _CHUNK)
             oc = out[base + c0 : base + c1]
@@ -43,7 +45,7 @@ def stencil_update(b, w, meta, lik, out, n_layers, mode):  # pragma: no cover - 
                 for i in range(e - a):
                     ov[i] += wv[i] * bv[i]
             if mode > 0:
-                lv = lik[c0:c1]
+                lv = lik[lbase + c0 : lbase + c1]
                 n = c1 - c0
                 for i in range(n):
                     oc[i] *= lv[i]
@@ -65,11 +67,12 @@ def stencil_update(b, w, meta, lik, out, n_layers, mode):  # pragma: no cover - 
 
 
 @numba.njit(cache=True, nogil=True)
-def batch_update(beliefs, w, meta, actions, lik, out, n_layers, sel, z):  # pragma: no cover - compiled
-    """:func:`stencil_update` (mode 1) on each selected row of ``beliefs`` with its action."""
+def batch_update(beliefs, w, meta, actions, lik, layered, out, n_layers, mode, sel, z):  # pragma: no cover - compiled
+    """:func:`stencil_update` on each selected row of ``beliefs`` with its action (row ``i`` of
+    ``lik`` is its likelihood; unused in mode 0)."""
     for i in range(beliefs.shape[0]):
         if sel[i]:
             a = actions[i]
-            z[i] = stencil_update(beliefs[i], w[a], meta[a], lik[i], out[i], n_layers, 1)
+            z[i] = stencil_update(beliefs[i], w[a], meta[a], lik[i], layered, out[i], n_layers, mode)
         else:
             z[i] = 1.0

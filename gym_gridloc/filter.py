@@ -1,14 +1,46 @@
-"""The exact forward filter (HMM): ``f' = alpha * O * T^T * f``, one sparse step at a time."""
+"""The exact forward filter (HMM): ``f' = alpha * O * T^T * f``, for one belief or N at once.
+
+:class:`ForwardFilter` keeps one belief, :class:`BatchFilter` N beliefs (one array, one engine call
+per step).  Both hold what they hold under the same names: ``full_belief(s)`` over the hidden
+state ``(L, H, W)``, ``position_belief(s)`` over positions ``(H, W)``.  The numbers are
+:mod:`gym_gridloc.engine`'s.
+"""
 
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 import numpy as np
 
-from gym_gridloc.core.errors import ImpossibleObservationError
+from gym_gridloc import engine
 from gym_gridloc.core.model import GridModel
+
+
+def _check_model(model: Any, who: str) -> GridModel:
+    if not isinstance(model, GridModel):
+        raise TypeError(f"{who} needs a GridModel, got {type(model).__name__}")
+    return model
+
+
+def checked_belief(model: GridModel, belief: Any) -> np.ndarray:
+    """An (L, H, W) array or an (S,) vector as a normalised (L, H, W) belief, or a clear error."""
+    try:
+        b = np.asarray(belief, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"belief must be an array of numbers, got {type(belief).__name__}") from None
+    if b.shape == (model.n_states,):
+        b = model.from_vector(b)
+    elif b.shape != model.belief_shape:
+        raise ValueError(f"belief must have shape {model.belief_shape} or ({model.n_states},), got {b.shape}")
+    if not np.all(np.isfinite(b)) or np.any(b < 0) or np.any(b[~model.state_mask] != 0):
+        raise ValueError("belief must be finite, non-negative and zero on obstacles")
+    peak = float(b.max())
+    if not peak > 0.0:
+        raise ValueError("belief must have positive total mass")
+    b = b / peak  # scaled first, so that values near the float64 limit cannot overflow the sum
+    return b / b.sum()
 
 
 class ForwardFilter:
@@ -29,24 +61,23 @@ class ForwardFilter:
     """
 
     def __init__(self, model: GridModel, *, kidnap_prob: float | None = None) -> None:
-        if not isinstance(model, GridModel):
-            raise TypeError(f"ForwardFilter needs a GridModel, got {type(model).__name__}")
+        model = _check_model(model, "ForwardFilter")
         if kidnap_prob is not None:
             # The kidnapped robot: mix a teleport to a uniform free state with this probability
             # into every prediction (0.0 switches off any kidnapping the model has).
             model = model.with_kidnapping(kidnap_prob)
         self.model = model
+        self._step = engine.stepper(model, normalise=False)
         self._f: np.ndarray | None = None
-        self._spare: np.ndarray | None = None  # the other buffer of predict's double buffering
+        self._spare: np.ndarray | None = None  # the other buffer: steps alternate between the two
         self._scale = 1.0  # the belief is self._f * self._scale (see step)
-        self._fast: dict = {}  # action -> kernel step (or False)
-        self._liks: dict = {}  # reading -> flat likelihood, for the kernel step
         self.log_likelihood = 0.0
 
     # -- the API ---------------------------------------------------------------------------------
     def reset(self, observation: Any = None) -> "ForwardFilter":
         """Start from the prior (uniform over free states), updated with ``observation`` if given."""
         self._f = self.model.prior()
+        self._spare = None
         self._scale = 1.0
         self.log_likelihood = 0.0
         if observation is not None:
@@ -56,10 +87,7 @@ class ForwardFilter:
     def predict(self, action: int | None = None) -> "ForwardFilter":
         """One transition step; ``None`` means the action is unknown (the actions' average)."""
         f = self._belief()
-        spare = self._spare
-        if spare is None or spare is f or spare.shape != f.shape:
-            spare = None
-        self._f = self.model.predict(f, action, out=spare)
+        self._f = engine.predict(self.model, f, action, out=self._buffer(f))
         self._spare = f
         return self
 
@@ -68,96 +96,45 @@ class ForwardFilter:
         belief as it was) when the observation has probability zero under the model."""
         reading = self.model.sensor.to_reading(observation)
         f = self._belief()
-        window = self.model.sensor.likelihood_window(reading)
-        if window is not None:  # the likelihood is zero outside a small window (ring sensor)
-            rows, cols, lik = window
-            post = f[:, rows, cols] * lik
-            z = float(post.sum())
-        else:
-            lik = self.model.likelihood(reading)
-            # einsum, not np.dot: a BLAS dot can be 100x slower on a busy machine (thread pools).
-            z = float(np.einsum("lk,k->", f.reshape(f.shape[0], -1), lik.reshape(-1)))
-        if not z > 0.0 or not np.isfinite(z):
-            self._raise_impossible(observation)
-        if f is self._spare:  # never write into the other buffer
-            f = f.copy()
-        if window is not None:
-            post /= z
-            f.fill(0.0)
-            f[:, rows, cols] = post
-        else:
-            np.multiply(f, lik, out=f)
-            f /= z
-        self._f = f
-        self.log_likelihood += float(np.log(z))
+        post = f.copy()
+        z = engine.update(self.model, post, reading)
+        self._f = post
+        self.log_likelihood += math.log(float(z[0]))
         return self
-
-    def __getstate__(self) -> dict:
-        state = dict(self.__dict__)
-        state["_fast"], state["_liks"] = {}, {}  # kernel closures and views: rebuilt on use
-        state.pop("_lik_form", None)
-        return state
-
-    def _fast_path(self, action: int | None):
-        """A call ``(belief, out, likelihood) -> sum`` of the model's kernel plan for ``action``
-        (predict and update in one call, unnormalised output), or False with kidnapping."""
-        model = self.model
-        plan = model.stencil_plan(action) if model.kidnap_prob == 0.0 else None
-        run = plan.run_flat if plan is not None else False
-        if plan is not None:
-            self._lik_form = plan.likelihood_form
-        self._fast[None if action is None else model.check_action(action)] = run
-        return run
-
-    def _raise_impossible(self, observation: Any) -> None:
-        raise ImpossibleObservationError(
-            f"observation {observation!r} is impossible under the filter's model "
-            f"({self.model!r}) given the belief so far: every state that could be reached "
-            "gives it probability 0 (model mismatch?)"
-        )
 
     def step(self, action: int | None, observation: Any) -> "ForwardFilter":
         """Predict with ``action``, then update with ``observation``.  On an impossible
         observation the belief is left as it was before the step."""
-        run = self._fast.get(action) if action is None or type(action) is int else None
-        if run is None and self._f is not None:
-            run = self._fast_path(action)
-        if run:  # predict + update in one kernel call
-            reading = self.model.sensor.to_reading(observation)
-            lik = self._liks.get(reading)
-            if lik is None and self.model.sensor.likelihood_window(reading) is None:
-                lik = self._liks[reading] = self._lik_form(self.model.likelihood(reading))
-            if lik is not None:
-                before = self._f  # the belief is before * self._scale
-                out = self._spare
-                if out is None or out is before:
-                    out = np.empty_like(before)
-                z = run(before.ravel(), out.ravel(), lik)
-                if not z > 0.0 or z == math.inf:
-                    self._spare = out
-                    self._raise_impossible(observation)
-                self.log_likelihood += math.log(z * self._scale)
-                # Normalised lazily: the next read (or predict) multiplies by 1/z, a pass the
-                # filter-only loop never pays; at most one pass per step in any case.
-                self._f, self._spare, self._scale = out, before, 1.0 / z
-                if z < 1e-150:  # keep the raw numbers far from underflow
-                    self._belief()
-                return self
-        before = self._belief()
-        self.predict(action)
-        try:
-            self.update(observation)
-        except ImpossibleObservationError:
-            self._f = before
-            raise
+        reading = self.model.sensor.to_reading(observation)
+        before = self._f
+        if before is None:
+            raise RuntimeError("call ForwardFilter.reset() before using the filter")
+        out = self._buffer(before)
+        zz = self._step(before, action, reading, out)
+        # Normalised lazily: the next read (or step) multiplies by 1/z, a pass that a loop of
+        # steps without reads never pays; the log likelihood carries the deferred scale.
+        self.log_likelihood += math.log(zz * self._scale)
+        self._f, self._spare, self._scale = out, before, 1.0 / zz
+        if zz < 1e-150:  # keep the raw numbers far from underflow
+            self._belief()
         return self
 
-    # -- reading the belief -----------------------------------------------------------------------
-    @property
-    def belief(self) -> np.ndarray:
-        """The hidden-state belief as a vector over free states (layer-major), float64."""
-        return self.model.to_vector(self._belief())
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        del state["_step"]  # a bound engine function: rebuilt on load
+        return state
 
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._step = engine.stepper(self.model, normalise=False)
+
+    def _buffer(self, f: np.ndarray) -> np.ndarray:
+        spare = self._spare
+        if spare is None or spare is f or spare.shape != f.shape:
+            spare = self._spare = np.empty_like(f)
+        return spare
+
+    # -- reading the belief -----------------------------------------------------------------------
     @property
     def full_belief(self) -> np.ndarray:
         """The hidden-state belief as an (L, H, W) array (a copy)."""
@@ -169,21 +146,22 @@ class ForwardFilter:
         f = self._belief()
         return f[0].copy() if f.shape[0] == 1 else f.sum(axis=0)
 
+    @property
+    def belief_vector(self) -> np.ndarray:
+        """The hidden-state belief as a vector over free states (layer-major), float64."""
+        return self.model.to_vector(self._belief())
+
+    @property
+    def belief(self) -> np.ndarray:
+        """Deprecated name of :attr:`belief_vector`."""
+        warnings.warn("ForwardFilter.belief is deprecated: use belief_vector (the (S,) vector), full_belief "
+                      "or position_belief", DeprecationWarning, stacklevel=2)
+        return self.belief_vector
+
     def set_belief(self, belief: np.ndarray) -> "ForwardFilter":
         """Replace the belief with an (L, H, W) array or an (S,) vector (checked, normalised)."""
-        b = np.asarray(belief, dtype=np.float64)
-        if b.shape == (self.model.n_states,):
-            b = self.model.from_vector(b)
-        elif b.shape != self.model.belief_shape:
-            raise ValueError(
-                f"belief must have shape {self.model.belief_shape} or ({self.model.n_states},), got {b.shape}"
-            )
-        if not np.all(np.isfinite(b)) or np.any(b < 0) or np.any(b[~self.model.state_mask] != 0):
-            raise ValueError("belief must be finite, non-negative and zero on obstacles")
-        z = b.sum()
-        if not z > 0:
-            raise ValueError("belief must have positive total mass")
-        self._f = b / z
+        self._f = checked_belief(self.model, belief)
+        self._spare = None
         self._scale = 1.0
         return self
 
@@ -194,3 +172,107 @@ class ForwardFilter:
             self._f *= self._scale
             self._scale = 1.0
         return self._f
+
+
+class BatchFilter:
+    """N exact forward filters over one :class:`GridModel`, updated together.
+
+    >>> import numpy as np, gym_gridloc
+    >>> bf = gym_gridloc.BatchFilter(gym_gridloc.windy_maze_model(), 2)
+    >>> _ = bf.reset([[0, 0, 0, 1], [1, 0, 0, 1]])
+    >>> _ = bf.step([0, 1], [[0, 1, 0, 0], [0, 1, 0, 0]])
+    >>> bf.full_beliefs.shape
+    (2, 1, 6, 7)
+
+    Each belief equals the one a :class:`ForwardFilter` computes from the same actions and
+    observations, within 1e-12.
+
+    Parameters
+    ----------
+    model:
+        The model of every belief.
+    n:
+        The number of beliefs.
+    """
+
+    def __init__(self, model: GridModel, n: int) -> None:
+        self.model = _check_model(model, "BatchFilter")
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"n (the number of beliefs) must be a positive integer, got {n!r}")
+        self.n = int(n)
+        self._b = np.empty((self.n, *model.belief_shape))
+        self._spare = np.empty_like(self._b)
+        self._ready = np.zeros(self.n, dtype=bool)
+        self.log_likelihood = np.zeros(self.n)
+
+    def reset(self, observations: Any = None, mask: Any = None, *, readings: Any = None) -> "BatchFilter":
+        """Start the beliefs (those where ``mask`` is True; default all) from the prior, updated
+        with their observations when given (a batch of N, as for :meth:`step`).  ``readings``
+        (N reading indices) may replace ``observations``."""
+        sel = self._mask(mask)
+        idx = np.flatnonzero(sel)
+        post = np.broadcast_to(self.model.prior(), (idx.size, *self.model.belief_shape)).copy()
+        z = np.ones(idx.size)
+        if observations is not None or readings is not None:
+            rs = self._readings(observations, readings)
+            z = engine.update(self.model, post, rs[idx])
+        self._b[idx] = post
+        self.log_likelihood[idx] = np.log(z)
+        self._ready[idx] = True
+        return self
+
+    def step(self, actions: Any, observations: Any = None, mask: Any = None, *, readings: Any = None) -> "BatchFilter":
+        """Predict each belief with its action, then update it with its observation (only the
+        beliefs where ``mask`` is True; default all).  On an impossible observation nothing
+        changes and :class:`ImpossibleObservationError` names the belief.  ``readings`` (N
+        reading indices) may replace ``observations``."""
+        sel = self._mask(mask)
+        if not np.all(self._ready[sel]):
+            raise RuntimeError("call BatchFilter.reset() before step() (some beliefs were never reset)")
+        acts = np.asarray(actions)
+        if acts.shape != (self.n,):
+            raise ValueError(f"actions must be {self.n} actions (one per belief), got shape {acts.shape}")
+        acts = engine.action_indices(self.model, np.where(sel, acts, 0) if acts.dtype != object else acts, self.n)
+        rs = self._readings(observations, readings)
+        partial = not sel.all()
+        if partial:
+            self._spare[...] = self._b
+        _, z = engine.step(self.model, self._b, acts, np.where(sel, rs, 0), out=self._spare,
+                           mask=sel if partial else None)
+        self._b, self._spare = self._spare, self._b
+        self.log_likelihood[sel] += np.log(z[sel])
+        return self
+
+    def _readings(self, observations: Any, readings: Any) -> np.ndarray:
+        if readings is not None:
+            rs = np.asarray(readings, dtype=np.int64)
+            if rs.shape != (self.n,) or np.any((rs < 0) | (rs >= self.model.sensor.n_readings)):
+                raise ValueError(f"readings must be {self.n} reading indices in 0..{self.model.sensor.n_readings - 1}")
+            return rs
+        return self.model.sensor.readings(observations, self.n)
+
+    def _mask(self, mask: Any) -> np.ndarray:
+        if mask is None:
+            return np.ones(self.n, dtype=bool)
+        m = np.asarray(mask)
+        if m.shape != (self.n,) or m.dtype != bool:
+            raise ValueError(f"mask must be {self.n} booleans, got shape {m.shape} dtype {m.dtype}")
+        return m
+
+    # -- reading the beliefs ---------------------------------------------------------------------
+    @property
+    def full_beliefs(self) -> np.ndarray:
+        """The hidden-state beliefs, (N, L, H, W) float64 (a view: copy it to keep it)."""
+        return self._b
+
+    @property
+    def position_beliefs(self) -> np.ndarray:
+        """P(position) per belief, (N, H, W) float64."""
+        b = self._b
+        return b[:, 0] if b.shape[1] == 1 else b.sum(axis=1)
+
+    @property
+    def beliefs(self) -> np.ndarray:
+        """Deprecated name of :attr:`full_beliefs`."""
+        warnings.warn("BatchFilter.beliefs is deprecated: use full_beliefs", DeprecationWarning, stacklevel=2)
+        return self._b

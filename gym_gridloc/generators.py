@@ -137,8 +137,3 @@ def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:
         free[:, w - 1] = free[:, w - 2] & (rng.random(h) < 0.5) & (np.arange(h) % 2 == 0)
     return GridMap(np.where(free, 0, -1), ("O",))
 
-
-def empty_map(size: int | tuple[int, int]) -> GridMap:
-    """An H x W grid with no obstacle (the ring sensor's world)."""
-    h, w = check_size("size", size, MAX_SIDE)
-    return GridMap(np.zeros((h, w), dtype=np.int64), ("O",))

@@ -23,6 +23,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from gym_gridloc import engine
 from gym_gridloc.core.errors import ImpossibleObservationError
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.core.validation import check_int
@@ -60,10 +61,16 @@ def _episode(model: GridModel, actions: Sequence[Any] | None, observations: Sequ
 
 
 def _impossible(model: GridModel, k: int, reading: int) -> ImpossibleObservationError:
-    return ImpossibleObservationError(
-        f"observation {k} (reading {model.sensor.describe(reading)}) is impossible under the model "
-        f"({model!r}) given the observations and actions before it"
-    )
+    return engine.impossible(model, reading, label=f"observation {k} (reading {model.sensor.describe(reading)})",
+                             given="the observations and actions before it")
+
+
+def _condition(model: GridModel, belief: np.ndarray, reading: int, k: int) -> float:
+    """Condition ``belief`` (L, H, W) on observation ``k``'s reading, in place; its probability."""
+    try:
+        return float(engine.update(model, belief, reading)[0])
+    except ImpossibleObservationError:
+        raise _impossible(model, k, reading) from None
 
 
 def _positions(beliefs: np.ndarray) -> np.ndarray:
@@ -100,16 +107,11 @@ def _forward(model: GridModel, acts: list[int | None], readings: list[int]) -> t
     n = len(readings)
     f = np.empty((n, *model.belief_shape))
     loglik = 0.0
-    cur = model.prior()
+    f[0] = model.prior()
     for k in range(n):
         if k > 0:
-            cur = model.predict(f[k - 1], acts[k - 1])
-        cur = cur * model.likelihood(readings[k])
-        z = float(cur.sum())
-        if not z > 0.0 or not np.isfinite(z):
-            raise _impossible(model, k, readings[k])
-        f[k] = cur / z
-        loglik += float(np.log(z))
+            engine.predict(model, f[k - 1], acts[k - 1], out=f[k])
+        loglik += float(np.log(_condition(model, f[k], readings[k], k)))
     return f, loglik
 
 
@@ -129,7 +131,7 @@ def forward_backward(model: GridModel, actions: Sequence[Any] | None, observatio
     b = mask / float(mask.sum())
     smoothed[n - 1] = f[n - 1]
     for k in range(n - 2, -1, -1):
-        b = model.backward(model.likelihood(readings[k + 1]) * b, acts[k])
+        b = engine.backward(model, model.likelihood(readings[k + 1]) * b, acts[k])
         b /= b.sum()  # positive: observation k+1 is possible (the forward pass checked it)
         g = f[k] * b
         smoothed[k] = g / g.sum()
@@ -186,11 +188,8 @@ class FixedLagSmoother:
         return belief if self.full_state else _positions(belief)
 
     def _filter_step(self, predicted: np.ndarray, reading: int) -> np.ndarray:
-        f = predicted * self.model.likelihood(reading)
-        z = float(f.sum())
-        if not z > 0.0 or not np.isfinite(z):
-            raise _impossible(self.model, self.t + 1, reading)
-        return f / z
+        _condition(self.model, predicted, reading, self.t + 1)
+        return predicted
 
     def _smoothed(self, k: int) -> np.ndarray:
         """``P(X_k | e_0:t)`` for k in the window (t-d .. t)."""
@@ -200,7 +199,7 @@ class FixedLagSmoother:
         b = mask / float(mask.sum())
         for j in range(self.t, k, -1):  # backward from t to k + 1
             action, reading = self._links[j - first_link]
-            b = self.model.backward(self.model.likelihood(reading) * b, action)
+            b = engine.backward(self.model, self.model.likelihood(reading) * b, action)
             b /= b.sum()
         g = self._f[k - first_f] * b
         return self._out(g / g.sum())
@@ -224,7 +223,7 @@ class FixedLagSmoother:
             raise RuntimeError("call FixedLagSmoother.reset(observation) before step()")
         a = None if action is None else self.model.check_action(action)
         reading = self.model.sensor.to_reading(observation)
-        f = self._filter_step(self.model.predict(self._f[-1], a), reading)
+        f = self._filter_step(engine.predict(self.model, self._f[-1], a), reading)
         self.t += 1
         self._f.append(f)
         if self.lag > 0:
@@ -303,7 +302,7 @@ def viterbi(
     kidnap_from = np.zeros(max(n - 1, 0), dtype=np.int64)  # flat index of the best state (kidnap)
     for k in range(1, n):
         a = acts[k - 1]
-        terms = model.terms(a)
+        terms = engine.terms(model, a)
         if a not in log_terms:
             with np.errstate(divide="ignore"):
                 log_terms[a] = [
@@ -340,7 +339,7 @@ def viterbi(
         if i == -1:
             prev = np.unravel_index(int(kidnap_from[k - 1]), model.belief_shape)
         else:
-            t = model.terms(acts[k - 1])[i]
+            t = engine.terms(model, acts[k - 1])[i]
             prev = (t.src, r - t.dr, c - t.dc)
         states.append(tuple(int(v) for v in prev))
     states.reverse()

@@ -1,24 +1,27 @@
-"""Filter kernels: the one place that decides how a model's transition is applied to a belief.
+"""Filter kernels: how a transition (a tuple of stencil terms per action) is applied to flat beliefs.
 
-Two paths give the same numbers (within rounding; tests compare both with each other and with a
-dense reference within 1e-12):
+Only :mod:`gym_gridloc.engine` uses this module; it builds one plan per model and caches it.  A
+plan covers every action and, as one more action, their average (an unknown action).  Two paths
+give the same numbers (within rounding; the tests compare both with a dense reference within 1e-12):
 
 * **numba** (the optional ``fast`` extra), for models whose belief has fewer than
   :data:`NUMBA_MAX_CELLS` cells, where numpy's per-call overhead dominates: one compiled pass per
-  step (predict, likelihood, sum) over cache-sized chunks (:mod:`gym_gridloc._numba_kernels`).
-  numba is imported the first time such a model is filtered, never at import: it costs about
-  100 MiB of resident memory, so a process that only builds large grids never loads it.
-* **diagonals** (every larger model, and every model without numba or with
-  ``GYM_GRIDLOC_NO_NUMBA=1``): a stencil term ``(dr, dc)`` is one diagonal of ``T^T`` over the
-  flat belief, at offset ``-(dr*W + dc)``, whose values are the term's own weight array (the cells
-  where a shift wraps round a row edge have weight 0).  scipy's DIA matrix-vector loop adds
-  ``w * x`` for each diagonal in one fused pass straight into the output buffer, reading the
-  model's weights in place (no copy); a ``(0, 0)`` term is written first with one multiply.  Then
-  one multiply by the likelihood and one sum.  Measured side by side at 512 x 512, this was
-  faster than a cache-blocked numpy loop (two ufunc passes per term) and than itself run in
-  blocks of 8K-32K cells (README, "Scale and speed").
+  step (predict, likelihood, sum) over cache-sized chunks (:mod:`gym_gridloc._numba_kernels`), for
+  one belief or a batch.  numba is imported the first time such a model is filtered, never at
+  import: it costs about 100 MiB of resident memory, so a process that only builds large grids
+  never loads it.
+* **numpy** (every larger model, and every model without numba or with ``GYM_GRIDLOC_NO_NUMBA=1``):
+  for one belief, a stencil term ``(dr, dc)`` is one diagonal of ``T^T`` over the flat belief, at
+  offset ``-(dr*W + dc)``, whose values are the term's own weight array (the cells where a shift
+  wraps round a row edge have weight 0).  scipy's DIA matrix-vector loop adds ``w * x`` for each
+  diagonal in one fused pass straight into the output buffer, reading the model's weights in place
+  (no copy); a ``(0, 0)`` term is written first with one multiply.  For a batch, each distinct
+  shift is one multiply-add over all N beliefs, with the N actions' weights gathered (or shared).
 
-:func:`uses_numba` decides; :meth:`GridModel.stencil_plan` builds and caches the plan.
+Flat arrays: a belief is ``L*H*W`` float64 (layer-major), a likelihood ``H*W`` (position sensors)
+or ``L*H*W`` (``layered``: a reading that depends on the layer, e.g. a heading).  ``mode`` 0 only
+predicts; 1 multiplies by the likelihood and normalises; 2 multiplies and leaves the sum unapplied.
+Every ``run`` returns the sums (1.0 where nothing was summed).
 """
 
 from __future__ import annotations
@@ -39,16 +42,17 @@ NUMBA_MAX_CELLS = 128 * 128
 _COMPILED = None
 
 
-def uses_numba(model) -> bool:
-    """Whether ``model`` is filtered by the compiled kernels (else by :class:`DiagonalPlan`).
-    For a model small enough, this imports numba (once)."""
-    h, w = model.shape
-    return AVAILABLE and model.n_layers * h * w < NUMBA_MAX_CELLS and _compiled() is not None
+def uses_numba(n_cells: int) -> bool:
+    """Whether a belief of ``n_cells`` (L*H*W) is filtered by the compiled kernels.  When it is
+    small enough, this imports numba (once)."""
+    return AVAILABLE and n_cells < NUMBA_MAX_CELLS and _compiled() is not None
 
 
-def make_plan(model, terms):
-    """The plan that applies ``terms`` (one action's transition of ``model``) on its path."""
-    return StencilPlan(model, terms) if uses_numba(model) else DiagonalPlan(model, terms)
+def make_plan(transitions, n_layers: int, shape: tuple[int, int]):
+    """The plan for ``transitions`` (one tuple of terms per action, the unknown action last)."""
+    n_cells = n_layers * shape[0] * shape[1]
+    cls = NumbaPlan if uses_numba(n_cells) else NumpyPlan
+    return cls(transitions, n_layers, shape)
 
 
 def _compiled():
@@ -85,142 +89,166 @@ except ImportError:  # pragma: no cover - depends on the scipy release
     _dia_matvec = _dia_matvec_numpy
 
 
-class DiagonalPlan:
-    """One action's transition as diagonals of ``T^T`` (see the module docstring): ``writes``
-    are ``(src, dst, weight)`` for the ``(0, 0)`` terms written first (one per destination
-    layer), ``adds`` are ``(src, dst, offsets, weights)``, one diagonal each; ``zero`` are the
-    layers no written term covers (cleared first)."""
+class NumbaPlan:
+    """Every action's terms padded to one ``(A, K, H*W)`` weight array and ``(A, 5, K)`` table of
+    (source layer, destination layer, flat offset, first and end destination cell): one compiled
+    call steps one belief or N beliefs, each with its own action."""
+
+    path = "numba"
+
+    def __init__(self, transitions, n_layers: int, shape: tuple[int, int]) -> None:
+        h, w = shape
+        hw = h * w
+        self.n_layers = n_layers
+        k = max(1, max(len(terms) for terms in transitions))
+        self.w = np.zeros((len(transitions), k, hw))  # a copy: this path is for small models only
+        self.meta = np.zeros((len(transitions), 5, k), dtype=np.int64)
+        self.meta[:, 1, :] = -1  # padding terms feed no layer
+        for a, terms in enumerate(transitions):
+            for i, t in enumerate(terms):
+                off = t.dr * w + t.dc
+                self.w[a, i] = t.weight.reshape(hw)
+                self.meta[a, :, i] = (t.src, t.dst, off, max(off, 0), min(hw + off, hw))
+        kernels = _compiled()
+        self.batch = kernels.batch_update
+        one, n = kernels.stencil_update, n_layers
+        per_action = [(self.w[a], self.meta[a]) for a in range(len(transitions))]
+
+        def run_one(belief, action: int, lik, layered: int, out, mode: int) -> float:
+            """One flat belief with one action (see the module docstring)."""
+            w, meta = per_action[action]
+            return one(belief, w, meta, lik, layered, out, n, mode)
+
+        self.run_one = run_one
+
+    def run(self, beliefs, actions, liks, layered: int, out, mode: int, sel) -> np.ndarray:
+        """N flat beliefs ``(N, L*H*W)`` with N actions; rows where ``sel`` is False untouched."""
+        z = np.empty(beliefs.shape[0])
+        self.batch(beliefs, self.w, self.meta, actions, liks, layered, out, self.n_layers, mode, sel, z)
+        return z
+
+
+class NumpyPlan:
+    """Diagonals of ``T^T`` for one belief; shared shifts with gathered weights for a batch."""
 
     path = "numpy"
 
-    def __init__(self, model, terms) -> None:
-        h, w = model.shape
+    def __init__(self, transitions, n_layers: int, shape: tuple[int, int]) -> None:
+        h, w = shape
         self.hw = hw = h * w
-        self.n_layers = model.n_layers
+        self.n_layers = n_layers
+        self.single = [self._diagonals(terms, w) for terms in transitions]
+        self._transitions = transitions
+        self._width = w
+        self._batch = None  # built on first batched use
+
+    def _diagonals(self, terms, width: int):
+        """``(zero, writes, adds)``: layers to clear, ``(src, dst, weight)`` of the ``(0, 0)``
+        terms written first (one per destination layer), ``(src, dst, offsets, weights)`` of the
+        other terms, one diagonal each (the model's own weight arrays, not copied)."""
+        hw = self.hw
         writes, adds, covered = [], [], set()
         for t in terms:
             if t.dr == 0 and t.dc == 0 and t.dst not in covered:
                 covered.add(t.dst)
                 writes.append((t.src, t.dst, t.weight.reshape(hw)))
-            else:  # one diagonal; the weights are the model's own (H, W) arrays, not copied
-                adds.append((t.src, t.dst, np.array([-(t.dr * w + t.dc)], dtype=np.int32), t.weight.reshape(1, hw)))
-        self.writes = tuple(writes)
-        self.adds = tuple(adds)
-        self.zero = tuple(layer for layer in range(self.n_layers) if layer not in covered)
+            else:
+                adds.append((t.src, t.dst, np.array([-(t.dr * width + t.dc)], dtype=np.int32), t.weight.reshape(1, hw)))
+        zero = tuple(layer for layer in range(self.n_layers) if layer not in covered)
+        return zero, tuple(writes), tuple(adds)
 
-    def predict(self, b: np.ndarray, out: np.ndarray) -> None:
-        """``out = T^T b`` over flat (L*H*W,) float64 arrays (``out`` not ``b``)."""
+    def predict_one(self, b, action: int, out) -> None:
         hw = self.hw
-        for layer in self.zero:
+        zero, writes, adds = self.single[action]
+        for layer in zero:
             out[layer * hw : (layer + 1) * hw] = 0.0
-        for src, dst, wt in self.writes:
+        for src, dst, wt in writes:
             np.multiply(wt, b[src * hw : (src + 1) * hw], out=out[dst * hw : (dst + 1) * hw])
-        for src, dst, offsets, rows in self.adds:
-            _dia_matvec(hw, hw, len(offsets), hw, offsets, rows, b[src * hw : (src + 1) * hw], out[dst * hw : (dst + 1) * hw])
+        for src, dst, offsets, rows in adds:
+            _dia_matvec(hw, hw, 1, hw, offsets, rows, b[src * hw : (src + 1) * hw], out[dst * hw : (dst + 1) * hw])
 
-    @property
-    def run_flat(self):
-        """``(belief, out, lik) -> sum`` over flat arrays: predict, times ``lik``, unnormalised."""
-        layers = (self.n_layers, self.hw)
-        predict = self.predict
-
-        def run(belief, out, lik):
-            predict(belief, out)
-            view = out.reshape(layers)
+    def run_one(self, belief, action: int, lik, layered: int, out, mode: int) -> float:
+        """One flat belief with one action (see the module docstring)."""
+        self.predict_one(belief, action, out)
+        if mode == 0:
+            return 1.0
+        if layered:
+            np.multiply(out, lik, out=out)
+        else:
+            view = out.reshape(self.n_layers, self.hw)
             np.multiply(view, lik, out=view)
-            return float(np.add.reduce(out))
-
-        return run
-
-    def likelihood_form(self, lik: np.ndarray) -> np.ndarray:
-        """What :attr:`run_flat` takes for a likelihood: the flat float64 array."""
-        return np.ascontiguousarray(lik, dtype=np.float64).ravel()
-
-    def run(self, belief: np.ndarray, out: np.ndarray, lik: np.ndarray | None, normalise: bool = True) -> float:
-        """``out = T^T belief``; with ``lik``, times ``lik`` and (with ``normalise``) divided by the
-        sum, which is returned (0.0 without ``lik``)."""
-        b, o = belief.reshape(-1), out.reshape(-1)
-        if lik is None:
-            self.predict(b, o)
-            return 0.0
-        z = self.run_flat(b, o, self.likelihood_form(lik))
-        if normalise and z > 0.0 and np.isfinite(z):
-            o *= 1.0 / z
+        z = float(np.add.reduce(out))
+        if mode == 1 and z > 0.0 and np.isfinite(z):
+            out *= 1.0 / z
         return z
 
+    def _batch_plan(self):
+        """One entry per distinct flat shift over all actions: ``(first, src_lo, dst_lo, n,
+        weights)`` with ``weights`` an (A, n) stack of the actions' weight slices, or (1, n) when
+        every action has the same weight; "first" entries write their destination layer."""
+        hw, width = self.hw, self._width
+        entries: dict[tuple[int, int, int], list] = {}
+        firsts: dict[tuple[int, int, int], bool] = {}
+        for a, terms in enumerate(self._transitions):
+            covered: set[int] = set()
+            for t in terms:
+                off = t.dr * width + t.dc
+                s0, d0 = (0, off) if off >= 0 else (-off, 0)
+                n = hw - abs(off)
+                key = (t.src * hw + s0, t.dst * hw + d0, n)
+                first = off == 0 and t.dst not in covered
+                if off == 0:
+                    covered.add(t.dst)
+                rows = entries.setdefault(key, [None] * len(self._transitions))
+                rows[a] = t.weight.reshape(-1)[s0 : s0 + n]
+                firsts[key] = firsts.get(key, True) and first
+        covered = set()
+        first_keys, rest = [], []
+        for key in entries:
+            layer = key[1] // hw
+            if firsts[key] and layer not in covered and all(r is not None for r in entries[key]):
+                covered.add(layer)
+                first_keys.append(key)
+            else:
+                rest.append(key)
+        zero = tuple(layer for layer in range(self.n_layers) if layer not in covered)
+        plan = []
+        for key in first_keys + rest:
+            n = key[2]
+            rows = [np.zeros(n) if r is None else r for r in entries[key]]
+            same = all(r is rows[0] or np.array_equal(r, rows[0]) for r in rows[1:])
+            plan.append((key in first_keys, key[0], key[1], n, rows[0].reshape(1, n) if same else np.stack(rows)))
+        return zero, tuple(plan)
 
-class StencilPlan:
-    """The arrays a compiled kernel call needs for one action's terms (built once per model and
-    action)."""
-
-    path = "numba"
-
-    def __init__(self, model, terms) -> None:
-        h, w = model.shape
-        hw = h * w
-        self.hw = hw
-        self.n_layers = model.n_layers
-        weights = [t.weight for t in terms]
-        # A copy as one (K, H*W) array: this path is for small models only.
-        self.w = np.stack([wt.reshape(hw) for wt in weights]) if weights else np.zeros((0, hw))
-        self.src = np.array([t.src for t in terms], dtype=np.int64)
-        self.dst = np.array([t.dst for t in terms], dtype=np.int64)
-        self.off = np.array([t.dr * w + t.dc for t in terms], dtype=np.int64)
-        # Destination cells d (within a layer) whose source d - off lies in the layer.
-        self.lo = np.maximum(self.off, 0)
-        self.hi = np.minimum(hw + self.off, hw)
-        # One int array for the kernel (fewer arguments: a numba call costs per argument).
-        self.meta = np.ascontiguousarray(np.stack([self.src, self.dst, self.off, self.lo, self.hi]))
-        self._kernel = _compiled().stencil_update
-
-    @property
-    def run_flat(self):
-        """``(belief, out, lik) -> sum`` over flat arrays, unnormalised: the kernel with its
-        plan bound (the fewest Python steps per call)."""
-        w, meta, n_layers, kernel = self.w, self.meta, self.n_layers, self._kernel
-
-        def run(belief, out, lik):
-            return kernel(belief, w, meta, lik, out, n_layers, 2)
-
-        return run
-
-    def likelihood_form(self, lik: np.ndarray) -> np.ndarray:
-        """What :attr:`run_flat` takes for a likelihood: the flat float64 array."""
-        return np.ascontiguousarray(lik, dtype=np.float64).ravel()
-
-    def run(self, belief: np.ndarray, out: np.ndarray, lik: np.ndarray | None, normalise: bool = True) -> float:
-        """``out = T^T belief``; with ``lik``, times ``lik`` and (with ``normalise``) divided by the
-        sum, which is returned (0.0 without ``lik``)."""
-        mode = 0 if lik is None else 1 if normalise else 2
-        lk = _EMPTY if lik is None else lik.ravel()
-        return self._kernel(belief.reshape(-1), self.w, self.meta, lk, out.reshape(-1), self.n_layers, mode)
-
-
-class BatchPlan:
-    """Every action's stencil, padded to one shape, for :class:`gym_gridloc.BatchFilter`: one
-    compiled call updates N beliefs (predict with each one's action, update, normalise).  Only
-    for models on the numba path (:func:`uses_numba`)."""
-
-    def __init__(self, model) -> None:
-        plans = [model.stencil_plan(a) for a in range(model.n_actions)]
-        if not all(isinstance(p, StencilPlan) for p in plans):
-            raise ValueError(f"{model!r} is not filtered by the compiled kernels (see kernels.uses_numba)")
-        k = max(p.w.shape[0] for p in plans)
-        hw = plans[0].hw
-        self.n_layers = model.n_layers
-        self.w = np.zeros((len(plans), k, hw))
-        self.meta = np.zeros((len(plans), 5, k), dtype=np.int64)
-        self.meta[:, 1, :] = -1  # padding terms feed no layer
-        for a, p in enumerate(plans):
-            n = p.w.shape[0]
-            self.w[a, :n] = p.w
-            self.meta[a, :, :n] = p.meta
-        self._kernel = _compiled().batch_update
-
-    def run(self, beliefs: np.ndarray, actions: np.ndarray, lik: np.ndarray, out: np.ndarray, sel: np.ndarray) -> np.ndarray:
-        z = np.empty(beliefs.shape[0])
-        self._kernel(beliefs, self.w, self.meta, actions, lik, out, self.n_layers, sel, z)
+    def run(self, beliefs, actions, liks, layered: int, out, mode: int, sel) -> np.ndarray:
+        """N flat beliefs ``(N, L*H*W)`` with N actions (all N computed; rows where ``sel`` is
+        False are written back unchanged)."""
+        if self._batch is None:
+            self._batch = self._batch_plan()
+        zero, plan = self._batch
+        hw, n_rows = self.hw, beliefs.shape[0]
+        keep = None if sel.all() else out[~sel].copy()
+        for layer in zero:
+            out[:, layer * hw : (layer + 1) * hw] = 0.0
+        for first, s0, d0, n, weights in plan:
+            wv = weights if weights.shape[0] == 1 else weights[actions]
+            src, dst = beliefs[:, s0 : s0 + n], out[:, d0 : d0 + n]
+            if first:
+                np.multiply(wv, src, out=dst)
+            else:
+                dst += wv * src
+        z = np.ones(n_rows)
+        if mode > 0:
+            if layered:
+                out *= liks
+            else:
+                view = out.reshape(n_rows, self.n_layers, hw)
+                view *= liks[:, None, :]
+            z = out.sum(axis=1)
+            if mode == 1:
+                ok = (z > 0.0) & np.isfinite(z)
+                out /= np.where(ok, z, 1.0)[:, None]
+        if keep is not None:
+            out[~sel] = keep
+            z[~sel] = 1.0
         return z
-
-
-_EMPTY = np.zeros(1)

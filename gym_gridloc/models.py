@@ -1,8 +1,9 @@
-"""The three models of the source documents, as thin builders over :class:`GridModel`."""
+"""The models of the source documents, as thin builders over :class:`GridModel`."""
 
 from __future__ import annotations
 
 import os
+import warnings
 from typing import Sequence
 
 import numpy as np
@@ -11,14 +12,9 @@ from gym_gridloc.core.grid import DIRECTIONS, GridMap, parse_rows, read_layout
 from gym_gridloc.core.model import GridModel, Term, move_terms
 from gym_gridloc.core.sensors import ColourSensor, RingSensor, WallSensor
 from gym_gridloc.core.validation import check_choice, check_probability, check_size
-
-Layout = "str | os.PathLike | Sequence[str]"
+from gym_gridloc.seeds import COLOUR_GRID_LAYOUT, WINDY_MAZE_LAYOUT
 
 COLOURS = ("R", "G", "B", "Y")
-#: Seed 000's 5x5 colour grid (19 free cells).
-COLOUR_GRID_LAYOUT = ("R,G,B,Y,B", ".,R,R,G,G", ".,.,B,.,Y", "Y,Y,B,.,R", "B,G,G,.,Y")
-#: Seed 004's 6x7 windy maze (31 free cells).
-WINDY_MAZE_LAYOUT = ("OOOOOOO", "OO####O", "OO#OO#O", "O##OO#O", "OOOO##O", "OOOOOOO")
 
 
 def parse_colour_map(layout: str | os.PathLike | Sequence[str]) -> GridMap:
@@ -53,14 +49,8 @@ def colour_grid_model(
         probs = np.full(4, slip / 4)
         probs[a] += 1.0 - slip
         transitions.append(move_terms(grid, probs))
-    return GridModel(
-        grid,
-        transitions,
-        ColourSensor(grid, accuracy),
-        name="ColourGrid",
-        action_dependent=slip < 1.0,
-        params={"slip": slip, "accuracy": accuracy},
-    )
+    return GridModel(grid, transitions, ColourSensor(grid, accuracy), name="ColourGrid",
+                     params={"slip": slip, "accuracy": accuracy})
 
 
 def windy_maze_model(
@@ -146,12 +136,16 @@ def ring_sensor_model(
     a list of rows, in place of the empty ``size`` grid; its shape must then agree with ``size``
     unless ``size`` is left at its default.
 
-    ``dynamics="seed"``: the hidden state is (heading, position); the heading follows the seeds'
-    rule (keep it with ``keep_heading`` unless it faces a wall, else a uniformly chosen heading that
-    does not), then the robot moves one cell; the action plays no part.  ``dynamics="commanded"``
-    (the default): the hidden state is the position and the action takes the role of the heading.
+    ``dynamics="passive"`` (the seeds' robot): the hidden state is (heading, position); the heading
+    follows the seeds' rule (keep it with ``keep_heading`` unless it faces a wall, else a uniformly
+    chosen heading that does not), then the robot moves one cell; the action plays no part.
+    ``"seed"`` is a deprecated alias.  ``dynamics="commanded"`` (the default): the hidden state is
+    the position and the action takes the role of the heading.
     """
-    dynamics = check_choice("dynamics", dynamics, ("commanded", "seed"))
+    if dynamics == "seed":
+        warnings.warn('dynamics="seed" is deprecated: use dynamics="passive" (the same robot)', DeprecationWarning, stacklevel=2)
+        dynamics = "passive"
+    dynamics = check_choice("dynamics", dynamics, ("commanded", "passive"))
     keep = check_probability("keep_heading", keep_heading)
     h, w = check_size("size", size)
     if layout is None:
@@ -164,7 +158,7 @@ def ring_sensor_model(
     hp = heading_probs(grid, keep)  # (4, 4, H, W)
     stuck = grid.blocked().all(axis=0) & grid.free
     params = {"dynamics": dynamics, "keep_heading": keep, "p_true": p_true, "p_ring1": p_ring1, "p_ring2": p_ring2}
-    if dynamics == "seed":
+    if dynamics == "passive":
         terms = []
         for hd in range(4):
             for nh in range(4):
@@ -172,10 +166,7 @@ def ring_sensor_model(
                 dr, dc = DIRECTIONS[nh]
                 terms.append(Term(hd, nh, int(dr), int(dc), weight))
             terms.append(Term(hd, hd, 0, 0, np.where(stuck, 1.0, 0.0)))
-        return GridModel(
-            grid, [terms] * 4, sensor, n_layers=4, name="RingSensor", action_dependent=False,
-            layer_names=("N", "E", "S", "W"), params=params,
-        )
+        return GridModel(grid, [terms] * 4, sensor, n_layers=4, name="RingSensor", params=params)
     transitions = []
     for a in range(4):
         # The action plays the current heading: the next heading is drawn by the rule, then one

@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from gym_gridloc import engine
 from gym_gridloc.core.errors import ImpossibleObservationError
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.core.validation import check_choice, check_int, check_probability
@@ -22,31 +23,6 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nda
     cum = np.cumsum(weights)
     cum[-1] = 1.0  # guard against round-off
     return np.minimum(np.searchsorted(cum, points, side="right"), n - 1)
-
-
-class _Sampler:
-    """Vectorised sampling of the next states of many particles under one action.
-
-    For every state, the cumulative probabilities of the stencil's terms (zero for terms whose
-    source layer is another one) are laid out as ``cum[layer, row, col, term]``; a particle's next
-    term is the first whose cumulative probability exceeds one uniform draw.
-    """
-
-    def __init__(self, model: GridModel, action: int | None) -> None:
-        terms = model.terms(action)
-        table = np.zeros((*model.belief_shape, len(terms)))
-        for i, t in enumerate(terms):
-            table[t.src, :, :, i] = t.weight
-        self.cum = np.cumsum(table, axis=-1)
-        self.dst = np.array([t.dst for t in terms], dtype=np.int64)
-        self.dr = np.array([t.dr for t in terms], dtype=np.int64)
-        self.dc = np.array([t.dc for t in terms], dtype=np.int64)
-
-    def __call__(self, layer: np.ndarray, row: np.ndarray, col: np.ndarray, rng: np.random.Generator):
-        cum = self.cum[layer, row, col]  # (N, n_terms)
-        u = rng.random(len(layer)) * cum[:, -1]
-        idx = np.minimum((cum <= u[:, None]).sum(axis=1), cum.shape[1] - 1)
-        return self.dst[idx], row + self.dr[idx], col + self.dc[idx]
 
 
 class ParticleFilter:
@@ -103,12 +79,7 @@ class ParticleFilter:
         self.resampling = check_choice("resampling", resampling, ("systematic", "multinomial"))
         self.on_depletion = check_choice("on_depletion", on_depletion, ("reinitialise", "raise"))
         self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-        self._samplers: dict[int | None, _Sampler] = {}
-        free_cells = np.asarray(model.grid.free_cells, dtype=np.int64).reshape(-1, 2)
-        self._free_rows, self._free_cols = free_cells[:, 0], free_cells[:, 1]
-        self._layer: np.ndarray | None = None
-        self._row: np.ndarray | None = None
-        self._col: np.ndarray | None = None
+        self._states: np.ndarray | None = None  # (N, 3): layer, row, col
         self._w: np.ndarray | None = None
         self.log_likelihood = 0.0
         self.n_resamples = 0
@@ -120,25 +91,15 @@ class ParticleFilter:
         self.rng = np.random.default_rng(seed)
         return self
 
-    def _states(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """State indices (layer-major over free cells) -> (layer, row, col) arrays."""
-        layer, cell = np.divmod(flat, self.model.grid.n_free)
-        return layer.astype(np.int64), self._free_rows[cell], self._free_cols[cell]
-
     def _draw_prior(self, reading: int | None = None) -> None:
-        n, s = self.n_particles, self.model.n_states
+        n = self.n_particles
         if reading is None:
-            flat = self.rng.integers(s, size=n)
+            self._states = engine.sample_initial(self.model, n, self.rng)
         else:
             p = self.model.likelihood_vector(reading)
-            flat = self.rng.choice(s, size=n, p=p / p.sum())
-        self._layer, self._row, self._col = self._states(flat)
+            flat = self.rng.choice(self.model.n_states, size=n, p=p / p.sum())
+            self._states = engine.states_of(self.model, flat)
         self._w = np.full(n, 1.0 / n)
-
-    def _sampler(self, action: int | None) -> _Sampler:
-        if action not in self._samplers:
-            self._samplers[action] = _Sampler(self.model, action)
-        return self._samplers[action]
 
     # -- the API ---------------------------------------------------------------------------------
     def reset(self, observation: Any = None) -> "ParticleFilter":
@@ -155,23 +116,14 @@ class ParticleFilter:
     def predict(self, action: int | None = None) -> "ParticleFilter":
         """Move every particle by a draw from the transition of ``action`` (None: unknown)."""
         self._check_ready()
-        a = None if action is None else self.model.check_action(action)
-        layer, row, col = self._sampler(a)(self._layer, self._row, self._col, self.rng)
-        p = self.model.kidnap_prob
-        if p > 0.0:
-            kidnapped = self.rng.random(self.n_particles) < p
-            k = int(kidnapped.sum())
-            if k:
-                kl, kr, kc = self._states(self.rng.integers(self.model.n_states, size=k))
-                layer[kidnapped], row[kidnapped], col[kidnapped] = kl, kr, kc
-        self._layer, self._row, self._col = layer, row, col
+        self._states = engine.sample_next(self.model, self._states, action, self.rng)
         return self
 
     def update(self, observation: Any) -> "ParticleFilter":
         """Weigh the particles by the reading's likelihood; resample if the ESS is low."""
         self._check_ready()
         reading = self.model.sensor.to_reading(observation)
-        lik = self.model.likelihood(reading)[self._row, self._col]
+        lik = self._likelihood(reading)
         w = self._w * lik
         z = float(w.sum())
         if not z > 0.0 or not np.isfinite(z):
@@ -194,12 +146,12 @@ class ParticleFilter:
     def step(self, action: int | None, observation: Any) -> "ParticleFilter":
         """Predict with ``action``, then update with ``observation``.  On an impossible
         observation the particles are left as they were before the step."""
-        before = (self._layer, self._row, self._col, self._w)
+        before = (self._states, self._w)
         self.predict(action)
         try:
             self.update(observation)
         except ImpossibleObservationError:
-            self._layer, self._row, self._col, self._w = before
+            self._states, self._w = before
             raise
         return self
 
@@ -211,7 +163,7 @@ class ParticleFilter:
             idx = systematic_resample(self._w, self.rng)
         else:
             idx = self.rng.choice(n, size=n, p=self._w)
-        self._layer, self._row, self._col = self._layer[idx], self._row[idx], self._col[idx]
+        self._states = self._states[idx]
         self._w = np.full(n, 1.0 / n)
         self.n_resamples += 1
         return self
@@ -227,7 +179,7 @@ class ParticleFilter:
     def particles(self) -> np.ndarray:
         """The particles' states as an (N, 3) int array of ``(layer, row, col)`` (a copy)."""
         self._check_ready()
-        return np.stack([self._layer, self._row, self._col], axis=1)
+        return self._states.copy()
 
     @property
     def weights(self) -> np.ndarray:
@@ -240,7 +192,8 @@ class ParticleFilter:
         """The weighted histogram of the particles over hidden states, (L, H, W) float64."""
         self._check_ready()
         L, H, W = self.model.belief_shape
-        flat = (self._layer * H + self._row) * W + self._col
+        st = self._states
+        flat = (st[:, 0] * H + st[:, 1]) * W + st[:, 2]
         return np.bincount(flat, weights=self._w, minlength=L * H * W).reshape(L, H, W)
 
     @property
@@ -248,12 +201,19 @@ class ParticleFilter:
         """The weighted histogram of the particles' positions, (H, W) float64, summing to 1."""
         self._check_ready()
         H, W = self.model.shape
-        return np.bincount(self._row * W + self._col, weights=self._w, minlength=H * W).reshape(H, W)
+        st = self._states
+        return np.bincount(st[:, 1] * W + st[:, 2], weights=self._w, minlength=H * W).reshape(H, W)
 
     @property
-    def belief(self) -> np.ndarray:
-        """The histogram over free states as a vector (layer-major), like ForwardFilter.belief."""
+    def belief_vector(self) -> np.ndarray:
+        """The histogram over free states as a vector (layer-major), like ForwardFilter's."""
         return self.model.to_vector(self.full_belief)
+
+    def _likelihood(self, reading: int) -> np.ndarray:
+        """P(reading | particle) for every particle."""
+        lik = np.asarray(self.model.likelihood(reading))
+        st = self._states
+        return lik[st[:, 0], st[:, 1], st[:, 2]] if lik.ndim == 3 else lik[st[:, 1], st[:, 2]]
 
     def _check_ready(self) -> None:
         if self._w is None:

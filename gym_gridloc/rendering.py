@@ -1,15 +1,17 @@
-"""Rendering: an ANSI table of beliefs, RGB frames drawn with numpy, and a pygame window."""
+"""Rendering: an ANSI table of beliefs, RGB frames drawn with numpy, and a pygame window.
+
+Everything here draws a :class:`Frame` (the model, a position belief, the true state, the last
+reading and action), whoever holds them: an environment, a recorded episode, the viewer.
+"""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import NamedTuple
 
 import numpy as np
 
+from gym_gridloc.core.model import GridModel
 from gym_gridloc.core.sensors import ColourSensor, RingSensor, WallSensor
-
-if TYPE_CHECKING:  # pragma: no cover
-    from gym_gridloc.envs.base import GridLocEnv
 
 COLOUR_RGB = {"R": (220, 50, 47), "G": (60, 170, 60), "B": (50, 100, 220), "Y": (230, 200, 30)}
 FREE_RGB = (235, 235, 235)
@@ -37,14 +39,25 @@ def belief_table(belief: np.ndarray, free: np.ndarray, mark: tuple[int, int] | N
     return "\n".join(lines)
 
 
-def ansi(env: "GridLocEnv") -> str:
-    model = env.model
-    state = env.state
+class Frame(NamedTuple):
+    """What one picture shows."""
+
+    model: GridModel
+    belief: np.ndarray  # (H, W) position belief
+    state: tuple[int, int, int] | None  # the true (layer, row, col), or None (not drawn)
+    reading: int | None = None
+    action: int | None = None
+
+
+def ansi(frame: Frame) -> str:
+    model = frame.model
     header = f"{model.name} {model.shape[0]}x{model.shape[1]}"
-    if env._last_action is not None:
-        header += f"  action: {'NESW'[env._last_action]}"
-    header += f"  reading: {model.sensor.describe(env.last_reading)}"
-    table = belief_table(env.posterior, model.grid.free, mark=(state[1], state[2]))
+    if frame.action is not None:
+        header += f"  action: {model.action_names[frame.action]}"
+    if frame.reading is not None:
+        header += f"  reading: {model.sensor.describe(frame.reading)}"
+    mark = None if frame.state is None else (frame.state[1], frame.state[2])
+    table = belief_table(frame.belief, model.grid.free, mark=mark)
     return f"{header}\nposition belief (%), * = true position\n{table}\n"
 
 
@@ -65,28 +78,27 @@ def base_image(model) -> np.ndarray:
     return img
 
 
-def rgb_frame(env: "GridLocEnv") -> np.ndarray:
-    """An RGB frame: cells, the belief as intensity, the true position, the last reading."""
-    model = env.model
-    belief = env.posterior
+def rgb_frame(frame: Frame) -> np.ndarray:
+    """An RGB image: cells, the belief as intensity, the true position, the last reading."""
+    model, belief = frame.model, frame.belief
     img = base_image(model)
     peak = max(float(belief.max()), 1e-12)
     alpha = np.sqrt(np.clip(belief / peak, 0.0, 1.0))[..., None] * 0.85
     img = np.where(model.grid.free[..., None], (1 - alpha) * img + alpha * BELIEF_RGB, img)
     t = _tile_size(model.shape)
-    frame = np.kron(img, np.ones((t, t, 1))).astype(np.uint8)
+    image = np.kron(img, np.ones((t, t, 1))).astype(np.uint8)
     if t >= 4:  # grid lines
-        frame[::t, :, :] = 90
-        frame[:, ::t, :] = 90
-    _, r, c = env.state
-    reading = env.last_reading
+        image[::t, :, :] = 90
+        image[:, ::t, :] = 90
+    reading = frame.reading
     sensor = model.sensor
     if isinstance(sensor, RingSensor) and reading is not None and reading != sensor.nothing:
         rr, cc = divmod(reading, model.shape[1])
-        _outline(frame, rr, cc, t, READING_RGB, max(1, t // 6))
-    _dot(frame, r, c, t, TRUTH_RGB)
+        _outline(image, rr, cc, t, READING_RGB, max(1, t // 6))
+    if frame.state is not None:
+        _dot(image, frame.state[1], frame.state[2], t, TRUTH_RGB)
     # A strip along the bottom shows the last reading.
-    strip = np.full((max(6, t), frame.shape[1], 3), 255, dtype=np.uint8)
+    strip = np.full((max(6, t), image.shape[1], 3), 255, dtype=np.uint8)
     if isinstance(sensor, ColourSensor) and reading is not None:
         strip[:] = COLOUR_RGB.get(sensor.colours[reading], (128, 128, 128))
     elif isinstance(sensor, WallSensor) and reading is not None:
@@ -96,7 +108,7 @@ def rgb_frame(env: "GridLocEnv") -> np.ndarray:
             strip[:, i * q : (i + 1) * q - 1] = OBSTACLE_RGB if b else FREE_RGB
     elif isinstance(sensor, RingSensor):
         strip[:] = FREE_RGB if reading == sensor.nothing else READING_RGB
-    return np.ascontiguousarray(np.concatenate([frame, strip], axis=0))
+    return np.ascontiguousarray(np.concatenate([image, strip], axis=0))
 
 
 def _dot(frame: np.ndarray, r: int, c: int, t: int, rgb) -> None:

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any
+import warnings
+from typing import Any, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -17,23 +18,37 @@ from gym_gridloc.filter import ForwardFilter
 _RESET_HINT = "pass on_impossible='reset' to HMMBeliefWrapper to restart the belief from the prior instead"
 
 
-def _encode(space: spaces.Space, obs: Any) -> np.ndarray:
-    """An observation as a float32 vector in [0, 1] (one-hot for Discrete)."""
-    if isinstance(space, spaces.Discrete):
-        out = np.zeros(space.n, dtype=np.float32)
-        out[int(obs) - int(space.start)] = 1.0
-        return out
-    if isinstance(space, spaces.MultiBinary):
-        return np.asarray(obs, dtype=np.float32).reshape(-1)
-    raise TypeError(f"flatten=True cannot encode an observation space {space}")
+def check_belief_option(belief: Any, allowed: Sequence[Any]) -> Any:
+    """The ``belief=`` keyword (which belief goes into the observation), shared with
+    :class:`~gym_gridloc.HMMBeliefWrapper`.  ``True``/``False`` are deprecated spellings of
+    ``"exact"``/``None``."""
+    if isinstance(belief, bool):
+        warnings.warn(f"belief={belief} is deprecated: use belief={'exact' if belief else None!r}",
+                      DeprecationWarning, stacklevel=3)
+        belief = "exact" if belief else None
+    return check_choice("belief", belief, allowed)
 
 
-def _encoded_size(space: spaces.Space) -> int:
-    if isinstance(space, spaces.Discrete):
-        return int(space.n)
-    if isinstance(space, spaces.MultiBinary):
-        return int(np.prod(space.shape))
-    raise TypeError(f"flatten=True needs a Discrete or MultiBinary observation space, got {space}")
+def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: bool = False,
+                             full_state: bool = False, key: str = "belief") -> spaces.Space:
+    """The observation space of ``inner`` with the belief of ``model`` appended, as
+    :class:`HMMBeliefWrapper` (and the native vector env) give it."""
+    shape = model.belief_shape if full_state else model.shape
+    belief_space = spaces.Box(0.0, 1.0, shape=shape, dtype=np.float32)
+    if flatten:
+        if isinstance(inner, spaces.Dict):
+            raise ValueError("flatten=True needs a non-Dict observation space")
+        if inner != model.sensor.observation_space:
+            raise ValueError(f"flatten=True encodes the sensor's {model.sensor.observation_space}, but the observations are {inner}")
+        n = model.sensor.encoded_size + int(np.prod(shape))
+        return spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
+    if isinstance(inner, spaces.Dict):
+        if key in inner.spaces:
+            raise ValueError(f"the observation space already has a key {key!r}; pass key=... to choose another")
+        return spaces.Dict({**inner.spaces, key: belief_space})
+    if key == "observation":
+        raise ValueError("key='observation' would replace the sensor reading (the Dict keeps it under 'observation'); choose another key")
+    return spaces.Dict({"observation": inner, key: belief_space})
 
 
 class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
@@ -101,7 +116,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             raise TypeError(f"model must be a GridModel, got {type(model).__name__}")
         self.on_impossible = check_choice("on_impossible", on_impossible, ("raise", "reset"))
         self.model = model
-        self.belief = check_choice("belief", belief, ("exact", "particles"))
+        self.belief = check_belief_option(belief, ("exact", "particles"))
         self.filter = self._make_filter(model)
         self.flatten = bool(flatten)
         self.full_state = bool(full_state)
@@ -116,19 +131,9 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             raise ValueError(
                 f"the model's sensor emits {sensor_space} but the environment's observation space is {inner}"
             )
-        shape = model.belief_shape if self.full_state else model.shape
-        belief_space = spaces.Box(0.0, 1.0, shape=shape, dtype=np.float32)
-        if self.flatten:
-            if isinstance(inner, spaces.Dict):
-                raise ValueError("flatten=True needs a non-Dict observation space")
-            n = _encoded_size(inner) + int(np.prod(shape))
-            self.observation_space = spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
-        elif isinstance(inner, spaces.Dict):
-            if key in inner.spaces:
-                raise ValueError(f"the observation space already has a key {key!r}; pass key=... to choose another")
-            self.observation_space = spaces.Dict({**inner.spaces, key: belief_space})
-        else:
-            self.observation_space = spaces.Dict({"observation": inner, key: belief_space})
+        if not isinstance(key, str) or not key:
+            raise TypeError(f"key must be a non-empty string, got {key!r}")
+        self.observation_space = belief_observation_space(model, inner, flatten=self.flatten, full_state=self.full_state, key=key)
         self._reset_flag = False
 
     # -- filtering -------------------------------------------------------------------------------
@@ -193,7 +198,8 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     def observation(self, observation):
         belief = self.belief_array()
         if self.flatten:
-            return np.concatenate([_encode(self.env.observation_space, observation), belief.ravel()])
+            reading = self.model.sensor.to_reading(observation)
+            return np.concatenate([self.model.sensor.encode(np.array([reading]))[0], belief.ravel()])
         if isinstance(observation, dict):
             return {**observation, self.key: belief}
         return {"observation": observation, self.key: belief}

@@ -9,6 +9,9 @@ layer ``dst`` at ``(r + dr, c + dc)`` with probability ``weight[r, c]``".  This 
 matrix written as a stencil: the filter's prediction is a few multiply-adds over shifted arrays,
 the simulator samples the same numbers, and :meth:`GridModel.transition_matrix` writes them out
 as a ``scipy.sparse`` matrix for anyone who wants one.
+
+A :class:`GridModel` is frozen data; :mod:`gym_gridloc.engine` applies it (predict, update, sample)
+and keeps what it derives from it (kernel plans) apart from it.
 """
 
 from __future__ import annotations
@@ -63,18 +66,11 @@ def merge_terms(terms: Sequence[Term], scale: float = 1.0) -> tuple[Term, ...]:
     return tuple(out)
 
 
-_KERNELS = None
-
-
-def _kernels():
-    """:mod:`gym_gridloc.kernels`, imported on first use (it imports numba only when a small
-    model is first filtered; see :func:`gym_gridloc.kernels.uses_numba`)."""
-    global _KERNELS
-    if _KERNELS is None:
-        from gym_gridloc import kernels
-
-        _KERNELS = kernels
-    return _KERNELS
+def mean_transition(transitions: Sequence[Sequence[Term]]) -> tuple[Term, ...]:
+    """The actions' average transition (for an unknown action)."""
+    if len(transitions) == 1:
+        return tuple(transitions[0])
+    return merge_terms([t for terms in transitions for t in terms], 1.0 / len(transitions))
 
 
 def _share_equal(transitions: tuple[tuple[Term, ...], ...]) -> tuple[tuple[Term, ...], ...]:
@@ -120,6 +116,10 @@ def move_terms(grid: GridMap, direction_probs: np.ndarray, layer: int = 0, dst_l
 class GridModel:
     """A hidden-Markov model on a grid: what the simulator samples and the filter multiplies.
 
+    Frozen data: the map, one tuple of stencil terms per action, the sensor and the kidnap
+    probability (and the parameters it was built with, for display).  Nothing else lives on it;
+    :mod:`gym_gridloc.engine` applies it.
+
     Parameters
     ----------
     grid:
@@ -128,11 +128,18 @@ class GridModel:
         One tuple of :class:`Term` per action (the same tuple for every action when the action
         plays no part).  Every free state's outgoing probabilities must sum to 1.
     sensor:
-        P(reading | position) and how readings map to observations.
+        P(reading | state) and how readings map to observations.
     n_layers:
         Number of hidden states per cell (1, or 4 for a heading).
     name:
         A short name for messages and rendering.
+    params:
+        The builder's parameters (slip, accuracy, ...), kept for display and metadata.
+    action_names:
+        A short name per action, for messages (default ``N, E, S, W`` for four actions).
+    kidnap_prob:
+        After every move, the robot is teleported to a uniformly chosen free state with this
+        probability (the kidnapped robot); 0 by default.
     """
 
     def __init__(
@@ -143,49 +150,44 @@ class GridModel:
         *,
         n_layers: int = 1,
         name: str = "GridModel",
-        action_dependent: bool = True,
-        layer_names: Sequence[str] | None = None,
         params: dict[str, Any] | None = None,
+        action_names: Sequence[str] | None = None,
         kidnap_prob: float = 0.0,
     ) -> None:
         from gym_gridloc.core.validation import check_probability
 
-        self.kidnap_prob = check_probability("kidnap_prob", kidnap_prob)
-        self.grid = grid
-        self.sensor = sensor
-        self.n_layers = int(n_layers)
-        self.name = name
-        self.action_dependent = bool(action_dependent)
-        self.layer_names = tuple(layer_names) if layer_names else tuple(str(i) for i in range(self.n_layers))
-        self.params = dict(params or {})
+        set_ = object.__setattr__
+        set_(self, "kidnap_prob", check_probability("kidnap_prob", kidnap_prob))
+        set_(self, "grid", grid)
+        set_(self, "sensor", sensor)
+        set_(self, "n_layers", int(n_layers))
+        set_(self, "name", name)
+        set_(self, "params", dict(params or {}))
         # No copies: merge_terms keeps the given arrays (read-only) where nothing merges.
-        self.transitions = _share_equal(tuple(merge_terms(t) for t in transitions))
+        set_(self, "transitions", _share_equal(tuple(merge_terms(t) for t in transitions)))
         if not self.transitions:
             raise ValueError("a model needs at least one action")
+        if action_names is None:
+            action_names = ("N", "E", "S", "W") if len(self.transitions) == 4 else tuple(map(str, range(len(self.transitions))))
+        if len(action_names) != len(self.transitions):
+            raise ValueError(f"action_names needs one name per action ({len(self.transitions)}), got {list(action_names)}")
+        set_(self, "action_names", tuple(action_names))
         self._check()
 
-    @property
-    def mean_transition(self) -> tuple[Term, ...]:
-        """The actions' average transition (for an unknown action), built on first use: on a
-        512 x 512 map it is as large as one action's."""
-        mean = self.__dict__.get("_mean_transition")
-        if mean is None:
-            if len(self.transitions) == 1:
-                mean = self.transitions[0]
-            else:
-                mean = merge_terms([t for terms in self.transitions for t in terms], 1.0 / len(self.transitions))
-            self.__dict__["_mean_transition"] = mean
-        return mean
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"a GridModel is frozen data; cannot set {name!r} (build another model, e.g. with_kidnapping)")
 
     def with_kidnapping(self, kidnap_prob: float) -> "GridModel":
         """A copy of this model in which, after every move, the robot is teleported with
         probability ``kidnap_prob`` to a uniformly chosen free state (the kidnapped robot)."""
-        import copy
-
         from gym_gridloc.core.validation import check_probability
 
-        other = copy.copy(self)
-        other.kidnap_prob = check_probability("kidnap_prob", kidnap_prob)
+        p = check_probability("kidnap_prob", kidnap_prob)
+        if p == self.kidnap_prob:
+            return self
+        other = object.__new__(GridModel)
+        other.__dict__.update(self.__dict__)
+        object.__setattr__(other, "kidnap_prob", p)
         return other
 
     # -- sizes ---------------------------------------------------------------------------------
@@ -217,6 +219,8 @@ class GridModel:
     def _check(self) -> None:
         h, w = self.shape
         free = self.grid.free
+        if self.sensor.grid is not self.grid and not np.array_equal(self.sensor.grid.labels, self.grid.labels):
+            raise ValueError("the sensor is built on another map than the model")
         for a, terms in enumerate(self.transitions):
             out = np.zeros(self.belief_shape)
             for t in terms:
@@ -258,117 +262,47 @@ class GridModel:
         """Uniform over free states, (L, H, W)."""
         return np.where(self.state_mask, 1.0 / self.n_states, 0.0)
 
-    # -- the filter's side -----------------------------------------------------------------------
-    def terms(self, action: int | None) -> tuple[Term, ...]:
-        if action is None:
-            return self.mean_transition
-        return self.transitions[self.check_action(action)]
-
     def check_action(self, action: Any) -> int:
+        """``action`` as an int in ``0..n_actions-1``, or a clear error."""
+        if isinstance(action, bool) or isinstance(action, (str, bytes)):
+            raise TypeError(f"action must be an integer in 0..{self.n_actions - 1}, got {action!r}")
         try:
             a = int(action)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise TypeError(f"action must be an integer in 0..{self.n_actions - 1}, got {action!r}") from None
         if a != action or not 0 <= a < self.n_actions:
-            raise ValueError(f"action must be an integer in 0..{self.n_actions - 1} (0=N, 1=E, 2=S, 3=W), got {action!r}")
+            raise ValueError(f"action must be an integer in 0..{self.n_actions - 1} ({self.action_legend}), got {action!r}")
         return a
 
-    def flat_plan(self, action: int | None) -> tuple[tuple[bool, int, int, int, int, np.ndarray], ...]:
-        """The stencil of ``action`` as shifts of the flattened (L*H*W) belief, cached.
+    @property
+    def action_legend(self) -> str:
+        """The actions' meanings for messages, e.g. ``0=N, 1=E, 2=S, 3=W``."""
+        return ", ".join(f"{i}={n}" for i, n in enumerate(self.action_names))
 
-        A shift (dr, dc) is the flat offset ``dr*W + dc``: the cells where that wraps round a
-        row edge have weight 0 (a term never leaves the grid, see :meth:`_check`), so one
-        contiguous slice per term gives exactly the 2-D result while reading contiguous memory.
-        Returns ``(zero_layers, entries)``; an entry is ``(first, src_lo, dst_lo, n, weight_slice)``
-        over flat indices: ``first`` marks a (0, 0) term that covers its whole destination layer
-        and is written rather than added (such terms come first); ``zero_layers`` are the layers
-        no such term covers, cleared first.  Used by :class:`BatchFilter`'s batched numpy path.
-        """
-        key = -1 if action is None else self.check_action(action)
-        cache = self.__dict__.setdefault("_flat_plans", {})
-        plan = cache.get(key)
-        if plan is not None:
-            return plan
-        h, w = self.shape
-        hw = h * w
-        firsts, rest, covered = [], [], set()
+    # -- the transition and the sensor as numbers --------------------------------------------------
+    def terms(self, action: int | None) -> tuple[Term, ...]:
+        """The terms of ``action``'s transition; ``None``: the actions' average (merged on each
+        call; :func:`gym_gridloc.engine.terms` caches it)."""
+        if action is None:
+            return mean_transition(self.transitions)
+        return self.transitions[self.check_action(action)]
+
+    def outcomes(self, state: tuple[int, int, int], action: int | None) -> list[tuple[tuple[int, int, int], float]]:
+        """The next states of ``state`` under ``action`` with their probabilities (non-zero only,
+        kidnapping left out)."""
+        layer, r, c = state
+        out = []
         for t in self.terms(action):
-            off = t.dr * w + t.dc
-            wf = t.weight.reshape(-1)
-            s0, d0 = (0, off) if off >= 0 else (-off, 0)
-            n = hw - abs(off)
-            entry = (t.src * hw + s0, t.dst * hw + d0, n, wf[s0 : s0 + n])
-            if off == 0 and t.dst not in covered:
-                covered.add(t.dst)
-                firsts.append((True, *entry))
-            else:
-                rest.append((False, *entry))
-        zero = tuple(layer for layer in range(self.n_layers) if layer not in covered)
-        plan = (zero, tuple(firsts) + tuple(rest))
-        cache[key] = plan
-        return plan
-
-    def stencil_plan(self, action: int | None):
-        """The plan that applies ``action``'s transition (None: the average) to a flat belief,
-        cached: compiled (numba) on small models, scipy's diagonal kernel on the others
-        (:func:`gym_gridloc.kernels.uses_numba` decides; :mod:`gym_gridloc.kernels`)."""
-        kernels = _kernels()
-        cache = self.__dict__.get("_stencil_plans")
-        if cache is None:
-            cache = self.__dict__["_stencil_plans"] = {}
-        numba = kernels.uses_numba(self)
-        plan = cache.get((numba, action)) if action is None or type(action) is int else None
-        if plan is None:
-            key = (numba, None if action is None else self.check_action(action))
-            plan = cache.get(key)
-            if plan is None:
-                plan = cache[key] = kernels.make_plan(self, self.terms(key[1]))
-        return plan
-
-    def __getstate__(self) -> dict:
-        state = dict(self.__dict__)
-        state.pop("_flat_plans", None)  # views into the weights: rebuilt on demand
-        state.pop("_stencil_plans", None)
-        return state
-
-    def predict(self, belief: np.ndarray, action: int | None, out: np.ndarray | None = None) -> np.ndarray:
-        """One transition step of an (L, H, W) belief (sum over the stencil's shifted arrays).
-
-        ``out`` (a C-contiguous (L, H, W) float64 array, not ``belief``) receives the result
-        without a new allocation.  The plan of :meth:`stencil_plan` does the work.
-        """
-        belief = np.ascontiguousarray(belief, dtype=np.float64)
-        if belief.size != self.n_layers * self.grid.free.size:
-            raise ValueError(f"belief must have shape {self.belief_shape}, got {belief.shape}")
-        if out is None:
-            out = np.empty(self.belief_shape)
-        elif out.dtype != np.float64 or not out.flags.c_contiguous or out.size != belief.size or np.may_share_memory(out, belief):
-            raise ValueError(f"out must be a C-contiguous float64 array of shape {self.belief_shape}, apart from belief")
-        self.stencil_plan(action).run(belief, out, None)
-        if self.kidnap_prob > 0.0:
-            out *= 1.0 - self.kidnap_prob
-            out += (self.kidnap_prob / self.n_states) * belief.sum() * self.state_mask
+            if t.src == layer:
+                p = float(t.weight[r, c])
+                if p > 0.0:
+                    out.append(((t.dst, r + t.dr, c + t.dc), p))
         return out
-
-    def backward(self, message: np.ndarray, action: int | None) -> np.ndarray:
-        """The transpose of :meth:`predict`: ``out[s] = sum_s' T[s, s'] * message[s']`` for an
-        (L, H, W) message (the backward pass of smoothing; kidnapping included)."""
-        out = np.zeros_like(message)
-        for t in self.terms(action):
-            src, dst = t.slices
-            out[t.src][src] += t.weight[src] * message[t.dst][dst]
-        if self.kidnap_prob > 0.0:
-            out *= 1.0 - self.kidnap_prob
-            out += (self.kidnap_prob / self.n_states) * float(message[self.state_mask].sum()) * self.state_mask
-        return out
-
-    def likelihood(self, reading: int) -> np.ndarray:
-        """P(reading | position) as an (H, W) array, zero on obstacles."""
-        return self.sensor.likelihood(reading)
 
     def transition_matrix(self, action: int | None = None):
         """The transition of ``action`` (None: the average over actions) as a ``scipy.sparse``
-        CSR matrix ``T[s, s'] = P(s' | s)`` over the free states."""
+        CSR matrix ``T[s, s'] = P(s' | s)`` over the free states (kidnapping included: then every
+        row is dense)."""
         from scipy import sparse
 
         rows, cols, vals = [], [], []
@@ -387,38 +321,15 @@ class GridModel:
             m = sparse.csr_matrix((1.0 - self.kidnap_prob) * m.toarray() + self.kidnap_prob / S)
         return m
 
+    def likelihood(self, reading: int) -> np.ndarray:
+        """P(reading | state): an (H, W) array for sensors that see the position only, (L, H, W)
+        for sensors whose reading depends on the layer; zero on obstacles."""
+        return self.sensor.likelihood(reading)
+
     def likelihood_vector(self, reading: int) -> np.ndarray:
-        """P(reading | state) for every free state, (S,)."""
-        return np.tile(self.likelihood(reading)[self.grid.free], self.n_layers)
+        """P(reading | state) for every free state, (S,) layer-major."""
+        lik = self.likelihood(reading)
+        if lik.ndim == 3:
+            return lik[:, self.grid.free].reshape(-1)
+        return np.tile(lik[self.grid.free], self.n_layers)
 
-    # -- the simulator's side --------------------------------------------------------------------
-    def sample_initial_state(self, rng: np.random.Generator) -> tuple[int, int, int]:
-        s = int(rng.integers(self.n_states))
-        return self.state_of_index(s)
-
-    def outcomes(self, state: tuple[int, int, int], action: int | None) -> list[tuple[tuple[int, int, int], float]]:
-        """The next states of ``state`` under ``action`` with their probabilities (non-zero only)."""
-        layer, r, c = state
-        out = []
-        for t in self.terms(action):
-            if t.src == layer:
-                p = float(t.weight[r, c])
-                if p > 0.0:
-                    out.append(((t.dst, r + t.dr, c + t.dc), p))
-        return out
-
-    def sample_next_state(self, state: tuple[int, int, int], action: int, rng: np.random.Generator) -> tuple[int, int, int]:
-        if self.kidnap_prob > 0.0 and rng.random() < self.kidnap_prob:
-            return self.sample_initial_state(rng)
-        outcomes = self.outcomes(state, action)
-        u = rng.random() * sum(p for _, p in outcomes)
-        acc = 0.0
-        for nxt, p in outcomes:
-            acc += p
-            if u < acc:
-                return nxt
-        return outcomes[-1][0]
-
-    def sample_reading(self, state: tuple[int, int, int], rng: np.random.Generator) -> int:
-        _, r, c = state
-        return self.sensor.sample(r, c, rng)

@@ -2,103 +2,114 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from gym_gridloc import engine, referee
 from gym_gridloc.core.model import GridModel
-from gym_gridloc.core.validation import check_threshold
+from gym_gridloc.core.validation import check_choice, check_int, check_threshold
 from gym_gridloc.filter import ForwardFilter
-
-
-def belief_summary(position_belief: np.ndarray) -> tuple[tuple[int, int], float, float]:
-    """``(estimate, confidence, entropy in bits)`` of an (H, W) position belief."""
-    flat = position_belief.ravel()
-    k = int(np.argmax(flat))
-    p = flat[flat > 0]
-    entropy = float(-(p * np.log2(p)).sum())
-    return divmod(k, position_belief.shape[1]), float(flat[k]), max(entropy, 0.0)
 
 
 class GridLocEnv(gym.Env):
     """Active localisation on a grid model (see the subclasses for the documented models).
 
-    The environment simulates the hidden robot with ``model`` and keeps the exact posterior as the
-    referee of the termination rule; the observation is only the reading.
+    The environment simulates the hidden robot with ``model`` (through :mod:`gym_gridloc.engine`)
+    and keeps the exact posterior as the referee of the termination rule
+    (:mod:`gym_gridloc.referee`); the observation is only the reading.
+
+    Keyword arguments the subclasses pass on: ``localise_threshold``; ``map_factory`` (``rng ->
+    GridModel``, a new map at every reset); ``referee_pose`` (the referee tests the most probable
+    hidden state rather than position); ``episode_length`` (a fixed number of steps: truncated
+    there, never terminated early); ``reward`` (``"step"``: -1 per step, or ``"belief"``: the
+    referee's confidence).
     """
 
     metadata = {"render_modes": ["ansi", "rgb_array", "human"], "render_fps": 4}
 
-    def __init__(self, model: GridModel, *, localise_threshold: float = 0.9, render_mode: str | None = None) -> None:
+    def __init__(self, model: GridModel, *, localise_threshold: float = 0.9, render_mode: str | None = None,
+                 map_factory: Callable[[np.random.Generator], GridModel] | None = None,
+                 referee_pose: bool = False, episode_length: int | None = None, reward: str = "step") -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}"
             )
         self.model = model
         self.localise_threshold = check_threshold("localise_threshold", localise_threshold)
+        self.episode_length = None if episode_length is None else check_int("episode_length", episode_length, 1)
+        self.reward_kind = check_choice("reward", reward, referee.REWARDS)
+        self.referee_pose = bool(referee_pose)
         self.render_mode = render_mode
         self.observation_space = model.sensor.observation_space
         self.action_space = spaces.Discrete(model.n_actions)
         self._referee = ForwardFilter(model)
-        #: ``rng -> GridModel`` when a new map is drawn at every reset (see ``new_map_each_reset``).
-        self._map_factory = None
-        self._state: tuple[int, int, int] | None = None
+        self._map_factory = map_factory
+        self._states: np.ndarray | None = None  # (1, 3): layer, row, col
         self._last_reading: int | None = None
         self._last_action: int | None = None
-        self._renderer = None
+        self._elapsed = 0
+        self._window = None
 
     # -- Gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         if self._map_factory is not None:  # a new map from np_random: same seed, same map
             self._set_model(self._map_factory(self.np_random))
-        if options:
-            unknown = set(options) - {"state"}
-            if unknown:
-                raise ValueError(f"unknown reset option(s) {sorted(unknown)}; allowed: 'state' (row, col) or (layer, row, col)")
-        self._state = self._start_state(options)
+        start = self._start_state(options)
+        self._states = start if start is not None else engine.sample_initial(self.model, 1, self.np_random)
         self._last_action = None
-        return self._observe(first=True), self._info()
+        self._elapsed = 0
+        obs = self._read()
+        self._referee.reset(obs)
+        return obs, self._info()
 
     def step(self, action):
-        if self._state is None:
+        if self._states is None:
             raise RuntimeError("call reset() before step()")
         if not self.action_space.contains(action):
-            raise ValueError(f"action {action!r} is not in the action space {self.action_space} (0=N, 1=E, 2=S, 3=W)")
+            raise ValueError(f"action {action!r} is not in the action space {self.action_space} ({self.model.action_legend})")
         a = int(action)
-        self._state = self.model.sample_next_state(self._state, a, self.np_random)
+        self._states = engine.sample_next(self.model, self._states, a, self.np_random)
         self._last_action = a
-        obs = self._observe(first=False, action=a)
+        self._elapsed += 1
+        obs = self._read()
+        self._referee.step(a, obs)
         info = self._info()
-        terminated = bool(info["localised"])
+        if self.episode_length is None:
+            terminated, truncated = bool(info["localised"]), False
+        else:
+            terminated, truncated = False, self._elapsed >= self.episode_length
         if self.render_mode == "human":
             self.render()
-        return obs, -1.0, terminated, False, info
+        reward = -1.0 if self.reward_kind == "step" else float(info["confidence"])
+        return obs, reward, terminated, truncated, info
 
     def render(self):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode=... to gym.make")
             return None
-        if self._state is None:
+        if self._states is None:
             raise RuntimeError("call reset() before render()")
         from gym_gridloc import rendering
 
+        frame = rendering.Frame(self.model, self._referee.position_belief, self.state, self._last_reading, self._last_action)
         if self.render_mode == "ansi":
-            return rendering.ansi(self)
-        frame = rendering.rgb_frame(self)
+            return rendering.ansi(frame)
+        image = rendering.rgb_frame(frame)
         if self.render_mode == "rgb_array":
-            return frame
-        if self._renderer is None:
-            self._renderer = rendering.Window(f"gym_gridloc: {self.model.name}", self.metadata["render_fps"])
-        self._renderer.show(frame)
+            return image
+        if self._window is None:
+            self._window = rendering.Window(f"gym_gridloc: {self.model.name}", self.metadata["render_fps"])
+        self._window.show(image)
         return None
 
     def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        if self._window is not None:
+            self._window.close()
+            self._window = None
 
     # -- helpers ---------------------------------------------------------------------------------
     def _set_model(self, model: GridModel) -> None:
@@ -108,49 +119,38 @@ class GridLocEnv(gym.Env):
         self.model = model
         self._referee = ForwardFilter(model)
 
-    def _start_state(self, options) -> tuple[int, int, int]:
-        if options and "state" in options:
-            st = tuple(int(v) for v in options["state"])
-            if len(st) == 2:
-                st = (int(self.np_random.integers(self.model.n_layers)), *st)
-            if len(st) != 3 or not (0 <= st[0] < self.model.n_layers) or not self.model.grid.is_free(st[1], st[2]):
-                raise ValueError(f"reset option 'state' must name a free cell, got {options['state']!r}")
-            return st  # type: ignore[return-value]
-        return self.model.sample_initial_state(self.np_random)
+    def _start_state(self, options) -> np.ndarray | None:
+        """The start state a reset option asks for, as (1, 3), or None (draw it)."""
+        if not options:
+            return None
+        unknown = set(options) - {"state"}
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; allowed: 'state' (row, col) or (layer, row, col)")
+        given = options["state"]
+        st = _int_tuple(given)
+        if st is not None and len(st) == 2:
+            st = (int(self.np_random.integers(self.model.n_layers)), *st)
+        if st is None or len(st) != 3 or not (0 <= st[0] < self.model.n_layers) or not self.model.grid.is_free(st[1], st[2]):
+            raise ValueError(
+                f"reset option 'state' must name a free cell, got {given!r}: give (row, col) or (layer, row, col) "
+                f"as integers (layer in 0..{self.model.n_layers - 1})"
+            )
+        return np.array([st], dtype=np.int64)
 
-    def _observe(self, first: bool, action: int | None = None):
-        reading = self.model.sample_reading(self._state, self.np_random)
+    def _read(self):
+        reading = int(engine.sample_readings(self.model, self._states, self.np_random)[0])
         self._last_reading = reading
-        obs = self.model.sensor.to_observation(reading)
-        if first:
-            self._referee.reset(obs)
-        else:
-            self._referee.step(action, obs)
-        return obs
+        return self.model.sensor.to_observation(reading)
 
     def _info(self) -> dict[str, Any]:
-        pb = self._referee.position_belief
-        estimate, confidence, entropy = belief_summary(pb)
-        position = (self._state[1], self._state[2])
-        localised = confidence >= self.localise_threshold
-        error = abs(estimate[0] - position[0]) + abs(estimate[1] - position[1])
-        info = {
-            "position": position,
-            "estimate": estimate,
-            "confidence": confidence,
-            "error": int(error),
-            "localised": bool(localised),
-            "success": bool(localised and error == 0),
-            "entropy": entropy,
-        }
-        if self.model.n_layers > 1:
-            info["heading"] = self._state[0]
-        return info
+        f = self._referee.full_belief
+        return referee.single(referee.summarise(f[None], self._states, self.localise_threshold, pose=self.referee_pose))
 
     # Exposed for renderers and tests: the true hidden state and the referee's posterior.
     @property
     def state(self) -> tuple[int, int, int] | None:
-        return self._state
+        """The true hidden state ``(layer, row, col)`` (not part of the observation)."""
+        return None if self._states is None else tuple(int(v) for v in self._states[0])
 
     @property
     def posterior(self) -> np.ndarray:
@@ -160,3 +160,15 @@ class GridLocEnv(gym.Env):
     @property
     def last_reading(self) -> int | None:
         return self._last_reading
+
+
+def _int_tuple(value: Any) -> tuple[int, ...] | None:
+    """``value`` as a tuple of ints if it is a sequence of whole numbers (not strings or bools)."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
+        return None
+    out = []
+    for v in value:
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+            return None
+        out.append(int(v))
+    return tuple(out)

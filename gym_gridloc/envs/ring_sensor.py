@@ -15,9 +15,10 @@ class RingSensorEnv(GridLocEnv):
     ``Discrete(4)``: 0 = N, 1 = E, 2 = S, 3 = W.  With ``dynamics="commanded"`` (the default) the
     action plays the role of the heading: the robot follows it with ``keep_heading`` (0.7) when it
     does not face a wall, otherwise it takes a uniformly chosen heading that does not face a wall;
-    then it moves one cell.  With ``dynamics="seed"`` the robot keeps a hidden heading and follows
-    the seeds' rule whatever the action: the action space is still ``Discrete(4)``, as in every
-    environment, but the action plays no part (a passive tracking task).
+    then it moves one cell.  With ``dynamics="passive"`` (the seeds' robot; ``"seed"`` is a
+    deprecated alias) the robot keeps a hidden heading and follows the seeds' rule whatever the
+    action: the action space is still ``Discrete(4)``, as in every environment, but the action
+    plays no part (a passive tracking task).
 
     ## Observation Space
     ``Discrete(H * W + 1)``: ``r * W + c`` is a reported cell, ``H * W`` is "nothing".  The true
@@ -25,7 +26,7 @@ class RingSensorEnv(GridLocEnv):
     16 at distance 2 with 0.025; readings off the grid, and the remaining 0.1, are "nothing".
 
     ## Starting State
-    Uniform over cells (and, with seed dynamics, over the four headings); the first observation is
+    Uniform over cells (and, with passive dynamics, over the four headings); the first observation is
     a reading at the start.
 
     ## Rewards
@@ -38,7 +39,7 @@ class RingSensorEnv(GridLocEnv):
 
     ## Arguments
     ``size`` ((8, 8)), ``layout`` (None: an empty grid; or a maze file / list of rows of ``O`` and
-    ``#`` whose obstacles the robot cannot enter and whose cells the sensor may still report), ``dynamics`` (``"commanded"`` or ``"seed"``), ``keep_heading`` (0.7),
+    ``#`` whose obstacles the robot cannot enter and whose cells the sensor may still report), ``dynamics`` (``"commanded"`` or ``"passive"``), ``keep_heading`` (0.7),
     ``p_true`` (0.1), ``p_ring1`` (0.05), ``p_ring2`` (0.025), ``localise_threshold`` (0.9), ``kidnap_prob`` (0.0: after every move the
     robot is teleported to a uniformly chosen free state with this probability),
     ``render_mode``.

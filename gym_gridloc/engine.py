@@ -1,0 +1,475 @@
+"""The engine: the one place where a :class:`~gym_gridloc.GridModel`'s numbers are applied.
+
+Everything that moves a belief or a robot calls these functions: the environments, the native
+vector environment, :class:`~gym_gridloc.ForwardFilter` and :class:`~gym_gridloc.BatchFilter`,
+the particle filter, smoothing and Viterbi, and the lookahead policies.
+
+* :func:`predict` -- one transition step of a belief ``(L, H, W)`` or of a batch ``(N, L, H, W)``,
+  each with its own action (``None``: the action is unknown, the actions' average).  The kernel
+  (numba or numpy/scipy, :mod:`gym_gridloc.kernels`) is chosen inside, for N = 1 too.
+* :func:`update` and :func:`step` -- condition on readings (after predicting, for ``step``),
+  normalise, and raise one :class:`~gym_gridloc.ImpossibleObservationError` when a reading has
+  probability zero.
+* :func:`backward` -- the transpose of :func:`predict` (the backward pass of smoothing).
+* :func:`sample_initial`, :func:`sample_next`, :func:`sample_readings` -- the simulator's side,
+  batched: states are ``(N, 3)`` int64 arrays of ``(layer, row, col)``.
+
+Kidnapping (``model.kidnap_prob``: after a move, the robot is teleported to a uniformly chosen free
+state) is mixed in here and nowhere else: :func:`predict` and :func:`backward` mix it into the
+beliefs, :func:`sample_next` draws it.
+
+What the engine derives from a model (the plan of its kernel, the average transition) is cached
+here, per model object, never stored on the model: a :class:`GridModel` is frozen data.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from typing import Any
+
+import numpy as np
+
+from gym_gridloc import kernels
+from gym_gridloc.core.errors import ImpossibleObservationError
+from gym_gridloc.core.model import GridModel, Term, mean_transition
+
+__all__ = [
+    "predict", "update", "step", "backward", "likelihoods", "impossible", "plan",
+    "sample_initial", "sample_next", "sample_readings", "states_of", "action_indices", "path", "terms",
+]
+
+
+class _Derived:
+    """What the engine derives from one model, built on first use."""
+
+    __slots__ = ("transitions", "_plan", "_liks", "_lik_bytes", "layered", "hw", "_steppers", "__weakref__")
+
+    #: At most this many bytes of single-reading likelihoods are kept per model.
+    LIK_CACHE_BYTES = 32 * 2**20
+
+    def __init__(self, model: GridModel) -> None:
+        # Index n_actions is the unknown action: the average of the others (built on first use
+        # of the plan, as large as one action's terms on a 512 x 512 map).
+        self.transitions = None
+        self._plan = None
+        self._liks: dict[int, np.ndarray] = {}
+        self._lik_bytes = 0
+        self.layered = int(model.sensor.layered)
+        self._steppers: dict[bool, Any] = {}
+        self.hw = model.shape[0] * model.shape[1]
+
+    def lik(self, model: GridModel, reading: int) -> np.ndarray:
+        """The flat likelihood of one reading (cached while the cache is small)."""
+        lik = self._liks.get(reading)
+        if lik is None:
+            lik = np.ascontiguousarray(model.sensor.likelihood(reading), dtype=np.float64).reshape(-1)
+            if self._lik_bytes + lik.nbytes <= self.LIK_CACHE_BYTES:
+                self._liks[reading] = lik
+                self._lik_bytes += lik.nbytes
+        return lik
+
+    def stepper(self, model: GridModel, normalise: bool):
+        fn = self._steppers.get(normalise)
+        if fn is None:
+            fn = self._steppers[normalise] = _make_stepper(model, self, normalise)
+        return fn
+
+    def all_transitions(self, model: GridModel) -> tuple[tuple[Term, ...], ...]:
+        if self.transitions is None:
+            self.transitions = (*model.transitions, mean_transition(model.transitions))
+        return self.transitions
+
+    def plan(self, model: GridModel):
+        if self._plan is None:
+            self._plan = kernels.make_plan(self.all_transitions(model), model.n_layers, model.shape)
+        return self._plan
+
+
+_DERIVED: "weakref.WeakKeyDictionary[GridModel, _Derived]" = weakref.WeakKeyDictionary()
+
+
+def _derived(model: GridModel) -> _Derived:
+    d = _DERIVED.get(model)
+    if d is None:
+        if not isinstance(model, GridModel):
+            raise TypeError(f"expected a GridModel, got {type(model).__name__}")
+        d = _DERIVED[model] = _Derived(model)
+    return d
+
+
+def plan(model: GridModel):
+    """The kernel plan of ``model`` (:mod:`gym_gridloc.kernels`), built once per model."""
+    return _derived(model).plan(model)
+
+
+def path(model: GridModel) -> str:
+    """``"numba"`` or ``"numpy"``: the kernel that filters ``model``."""
+    return plan(model).path
+
+
+def terms(model: GridModel, action: int | None) -> tuple[Term, ...]:
+    """The terms of ``action``'s transition (``None``: the actions' average, cached)."""
+    if action is None:
+        return _derived(model).all_transitions(model)[model.n_actions]
+    return model.transitions[model.check_action(action)]
+
+
+# -- actions and shapes ------------------------------------------------------------------------------
+def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
+    """``actions`` as ``n`` plan indices (int64): each an action in ``0..A-1``, or ``A`` for an
+    unknown action (``None``, alone or as an element).  A scalar applies to all ``n``."""
+    A = model.n_actions
+    if actions is None:
+        return np.full(n, A, dtype=np.int64)
+    if np.ndim(actions) == 0:
+        return np.full(n, model.check_action(actions), dtype=np.int64)
+    arr = np.asarray(actions)
+    if arr.dtype == object:
+        return np.array([A if a is None else model.check_action(a) for a in arr.reshape(-1)], dtype=np.int64).reshape(arr.shape)
+    if arr.shape != (n,):
+        raise ValueError(f"actions must be {n} actions (one per belief), got shape {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.integer):
+        if not (np.issubdtype(arr.dtype, np.floating) and np.all(arr == np.round(arr))):
+            raise ValueError(f"actions must be integers in 0..{A - 1}, got {arr!r}")
+    out = arr.astype(np.int64)
+    bad = (out < 0) | (out >= A)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"action {arr[i]!r} of belief {i} is outside 0..{A - 1}")
+    return out
+
+
+def _flat(model: GridModel, beliefs: np.ndarray, name: str = "belief") -> tuple[np.ndarray, bool]:
+    """``(beliefs as (N, L*H*W) float64 C-contiguous, single)``."""
+    shape = model.belief_shape
+    b = np.asarray(beliefs)
+    if b.shape == shape:
+        return np.ascontiguousarray(b, dtype=np.float64).reshape(1, -1), True
+    if b.ndim == 4 and b.shape[1:] == shape:
+        return np.ascontiguousarray(b, dtype=np.float64).reshape(b.shape[0], -1), False
+    raise ValueError(f"{name} must have shape {shape} (one belief) or (N, *{shape}) (a batch), got {b.shape}")
+
+
+def _out(out: np.ndarray | None, like: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    if out is None:
+        return np.empty(shape)
+    if out.dtype != np.float64 or not out.flags.c_contiguous or out.size != like.size or np.may_share_memory(out, like):
+        raise ValueError(f"out must be a C-contiguous float64 array of shape {shape}, apart from the beliefs")
+    return out
+
+
+# -- beliefs ------------------------------------------------------------------------------------------
+def _kidnap(model: GridModel, before: np.ndarray, after: np.ndarray) -> None:
+    """Mix the kidnapped robot into predicted flat beliefs: ``after = (1-k) after + k/S * mass``."""
+    k = model.kidnap_prob
+    after *= 1.0 - k
+    after += (k / model.n_states) * before.sum(axis=1, keepdims=True) * model.state_mask.reshape(1, -1)
+
+
+def predict(model: GridModel, beliefs: np.ndarray, actions: Any = None, out: np.ndarray | None = None) -> np.ndarray:
+    """One transition step ``T_a^T b`` of a belief ``(L, H, W)`` or a batch ``(N, L, H, W)``.
+
+    ``actions``: an action (or ``None``, unknown) for one belief; for a batch, N actions or one
+    for all.  ``out`` (C-contiguous float64 of the same shape, not the beliefs) receives the
+    result without a new allocation.  The mass of each belief is kept.
+    """
+    flat, single = _flat(model, beliefs)
+    n = flat.shape[0]
+    acts = action_indices(model, actions, n)
+    res = _out(out, flat, np.shape(beliefs) if single else (n, *model.belief_shape))
+    res2 = res.reshape(n, -1)
+    p = plan(model)
+    if single:
+        p.run_one(flat[0], int(acts[0]), _NO_LIK, 0, res2[0], 0)
+    else:
+        p.run(flat, acts, _no_liks(n), 0, res2, 0, _all(n))
+    if model.kidnap_prob > 0.0:
+        _kidnap(model, flat, res2)
+    return res
+
+
+def backward(model: GridModel, messages: np.ndarray, action: int | None) -> np.ndarray:
+    """The transpose of :func:`predict` for one ``(L, H, W)`` message:
+    ``out[s] = sum_s' T[s, s'] * message[s']`` (the backward pass of smoothing; kidnapping
+    included)."""
+    msg = np.asarray(messages, dtype=np.float64)
+    out = np.zeros_like(msg)
+    for t in terms(model, action):
+        src, dst = t.slices
+        out[t.src][src] += t.weight[src] * msg[t.dst][dst]
+    if model.kidnap_prob > 0.0:
+        mask = model.state_mask
+        out *= 1.0 - model.kidnap_prob
+        out += (model.kidnap_prob / model.n_states) * float(msg[mask].sum()) * mask
+    return out
+
+
+def likelihoods(model: GridModel, readings: Any, out: np.ndarray | None = None) -> np.ndarray:
+    """P(reading_i | state) for N readings as ``(N, H*W)`` (position sensors) or ``(N, L*H*W)``
+    (sensors whose reading depends on the layer), zero on obstacles."""
+    return model.sensor.likelihoods(np.asarray(readings, dtype=np.int64).reshape(-1), out=out)
+
+
+def impossible(model: GridModel, reading: int, *, label: str | None = None,
+               given: str = "the belief so far") -> ImpossibleObservationError:
+    """The one error for a reading of probability zero in every state the belief allows.
+    ``label`` names it (default ``observation <obs> (<what it reads>)``)."""
+    if label is None:
+        label = f"observation {model.sensor.observation_text(int(reading))}"
+    return ImpossibleObservationError(
+        f"{label} is impossible under the filter's model ({model!r}) given {given}: every state "
+        "that could be reached gives it probability 0 (model mismatch?)"
+    )
+
+
+def _check_z(model: GridModel, z: np.ndarray, readings: np.ndarray, batch: bool, sel: np.ndarray | None = None) -> None:
+    ok = (z > 0.0) & np.isfinite(z)
+    if sel is not None:
+        ok |= ~sel
+    if not ok.all():
+        i = int(np.flatnonzero(~ok)[0])
+        text = model.sensor.observation_text(int(readings[i]))
+        raise impossible(model, int(readings[i]), label=f"observation {text} of belief {i}" if batch else None)
+
+
+def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
+    """Condition beliefs ``(L, H, W)`` or ``(N, L, H, W)`` on readings (one per belief), in place,
+    normalised; returns the normalisers ``P(reading | belief)`` (N,).  On a reading of probability
+    zero the beliefs are left as they were and :class:`ImpossibleObservationError` names it."""
+    b = np.asarray(beliefs)
+    if b.dtype != np.float64 or not b.flags.c_contiguous:
+        raise ValueError("update() works in place: beliefs must be a C-contiguous float64 array")
+    flat, single = _flat(model, b)
+    n = flat.shape[0]
+    rs = np.asarray(readings, dtype=np.int64).reshape(-1)
+    if rs.size != n:
+        raise ValueError(f"update() needs one reading per belief: {n} beliefs, {rs.size} readings")
+    lik = likelihoods(model, rs)
+    if lik.shape[1] == flat.shape[1]:
+        post = flat * lik
+    else:
+        post = (flat.reshape(n, model.n_layers, -1) * lik[:, None, :]).reshape(n, -1)
+    z = post.sum(axis=1)
+    _check_z(model, z, rs, not single)
+    np.divide(post, z[:, None], out=flat)
+    return z
+
+
+def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out: np.ndarray | None = None,
+         *, normalise: bool = True, mask: np.ndarray | None = None):
+    """Predict each belief with its action, then condition it on its reading: ``(out, z)``.
+
+    ``beliefs`` ``(L, H, W)`` (then ``z`` is a float) or ``(N, L, H, W)`` (then ``z`` is (N,));
+    ``z`` is ``P(reading | belief, action)``.  With ``normalise=False`` the result is left
+    multiplied by ``z`` (the caller divides later).  ``mask`` (N booleans) limits the step to
+    some beliefs (the other rows of ``out`` are left as they were).  On an impossible reading
+    nothing the caller holds changes (``out`` may be overwritten) and
+    :class:`ImpossibleObservationError` names it.
+    """
+    d = _derived(model)
+    if type(beliefs) is np.ndarray and beliefs.ndim == 3 and mask is None:
+        return _step_one(model, d, beliefs, actions, readings, out, normalise)
+    flat, single = _flat(model, beliefs)
+    if single:
+        return _step_one(model, d, beliefs, actions, readings, out, normalise)
+    n = flat.shape[0]
+    acts = action_indices(model, actions, n)
+    rs = np.asarray(readings, dtype=np.int64).reshape(-1)
+    if rs.size != n:
+        raise ValueError(f"step() needs one reading per belief: {n} beliefs, {rs.size} readings")
+    sel = _all(n) if mask is None else np.asarray(mask, dtype=bool)
+    if mask is not None:
+        acts = np.where(sel, acts, 0)
+    res = _out(out, flat, (n, *model.belief_shape))
+    res2 = res.reshape(n, -1)
+    p = d.plan(model)
+    lik = likelihoods(model, np.where(sel, rs, 0) if mask is not None else rs)
+    layered = d.layered
+    mode = 1 if normalise else 2
+    if model.kidnap_prob > 0.0:  # predict, mix, then weigh: the kernel's fused pass cannot mix
+        p.run(flat, acts, _no_liks(n), 0, res2, 0, sel)
+        keep = None if mask is None else res2[~sel].copy()
+        _kidnap(model, flat, res2)
+        view = res2 if layered else res2.reshape(n, model.n_layers, -1)
+        view *= lik if layered else lik[:, None, :]
+        z = res2.sum(axis=1)
+        if normalise:
+            res2 /= np.where((z > 0) & np.isfinite(z), z, 1.0)[:, None]
+        if keep is not None:
+            res2[~sel] = keep
+            z[~sel] = 1.0
+    else:
+        z = p.run(flat, acts, lik, layered, res2, mode, sel)
+    _check_z(model, z, rs, True, None if mask is None else sel)
+    return res, z
+
+
+def _step_one(model: GridModel, d: _Derived, belief: np.ndarray, action: Any, reading: Any,
+              out: np.ndarray | None, normalise: bool) -> tuple[np.ndarray, float]:
+    """:func:`step` of one belief."""
+    shape = model.belief_shape
+    if belief.shape != shape or belief.dtype != np.float64 or not belief.flags.c_contiguous:
+        belief = _flat(model, belief)[0].reshape(shape)
+    if out is None:
+        out = np.empty(shape)
+    elif out is belief or out.shape != shape or out.dtype != np.float64 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous float64 array of shape {shape}, apart from the belief")
+    return out, d.stepper(model, normalise)(belief, action, reading, out)
+
+
+def stepper(model: GridModel, *, normalise: bool = True):
+    """:func:`step` for one belief as a bound function ``(belief, action, reading, out) -> z``,
+    for hot loops (the single filter): ``belief`` and ``out`` C-contiguous float64 ``(L, H, W)``
+    arrays (not checked), ``action`` an int or None, ``reading`` an int."""
+    return _derived(model).stepper(model, normalise)
+
+
+def _make_stepper(model: GridModel, d: _Derived, normalise: bool):
+    plan_ = d.plan(model)
+    n_actions, layered, kidnap = model.n_actions, d.layered, model.kidnap_prob
+    mode = 1 if normalise else 2
+    lik_of, liks = d.lik, d._liks
+    check_action = model.check_action
+    run_one = plan_.run_one
+
+    def step_one(belief: np.ndarray, action: Any, reading: int, out: np.ndarray) -> float:
+        if action is None:
+            a = n_actions
+        elif type(action) is int and 0 <= action < n_actions:
+            a = action
+        else:
+            a = check_action(action)
+        lik = liks.get(reading)
+        if lik is None:
+            lik = lik_of(model, int(reading))
+        b, o = belief.reshape(-1), out.reshape(-1)
+        if kidnap > 0.0:  # predict, mix, then weigh: the kernel's fused pass cannot mix
+            run_one(b, a, _NO_LIK, 0, o, 0)
+            _kidnap(model, b[None], o[None])
+            if layered:
+                o *= lik
+            else:
+                view = o.reshape(model.n_layers, -1)
+                view *= lik
+            z = float(o.sum())
+            if normalise and z > 0.0 and z < math.inf:
+                o *= 1.0 / z
+        else:
+            z = run_one(b, a, lik, layered, o, mode)
+        if not (z > 0.0 and z < math.inf):
+            raise impossible(model, int(reading))
+        return z
+
+    return step_one
+
+
+_NO_LIK = np.zeros(1)
+_NO_LIKS: dict[int, np.ndarray] = {}
+_ALL: dict[int, np.ndarray] = {}
+
+
+def _no_liks(n: int) -> np.ndarray:
+    arr = _NO_LIKS.get(n)
+    if arr is None:
+        arr = _NO_LIKS[n] = np.zeros((n, 1))
+    return arr
+
+
+def _all(n: int) -> np.ndarray:
+    arr = _ALL.get(n)
+    if arr is None:
+        arr = _ALL[n] = np.ones(n, dtype=bool)
+        arr.setflags(write=False)
+    return arr
+
+
+# -- the simulator's side -----------------------------------------------------------------------------
+def states_of(model: GridModel, indices: np.ndarray) -> np.ndarray:
+    """State indices (layer-major over free cells, as :meth:`GridModel.to_vector` orders them)
+    as ``(N, 3)`` states (layer, row, col)."""
+    layer, cell = np.divmod(np.asarray(indices, dtype=np.int64).reshape(-1), model.grid.n_free)
+    cells = model.grid.free_cells[cell]
+    return np.column_stack([layer, cells[:, 0], cells[:, 1]]).astype(np.int64)
+
+
+def sample_initial(model: GridModel, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` hidden states drawn uniformly over the free states, ``(n, 3)`` (layer, row, col)."""
+    return states_of(model, rng.integers(model.n_states, size=n))
+
+
+def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.random.Generator) -> np.ndarray:
+    """The next hidden states of ``states`` ``(N, 3)`` under ``actions`` (N, or one for all;
+    ``None``: unknown), drawn from the model's transition (kidnapping included).
+
+    Random numbers, in this order: with kidnapping, one uniform per state (kidnapped if below
+    ``kidnap_prob``) and a uniform state for each kidnapped one; then one uniform per moving
+    state, which picks the next state by the cumulative probabilities of the action's terms in
+    their order.
+    """
+    st = np.asarray(states, dtype=np.int64).reshape(-1, 3)
+    n = st.shape[0]
+    transitions = _derived(model).all_transitions(model)
+    if n == 1 and model.kidnap_prob == 0.0 and type(actions) is int and 0 <= actions < model.n_actions:
+        layer, r, c = st[0].tolist()  # one state: the same draw, without array overheads
+        return np.array([_next_one(transitions[actions], layer, r, c, rng)], dtype=np.int64)
+    acts = action_indices(model, actions, n)
+    out = st.copy()
+    moving = np.arange(n)
+    if model.kidnap_prob > 0.0:
+        kidnapped = rng.random(n) < model.kidnap_prob
+        if kidnapped.any():
+            out[kidnapped] = sample_initial(model, int(kidnapped.sum()), rng)
+            moving = np.flatnonzero(~kidnapped)
+    if moving.size == 1:
+        i = int(moving[0])
+        layer, r, c = st[i].tolist()
+        out[i] = _next_one(transitions[int(acts[i])], layer, r, c, rng)
+        return out
+    if moving.size == 0:
+        return out
+    u = rng.random(moving.size)
+    w = model.shape[1]
+    for a in np.unique(acts[moving]):
+        pos = np.flatnonzero(acts[moving] == a)
+        sub, uu = moving[pos], u[pos]
+        layer, cell = st[sub, 0], st[sub, 1] * w + st[sub, 2]
+        ts = transitions[a]
+        p = np.empty((sub.size, len(ts)))
+        for k, t in enumerate(ts):
+            p[:, k] = np.where(layer == t.src, t.weight.reshape(-1)[cell], 0.0)
+        cum = np.cumsum(p, axis=1)
+        below = (uu * cum[:, -1])[:, None] < cum
+        k = np.argmax(below, axis=1)
+        none = ~below.any(axis=1)
+        if none.any():  # u * total rounded up to the total: the last possible outcome
+            k[none] = len(ts) - 1 - np.argmax((p[none] > 0)[:, ::-1], axis=1)
+        moves = np.array([(t.dst, t.dr, t.dc) for t in ts], dtype=np.int64)[k]
+        out[sub, 0] = moves[:, 0]
+        out[sub, 1] += moves[:, 1]
+        out[sub, 2] += moves[:, 2]
+    return out
+
+
+def _next_one(ts: tuple[Term, ...], layer: int, r: int, c: int, rng: np.random.Generator) -> tuple[int, int, int]:
+    """:func:`sample_next` for one moving state (the same uniform and arithmetic, on scalars)."""
+    x = float(rng.random(1)[0])
+    p = [float(t.weight[r, c]) if t.src == layer else 0.0 for t in ts]
+    total = 0.0
+    for q in p:
+        total += q
+    x *= total
+    acc = 0.0
+    for k, q in enumerate(p):
+        acc += q
+        if x < acc:
+            break
+    else:  # x rounded up to the total: the last possible outcome
+        k = max(j for j, q in enumerate(p) if q > 0.0)
+    t = ts[k]
+    return t.dst, r + t.dr, c + t.dc
+
+
+def sample_readings(model: GridModel, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One reading per state ``(N, 3)``, drawn from the sensor (N,) int64."""
+    return model.sensor.sample(np.asarray(states, dtype=np.int64).reshape(-1, 3), rng)
