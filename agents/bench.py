@@ -26,17 +26,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from agents.policies import POLICY_DIR, POLICY_NAMES, make_policy
+from gym_gridloc_agents.envs import make_env
+from gym_gridloc_agents.policies import POLICY_DIR, POLICY_NAMES, make_policy
+from gym_gridloc_agents.rollout import rollout
 
 BUDGETS = (5, 10, 25, 50)
-
-
-def _make_env(env_id: str, env_kwargs: dict[str, Any] | None):
-    import gymnasium as gym
-
-    import gym_gridloc
-
-    return gym_gridloc.HMMBeliefWrapper(gym.make(env_id, **(env_kwargs or {})))
 
 
 def simulate(
@@ -52,11 +46,12 @@ def simulate(
     """Run one policy on the given episode seeds; returns per-episode arrays."""
     from tqdm.auto import tqdm
 
-    env = _make_env(env_id, env_kwargs)
+    env = make_env(env_id, env_kwargs)
     max_steps = env.spec.max_episode_steps if env.spec is not None else None
     if not max_steps:
         raise ValueError(f"{env_id} has no max_episode_steps; the benchmark needs a step limit")
-    policy = make_policy(policy_name, env.unwrapped.model, env_id=env_id, path=model_path)
+    policy = make_policy(policy_name, env.unwrapped.model, env_id=env_id, env_kwargs=dict(env_kwargs or {}),
+                         path=model_path, pose=env.unwrapped.referee_pose)
     n = len(seeds)
     steps = np.zeros(n, dtype=np.int64)
     localised = np.zeros(n, dtype=bool)
@@ -67,23 +62,13 @@ def simulate(
     start = time.perf_counter()
     bar = tqdm(seeds, desc=f"{env_id} {policy_name}", unit="ep", disable=not progress, leave=False)
     for i, seed in enumerate(bar):
-        obs, info = env.reset(seed=int(seed))
-        policy.reset(seed=int(seed))
-        history = [info["error"] == 0]
-        t = 0
-        while True:
-            action = policy.act(obs["observation"], env.filter.full_belief)
-            obs, _, terminated, truncated, info = env.step(action)
-            t += 1
-            history.append(info["error"] == 0)
-            if terminated or truncated:
-                break
-        localised[i] = bool(terminated)
-        success[i] = bool(terminated and info["success"])
-        truncated_flags[i] = bool(truncated and not terminated)
-        steps[i] = t if terminated else max_steps
-        correct_at[i, : len(history)] = history
-        correct_at[i, len(history):] = history[-1]
+        ep = rollout(env, policy, int(seed))
+        localised[i] = ep.terminated
+        success[i] = ep.success
+        truncated_flags[i] = ep.truncated and not ep.terminated
+        steps[i] = ep.steps if ep.terminated else max_steps
+        correct_at[i, : len(ep.correct)] = ep.correct
+        correct_at[i, len(ep.correct):] = ep.correct[-1]
     env.close()
     return {
         "steps": steps, "localised": localised, "success": success, "truncated": truncated_flags,
@@ -206,7 +191,7 @@ def run_benchmark(
     # Fail before any long run if a model is missing or does not fit.
     for env_id, name, path in pairs:
         if name in ("ppo", "recurrent"):
-            make_policy(name, _make_env(env_id, None).unwrapped.model, env_id=env_id, path=path)
+            make_policy(name, make_env(env_id).unwrapped.model, env_id=env_id, env_kwargs={}, path=path)
     if jobs <= 1:
         return [run_episodes(e, n, episodes, seed_start=seed_start, model_path=p, progress=progress) for e, n, p in pairs]
     import multiprocessing as mp
@@ -291,10 +276,10 @@ def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None 
     ax2.grid(alpha=0.3)
     fig.suptitle(title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy", fontsize=10)
     fig.tight_layout()
-    from agents.train import atomic_path
+    from gym_gridloc_agents.files import atomic_path
 
     try:
-        with atomic_path(path, ".png") as tmp:
+        with atomic_path(path) as tmp:
             fig.savefig(tmp, format="png")
     finally:
         plt.close(fig)

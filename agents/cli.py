@@ -1,9 +1,14 @@
-"""``gridloc``: train agents and run the localisation-speed benchmark.
+"""``gridloc``: train agents, run the localisation-speed benchmark, reproduce the seeds, draw.
 
     gridloc train configs/ppo_windymaze.yml [--force] [--resume CKPT] [--tensorboard DIR]
     gridloc bench --env WindyMaze-v0 --policies random,greedy,greedy2,ppo --episodes 200 \\
                   --json out.json --plot out.png
     gridloc bench --all            # the README's table: 3 environments x 5 policies x 1000 episodes
+    gridloc reproduce [--quiet]    # the seed documents' numbers (needs only the core install)
+    gridloc render [--env ...] [--out results/episode.png] [--gif EP.gif]
+    gridloc plot [results/bench.json]
+
+Each subcommand lives in its module; this one parses and dispatches.
 """
 
 from __future__ import annotations
@@ -44,12 +49,59 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--update", action="store_true",
                    help="merge the new rows into the existing JSON file (same env and policy: replaced) and plot the merged rows")
     b.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+    # Its options are gym_gridloc.reproduce's own (main() hands them over unparsed).
+    sub.add_parser("reproduce", help="reproduce the seed documents' numbers (PASS/FAIL per check; --help for options)")
+
+    d = sub.add_parser("render", help="draw one episode per environment as belief heatmaps (and a GIF)")
+    d.add_argument("--env", nargs="+", default=None, help="environment ids (default: the three registered ones)")
+    d.add_argument("--seed", type=int, default=3, help="episode seed (actions are random, seeded)")
+    d.add_argument("--frames", type=int, default=6, help="frames per environment")
+    d.add_argument("--out", default=str(RESULTS / "episode.png"), help="PNG to write")
+    d.add_argument("--gif", default=None, help="also write the first environment's whole episode as a GIF")
+
+    q = sub.add_parser("plot", help="redraw the benchmark figures from a results JSON")
+    q.add_argument("json", nargs="?", default=str(RESULTS / "bench.json"), help="a bench JSON (default results/bench.json)")
     return p
 
 
+def _render(args) -> int:
+    import gym_gridloc
+    from gym_gridloc_agents.figures import episode_frames, episode_strips, write_gif
+
+    envs = args.env or list(gym_gridloc.ENV_IDS)
+    if args.frames < 1:
+        print(f"gridloc render: error: --frames must be at least 1, got {args.frames}", file=sys.stderr)
+        return 2
+    episode_strips(envs, args.seed, args.frames, args.out)
+    print(f"wrote {args.out}")
+    if args.gif:
+        frames = [f for f, _ in episode_frames(envs[0], args.seed, 10_000)]
+        write_gif(frames, args.gif)
+        print(f"wrote {args.gif} ({len(frames)} frames)")
+    return 0
+
+
+def _plot(args) -> int:
+    import json
+
+    from gym_gridloc_agents.bench import plot
+
+    src = Path(args.json)
+    if not src.is_file():
+        print(f"gridloc plot: error: {src} does not exist; run `gridloc bench --all` first", file=sys.stderr)
+        return 2
+    rows = json.loads(src.read_text(encoding="utf-8"))
+    for env in sorted({r["env"] for r in rows}):
+        out = src.parent / f"bench_{env}.png"
+        plot([r for r in rows if r["env"] == env], out)
+        print(f"wrote {out}")
+    return 0
+
+
 def _train(args) -> int:
-    from agents.config import ConfigError
-    from agents.train import TrainingInterrupted, train
+    from gym_gridloc_agents.config import ConfigError
+    from gym_gridloc_agents.train import TrainingInterrupted, train
 
     try:
         info = train(
@@ -76,9 +128,9 @@ def _train(args) -> int:
 
 def _bench(args) -> int:
     import gym_gridloc
-    from agents.bench import markdown_table, plot, public_row, run_benchmark
-    from agents.policies import POLICY_NAMES
-    from agents.train import atomic_write_json
+    from gym_gridloc_agents.bench import markdown_table, plot, public_row, run_benchmark
+    from gym_gridloc_agents.policies import POLICY_NAMES
+    from gym_gridloc_agents.files import atomic_write_json
 
     if args.all == bool(args.env):
         print("gridloc bench: error: give exactly one of --env ENV_ID or --all", file=sys.stderr)
@@ -134,7 +186,7 @@ def merge_rows(path: str, new: list[dict]) -> list[dict]:
     import json
 
     import gym_gridloc
-    from agents.policies import POLICY_NAMES
+    from gym_gridloc_agents.policies import POLICY_NAMES
 
     old = []
     if Path(path).exists():
@@ -153,17 +205,25 @@ def merge_rows(path: str, new: list[dict]) -> list[dict]:
 
 #: What ``gridloc`` needs beyond the core install (the ``rl`` extra), by import name.
 RL_MODULES = ("tqdm", "yaml", "matplotlib", "torch", "stable_baselines3", "sb3_contrib")
+#: The modules each subcommand needs beyond the core install.
+NEEDS = {"train": RL_MODULES, "bench": RL_MODULES, "render": ("matplotlib",), "plot": ("matplotlib",), "reproduce": ()}
+COMMANDS = {"train": "_train", "bench": "_bench", "render": "_render", "plot": "_plot"}
 
 
-def missing_rl_modules() -> list[str]:
+def missing_modules(command: str) -> list[str]:
     import importlib.util
 
-    return [m for m in RL_MODULES if importlib.util.find_spec(m) is None]
+    return [m for m in NEEDS.get(command, RL_MODULES) if importlib.util.find_spec(m) is None]
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["reproduce"]:
+        from gym_gridloc import reproduce
+
+        return reproduce.main(argv[1:])
     args = _parser().parse_args(argv)
-    missing = missing_rl_modules()
+    missing = missing_modules(args.command)
     if missing:
         print(
             f"gridloc {args.command} needs the 'rl' extra (missing: {', '.join(missing)}). Install it with\n"
@@ -172,9 +232,7 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    if args.command == "train":
-        return _train(args)
-    return _bench(args)
+    return globals()[COMMANDS[args.command]](args)
 
 
 if __name__ == "__main__":  # pragma: no cover

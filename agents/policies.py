@@ -1,4 +1,4 @@
-"""Policies with one interface: ``act(observation, belief) -> action``.
+"""Policies with one interface: ``reset(seed, model)`` then ``act(observation, belief) -> action``.
 
 ``observation`` is the raw sensor observation the environment emitted; ``belief`` is the exact
 forward-filter belief over the hidden state, an ``(L, H, W)`` float64 array (``L = 1`` for
@@ -13,13 +13,13 @@ information; each uses what it needs:
 - ``ppo``: a stable-baselines3 PPO model on the flattened belief observation;
 - ``recurrent``: an sb3-contrib RecurrentPPO model on the raw observation only (LSTM memory).
 
-Call ``reset(seed=...)`` at the start of every episode: it seeds the policy's own random
-generator (random actions, tie-breaking) and clears any memory.
+Call ``reset(seed=..., model=...)`` at the start of every episode: it seeds the policy's own
+random generator (random actions, tie-breaking), clears any memory, and gives the model of the
+episode (a map redrawn at reset is followed).
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +27,7 @@ import numpy as np
 from gymnasium import spaces
 
 from gym_gridloc.core.model import GridModel
+from gym_gridloc_agents.lookahead import Lookahead
 
 #: Names accepted by :func:`make_policy`.
 POLICY_NAMES = ("random", "greedy", "greedy2", "ppo", "recurrent")
@@ -49,9 +50,19 @@ class Policy:
         self.n_actions = model.n_actions
         self.rng = np.random.default_rng(seed)
 
-    def reset(self, seed: int | None = None) -> None:
-        """Start an episode: reseed the policy's generator, forget any memory."""
+    def reset(self, seed: int | None = None, model: GridModel | None = None) -> None:
+        """Start an episode: reseed the policy's generator, forget any memory, and follow the
+        episode's model when one is given (e.g. a map redrawn at reset)."""
         self.rng = np.random.default_rng(seed)
+        if model is not None and model is not self.model:
+            if not isinstance(model, GridModel):
+                raise TypeError(f"model must be a GridModel, got {type(model).__name__}")
+            self.set_model(model)
+
+    def set_model(self, model: GridModel) -> None:
+        """Plan on ``model`` from now on (subclasses rebuild what they derived from the model)."""
+        self.model = model
+        self.n_actions = model.n_actions
 
     def act(self, observation: Any, belief: np.ndarray) -> int:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -86,89 +97,29 @@ class RandomPolicy(Policy):
         return int(self.rng.integers(self.n_actions))
 
 
-# -- exact expected entropy -----------------------------------------------------------------------
-def _xlogx(x: np.ndarray) -> np.ndarray:
-    """``x * log2(x)`` elementwise with ``0 log 0 = 0`` (x >= 0)."""
-    return x * np.log2(np.where(x > 0.0, x, 1.0))
-
-
-class _Lookahead:
-    """The model as matrices over free states, and the exact expected entropy.
-
-    ``T[a]`` is the sparse transition of action ``a`` (``model.transition_matrix``, kidnapping
-    included), ``TP[a] = T[a] @ P`` the same followed by the projection of hidden states onto
-    positions.  For an unnormalised predicted position mass ``c(x)`` and the sensor ``P(z | x)``
-    (the likelihoods stacked once, ``Lz``), the expected posterior entropy times the mass is
-    ``E_z[H(X | z)] * m = sum_x c(x) h(x) - sum_x c log c + sum_z q(z) log q(z)`` with
-    ``q = Lz @ c`` and ``h(x)`` the entropy of the reading at ``x`` (in bits): the
-    ``(readings x cells)`` joint is never formed.
-    """
-
-    def __init__(self, model: GridModel) -> None:
-        from scipy import sparse
-
-        self.model = model
-        free = model.grid.free
-        self.free = free
-        n_free = model.grid.n_free
-        if model.sensor.n_readings * model.n_states > 20_000_000:
-            raise ValueError(
-                f"greedy lookahead keeps a (readings x states) table: {model.sensor.n_readings} x {model.n_states} "
-                f"is too large for {model!r}; use greedy policies on maps with fewer cells or readings"
-            )
-        lz = np.stack([model.likelihood(z)[free] for z in range(model.sensor.n_readings)])  # (Z, F)
-        self.lz = lz
-        self.lz_t = np.ascontiguousarray(lz.T)
-        self.lz_states = np.tile(lz, (1, model.n_layers))  # (Z, S): the sensor sees the position only
-        self.sensor_entropy = -_xlogx(lz).sum(axis=0)  # (F,) bits
-        proj = sparse.csr_matrix(
-            (np.ones(model.n_states), (np.arange(model.n_states), np.tile(np.arange(n_free), model.n_layers))),
-            shape=(model.n_states, n_free),
-        )
-        self.T = [model.transition_matrix(a).tocsr() for a in range(model.n_actions)]
-        self.TP = [(t @ proj).tocsr() for t in self.T]
-
-    def weighted_entropy(self, c: np.ndarray) -> np.ndarray:
-        """``m * E_z[H(position | z)]`` for unnormalised position masses ``c`` of shape (..., F)."""
-        q = c @ self.lz_t  # (..., Z)
-        return c @ self.sensor_entropy - _xlogx(c).sum(axis=-1) + _xlogx(q).sum(axis=-1)
-
-    def one_step(self, b: np.ndarray) -> np.ndarray:
-        """Expected position entropy after each action, for a hidden-state vector ``b`` (S,)."""
-        c = np.stack([np.asarray(tp.T @ b) for tp in self.TP])  # (A, F)
-        return self.weighted_entropy(c)
-
-    def two_step(self, b: np.ndarray) -> np.ndarray:
-        """``sum_{z1} min_{a2} W(a1, z1, a2)`` for each first action ``a1`` (see Greedy2Policy)."""
-        pred1 = np.stack([np.asarray(t.T @ b) for t in self.T])  # (A1, S)
-        joint1 = pred1[:, None, :] * self.lz_states[None]  # (A1, Z1, S), mass p(z1 | a1)
-        keep = joint1.sum(axis=2).max(axis=0) > 0.0  # readings possible after some action
-        joint1 = joint1[:, keep]
-        a1, z1, n = joint1.shape
-        flat = joint1.reshape(a1 * z1, n)
-        c2 = np.stack([np.asarray((tp.T @ flat.T).T) for tp in self.TP], axis=1)  # (A1*Z1, A2, F)
-        w = self.weighted_entropy(c2).reshape(a1, z1, -1)
-        return w.min(axis=-1).sum(axis=-1)
-
-
 class GreedyPolicy(Policy):
     """One-step information gain: ``argmin_a E_z[H(position | belief, a, z)]``, exact.
 
     The prediction ``b' = T_a b`` is taken over the full hidden state (headings included), the
-    expectation over every reading the sensor can give.  Ties (within 1e-9) are broken uniformly
-    with the policy's seeded generator.
+    expectation over every reading the sensor can give (:class:`~gym_gridloc_agents.lookahead.Lookahead`).
+    ``pose=True`` (where the referee tests poses) minimises the entropy of the full hidden state
+    instead.  Ties (within 1e-9) are broken uniformly with the policy's seeded generator.
     """
 
     name = "greedy"
 
-    def __init__(self, model: GridModel, *, seed: int | None = None) -> None:
+    def __init__(self, model: GridModel, *, seed: int | None = None, pose: bool = False) -> None:
         super().__init__(model, seed=seed)
-        self.look = _Lookahead(model)
+        self.pose = bool(pose)
+        self.look = Lookahead(model, pose=self.pose)
+
+    def set_model(self, model: GridModel) -> None:
+        super().set_model(model)
+        self.look = Lookahead(model, pose=self.pose)
 
     def expected_entropies(self, belief: np.ndarray) -> np.ndarray:
         """Expected position entropy (bits) after each action's move and reading, shape (A,)."""
-        b = self.model.to_vector(self._full_belief(belief))
-        return self.look.one_step(b / b.sum())
+        return self.look.one_step(self._full_belief(belief))
 
     def act(self, observation: Any, belief: np.ndarray) -> int:
         return self._break_ties(self.expected_entropies(belief))
@@ -186,8 +137,7 @@ class Greedy2Policy(GreedyPolicy):
     name = "greedy2"
 
     def expected_entropies(self, belief: np.ndarray) -> np.ndarray:
-        b = self.model.to_vector(self._full_belief(belief))
-        return self.look.two_step(b / b.sum())
+        return self.look.two_step(self._full_belief(belief))
 
 
 class PPOPolicy(Policy):
@@ -205,39 +155,37 @@ class PPOPolicy(Policy):
         model: GridModel,
         *,
         env_id: str | None = None,
+        env_kwargs: dict[str, Any] | None = None,
         observation_space: spaces.Space | None = None,
         path: str | Path | None = None,
+        sb3_model: Any = None,
         seed: int | None = None,
         deterministic: bool = True,
     ) -> None:
         super().__init__(model, seed=seed)
-        from agents.train import load_model  # heavy imports (torch) only when needed
+        self.deterministic = bool(deterministic)
+        if sb3_model is not None:  # a model in memory (e.g. evaluated during training)
+            self.path, self.sb3, self.meta = None, sb3_model, {}
+            return
+        from gym_gridloc_agents.files import load_model  # heavy imports (torch) only when needed
 
         if path is None:
             if env_id is None:
                 raise ValueError(f"policy {self.name!r} needs env_id=... (for the shipped model) or path=...")
             path = default_model_path(env_id, self.algo)
         self.path = Path(path)
-        self.sensor_space = model.sensor.observation_space
         expected = self.expected_space(model) if observation_space is None else observation_space
-        self.sb3, self.meta = load_model(self.path, algo=self.algo, env_id=env_id, observation_space=expected)
-        self.deterministic = bool(deterministic)
+        self.sb3, self.meta = load_model(self.path, algo=self.algo, env_id=env_id, env_kwargs=env_kwargs,
+                                         observation_space=expected)
 
     @staticmethod
     def expected_space(model: GridModel) -> spaces.Space:
-        from gym_gridloc.wrappers import _encoded_size
-
-        n = _encoded_size(model.sensor.observation_space) + int(np.prod(model.shape))
+        n = model.sensor.encoded_size + int(np.prod(model.shape))
         return spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
 
     def encode(self, observation: Any, belief: np.ndarray) -> np.ndarray:
         """The flat observation ``HMMBeliefWrapper(flatten=True)`` would give."""
-        from gym_gridloc.wrappers import _encode
-
-        b = self._full_belief(belief)
-        pos = (b[0] if b.shape[0] == 1 else b.sum(axis=0)).astype(np.float32)
-        np.clip(pos, 0.0, 1.0, out=pos)
-        return np.concatenate([_encode(self.sensor_space, observation), pos.ravel()])
+        return flat_observation(self.model, observation, self._full_belief(belief))
 
     def act(self, observation: Any, belief: np.ndarray) -> int:
         action, _ = self.sb3.predict(self.encode(observation, belief), deterministic=self.deterministic)
@@ -263,8 +211,8 @@ class RecurrentPolicy(PPOPolicy):
     def expected_space(model: GridModel) -> spaces.Space:
         return model.sensor.observation_space
 
-    def reset(self, seed: int | None = None) -> None:
-        super().reset(seed)
+    def reset(self, seed: int | None = None, model: GridModel | None = None) -> None:
+        super().reset(seed, model)
         self._state = None
         self._start = np.ones((1,), dtype=bool)
 
@@ -275,6 +223,16 @@ class RecurrentPolicy(PPOPolicy):
         )
         self._start = np.zeros((1,), dtype=bool)
         return int(np.asarray(action).reshape(-1)[0])
+
+
+def flat_observation(model: GridModel, observation: Any, belief: np.ndarray) -> np.ndarray:
+    """The observation ``HMMBeliefWrapper(flatten=True)`` gives for a sensor observation and the
+    hidden-state belief ``(L, H, W)``: the encoded reading, then the position belief (float32)."""
+    b = np.asarray(belief)
+    pos = (b[0] if b.shape[0] == 1 else b.sum(axis=0)).astype(np.float32)
+    np.clip(pos, 0.0, 1.0, out=pos)
+    sensor = model.sensor
+    return np.concatenate([sensor.encode(np.array([sensor.to_reading(observation)]))[0], pos.ravel()])
 
 
 def default_model_path(env_id: str, algo: str = "ppo") -> Path:
@@ -288,31 +246,25 @@ def make_policy(
     model: GridModel,
     *,
     env_id: str | None = None,
+    env_kwargs: dict[str, Any] | None = None,
     seed: int | None = None,
     path: str | Path | None = None,
+    pose: bool = False,
 ) -> Policy:
     """A policy by name (one of :data:`POLICY_NAMES`) for an environment's model.
 
     ``path`` gives the model file for ``ppo`` / ``recurrent`` (default: the shipped one for
-    ``env_id``).
+    ``env_id``; a model trained with other ``env_kwargs`` is refused).  ``pose``: the referee
+    tests poses (the entropy policies then minimise the entropy of the full hidden state).
     """
     if name == "random":
         return RandomPolicy(model, seed=seed)
     if name == "greedy":
-        return GreedyPolicy(model, seed=seed)
+        return GreedyPolicy(model, seed=seed, pose=pose)
     if name == "greedy2":
-        return Greedy2Policy(model, seed=seed)
+        return Greedy2Policy(model, seed=seed, pose=pose)
     if name == "ppo":
-        return PPOPolicy(model, env_id=env_id, path=path, seed=seed)
+        return PPOPolicy(model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
     if name == "recurrent":
-        return RecurrentPolicy(model, env_id=env_id, path=path, seed=seed)
+        return RecurrentPolicy(model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
     raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")
-
-
-def read_metadata(path: str | Path) -> dict[str, Any]:
-    """The JSON written next to a model (``<model>.json``), or an empty dict if there is none."""
-    meta = Path(path).with_suffix(".json")
-    if not meta.exists():
-        return {}
-    with open(meta, encoding="utf-8") as fh:
-        return json.load(fh)

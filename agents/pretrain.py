@@ -18,43 +18,34 @@ PRETRAIN_SEED_BASE = 1_000_000
 
 
 def collect_expert(cfg: dict[str, Any], progress: bool = True) -> dict[str, np.ndarray]:
-    """Run the expert on a flattened belief environment; returns observations, actions, returns."""
+    """Run the expert on the config's environment; returns the flat observations PPO sees, the
+    expert's actions and the discounted returns."""
     from tqdm.auto import tqdm
 
-    from agents.policies import make_policy
-    from agents.train import make_env_fn
+    from gym_gridloc_agents.envs import make_env
+    from gym_gridloc_agents.policies import flat_observation, make_policy
+    from gym_gridloc_agents.rollout import rollout
 
     pre = cfg["pretrain"]
     gamma = float(cfg["hyperparams"].get("gamma", 0.99))
-    env = make_env_fn(cfg)()
+    env = make_env(cfg["env_id"], cfg["env_kwargs"])
     expert = make_policy(pre["expert"], env.unwrapped.model)
     obs_list, act_list, ret_list, lengths = [], [], [], []
     for i in tqdm(range(pre["episodes"]), desc=f"expert {pre['expert']} episodes", disable=not progress, leave=False):
-        seed = PRETRAIN_SEED_BASE + i
-        obs, _ = env.reset(seed=seed)
-        expert.reset(seed=seed)
-        ep_obs, ep_act, rewards = [], [], []
-        truncated_last = False
-        while True:
-            a = expert.act(None, env.filter.full_belief)
-            ep_obs.append(obs)
-            ep_act.append(a)
-            obs, r, term, trunc, _ = env.step(a)
-            rewards.append(float(r))
-            if term or trunc:
-                truncated_last = bool(trunc and not term)
-                break
+        ep = rollout(env, expert, PRETRAIN_SEED_BASE + i, keep=True)
+        model = env.unwrapped.model
         g = 0.0
-        if truncated_last:  # the episode would go on: a rough bootstrap, as if it had as many steps left
-            g = -(1 - gamma ** len(rewards)) / (1 - gamma) if gamma < 1 else -float(len(rewards))
+        if ep.truncated and not ep.terminated:  # the episode would go on: a rough bootstrap, as if it had as many steps left
+            n = len(ep.rewards)
+            g = -(1 - gamma ** n) / (1 - gamma) if gamma < 1 else -float(n)
         rets = []
-        for r in reversed(rewards):
+        for r in reversed(ep.rewards):
             g = r + gamma * g
             rets.append(g)
-        obs_list.extend(ep_obs)
-        act_list.extend(ep_act)
+        obs_list.extend(flat_observation(model, o, b) for o, b in zip(ep.observations, ep.beliefs))  # before each action
+        act_list.extend(ep.actions)
         ret_list.extend(reversed(rets))
-        lengths.append(len(rewards))
+        lengths.append(ep.steps)
     env.close()
     return {
         "obs": np.asarray(obs_list, dtype=np.float32),

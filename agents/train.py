@@ -10,18 +10,17 @@ Model zip files are pickles: load only files from a trusted source.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
-import json
 import os
 import platform
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable
 
-from agents.config import ConfigError, activation, algo_class, validate_config
+from gym_gridloc_agents.config import ConfigError, activation, algo_class, validate_config
+from gym_gridloc_agents.envs import make_env, make_training_env
+from gym_gridloc_agents.files import atomic_save_model, atomic_write_json, load_model, metadata_path, read_metadata
 
 
 class TrainingInterrupted(Exception):
@@ -31,73 +30,6 @@ class TrainingInterrupted(Exception):
         super().__init__(f"training interrupted at {num_timesteps} steps; checkpoint saved to {checkpoint}")
         self.checkpoint = checkpoint
         self.num_timesteps = num_timesteps
-
-
-# -- atomic files ---------------------------------------------------------------------------------
-def _umask_mode() -> int:
-    old = os.umask(0)
-    os.umask(old)
-    return 0o666 & ~old
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | Path, suffix: str):
-    """Yield a temporary path beside ``path``; on success give it the usual file mode and rename
-    it onto ``path`` (atomic), on any error remove it and leave ``path`` as it was."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        yield tmp
-        os.chmod(tmp, _umask_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same directory and a rename."""
-    with atomic_path(path, ".tmp") as tmp, open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-
-
-def atomic_write_json(path: str | Path, data: Any) -> None:
-    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
-
-
-def atomic_save_model(model, path: str | Path) -> None:
-    """``model.save`` to a temporary ``.zip`` beside ``path``, then rename."""
-    with atomic_path(path, ".tmp.zip") as tmp:
-        model.save(tmp)
-
-
-# -- environments ---------------------------------------------------------------------------------
-def make_env_fn(cfg: dict[str, Any]) -> Callable[[], Any]:
-    """A thunk building one (wrapped) training environment from a validated config."""
-    env_id, env_kwargs, wrapper = cfg["env_id"], dict(cfg["env_kwargs"]), dict(cfg["wrapper"])
-
-    def thunk():
-        import gymnasium as gym
-
-        import gym_gridloc
-
-        env = gym.make(env_id, **env_kwargs)
-        if wrapper["belief"]:
-            env = gym_gridloc.HMMBeliefWrapper(env, flatten=wrapper["flatten"], full_state=wrapper["full_state"])
-        return env
-
-    return thunk
-
-
-def make_vec_env(cfg: dict[str, Any]):
-    from stable_baselines3.common.env_util import make_vec_env as _mve
-
-    return _mve(make_env_fn(cfg), n_envs=cfg["n_envs"], seed=cfg["seed"])
 
 
 def versions() -> dict[str, str]:
@@ -133,25 +65,13 @@ EVAL_SEED_BASE = 2_000_000
 def evaluate(model, cfg: dict[str, Any], episodes: int) -> float:
     """Mean steps to localise of ``model`` (deterministic) on seeds ``EVAL_SEED_BASE + i``, which
     are disjoint from the benchmark's ``0..N-1``; a truncated episode counts at the step limit."""
-    import numpy as np
+    from gym_gridloc_agents.policies import PPOPolicy, RecurrentPolicy
+    from gym_gridloc_agents.rollout import rollout
 
-    env = make_env_fn(cfg)()
-    recurrent = cfg["algo"] == "recurrent_ppo"
-    total = 0
-    for i in range(episodes):
-        obs, _ = env.reset(seed=EVAL_SEED_BASE + i)
-        state, start, t = None, np.ones((1,), dtype=bool), 0
-        while True:
-            if recurrent:
-                action, state = model.predict(np.asarray(obs), state=state, episode_start=start, deterministic=True)
-                start = np.zeros((1,), dtype=bool)
-            else:
-                action, _ = model.predict(obs, deterministic=True)
-            obs, _, terminated, truncated, _ = env.step(int(np.asarray(action).reshape(-1)[0]))
-            t += 1
-            if terminated or truncated:
-                break
-        total += t
+    env = make_env(cfg["env_id"], cfg["env_kwargs"])
+    cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy
+    policy = cls(env.unwrapped.model, sb3_model=model)
+    total = sum(rollout(env, policy, EVAL_SEED_BASE + i).steps for i in range(episodes))
     env.close()
     return total / episodes
 
@@ -199,7 +119,7 @@ def _checkpoint_callback(freq: int, directory: Path, meta: Callable[[], dict[str
             if self.num_timesteps >= self.next_at:
                 path = directory / f"step_{self.num_timesteps}.zip"
                 atomic_save_model(self.model, path)
-                atomic_write_json(path.with_suffix(".json"), {**meta(), "num_timesteps": int(self.num_timesteps)})
+                atomic_write_json(metadata_path(path), {**meta(), "num_timesteps": int(self.num_timesteps)})
                 self.saved.append(path)
                 self.next_at = (self.num_timesteps // freq + 1) * freq
             return True
@@ -226,7 +146,7 @@ def train(
     :class:`FileExistsError` if the output exists and ``force`` is false (before any training),
     :class:`TrainingInterrupted` after Ctrl-C (the checkpoint is saved first).
     """
-    from agents.config import load_config
+    from gym_gridloc_agents.config import load_config
 
     cfg = load_config(config) if isinstance(config, (str, Path)) else validate_config(config)
     if output is not None:
@@ -248,7 +168,7 @@ def train(
     if torch_threads:
         torch.set_num_threads(int(torch_threads))
     Algo = algo_class(cfg["algo"])
-    venv = make_vec_env(cfg)
+    venv = make_training_env(cfg)
     ckpt_dir = default_checkpoint_dir(cfg)
     previous_wall = previous_cpu = 0.0
     prev_pretrain = None
@@ -257,9 +177,8 @@ def train(
         resume = Path(resume)
         if not resume.is_file():
             raise FileNotFoundError(f"checkpoint {str(resume)!r} does not exist")
-        prev = {}
-        if resume.with_suffix(".json").exists():
-            prev = json.loads(resume.with_suffix(".json").read_text(encoding="utf-8"))
+        prev = read_metadata(resume)
+        if prev:
             if prev.get("env_id") not in (None, cfg["env_id"]) or prev.get("algo") not in (None, cfg["algo"]):
                 raise ValueError(
                     f"checkpoint {resume} was trained with {prev.get('algo')} on {prev.get('env_id')}, "
@@ -288,7 +207,7 @@ def train(
     cpu_start = time.process_time()
     pretrain_info = None
     if cfg.get("pretrain") and resume is None:
-        from agents.pretrain import behaviour_cloning
+        from gym_gridloc_agents.pretrain import behaviour_cloning
 
         pretrain_info = behaviour_cloning(model, cfg, progress=progress_bar)
 
@@ -334,7 +253,7 @@ def train(
     except KeyboardInterrupt:
         path = ckpt_dir / f"interrupted_step_{int(model.num_timesteps)}.zip"
         atomic_save_model(model, path)
-        atomic_write_json(path.with_suffix(".json"), {**meta(), "interrupted": True})
+        atomic_write_json(metadata_path(path), {**meta(), "interrupted": True})
         venv.close()
         raise TrainingInterrupted(path, int(model.num_timesteps)) from None
     selected = None
@@ -357,49 +276,6 @@ def train(
     model.policy.optimizer.state.clear()
     info["optimizer_state"] = "dropped (checkpoints keep it)"
     atomic_save_model(model, out)
-    atomic_write_json(out.with_suffix(".json"), info)
+    atomic_write_json(metadata_path(out), info)
     venv.close()
     return info
-
-
-# -- loading --------------------------------------------------------------------------------------
-def load_model(
-    path: str | Path,
-    *,
-    algo: str = "ppo",
-    env_id: str | None = None,
-    observation_space=None,
-    env=None,
-):
-    """Load an sb3 model, refusing one trained for another algorithm, environment or observation
-    space.  Returns ``(model, metadata)``.  Zip files are pickles: trusted sources only."""
-    path = Path(path)
-    if not path.is_file():
-        hint = ""
-        if path.parent.name == "policies":
-            hint = " (train it with `gridloc train configs/...`, or pass --ppo-model PATH)"
-        raise FileNotFoundError(f"model file {str(path)!r} does not exist{hint}")
-    meta: dict[str, Any] = {}
-    meta_path = path.with_suffix(".json")
-    if meta_path.exists():
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-    if meta.get("algo") not in (None, algo):
-        raise ValueError(f"{path} holds a {meta['algo']} model, not {algo}")
-    if env_id is not None and meta.get("env_id") not in (None, env_id):
-        raise ValueError(f"{path} was trained for {meta['env_id']}, not {env_id}; train one for {env_id} or pick its model")
-    Algo = algo_class(algo)
-    try:
-        model = Algo.load(path, env=env, device="cpu")
-    except (ValueError, KeyError) as exc:
-        if env is not None and "space" in str(exc).lower():
-            raise ValueError(f"{path} does not fit this environment: {exc}") from None
-        raise ValueError(f"{path} is not a loadable {algo} model: {exc}") from None
-    except Exception as exc:  # noqa: BLE001 - a broken or foreign zip
-        raise ValueError(f"{path} is not a loadable {algo} model: {type(exc).__name__}: {exc}") from None
-    if observation_space is not None and model.observation_space != observation_space:
-        where = f" (trained for {meta['env_id']})" if meta.get("env_id") else ""
-        raise ValueError(
-            f"{path}{where} expects observations {model.observation_space}, but this environment gives "
-            f"{observation_space}: it was trained for another environment or observation space"
-        )
-    return model, meta

@@ -36,7 +36,7 @@ from gym_gridloc.core.model import GridModel, Term, mean_transition
 
 __all__ = [
     "predict", "update", "step", "backward", "likelihoods", "impossible", "plan",
-    "sample_initial", "sample_next", "sample_readings", "states_of", "action_indices", "path", "terms",
+    "sample_initial", "sample_next", "sample_readings", "states_of", "simulate", "action_indices", "path", "terms",
 ]
 
 
@@ -473,3 +473,20 @@ def _next_one(ts: tuple[Term, ...], layer: int, r: int, c: int, rng: np.random.G
 def sample_readings(model: GridModel, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """One reading per state ``(N, 3)``, drawn from the sensor (N,) int64."""
     return model.sensor.sample(np.asarray(states, dtype=np.int64).reshape(-1, 3), rng)
+
+
+def simulate(model: GridModel, steps: int, rng: np.random.Generator, actions: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A trajectory of one robot: ``(states (T+1, 3), actions (T,), readings (T+1,))`` with
+    ``T = steps``.  ``actions`` (T of them) are taken as given; by default each is drawn uniformly
+    just before its move (the same generator draws, in this order: start, first reading, then per
+    step: action, move, reading)."""
+    states = np.empty((steps + 1, 3), dtype=np.int64)
+    readings = np.empty(steps + 1, dtype=np.int64)
+    acts = np.empty(steps, dtype=np.int64)
+    st = sample_initial(model, 1, rng)
+    states[0], readings[0] = st[0], sample_readings(model, st, rng)[0]
+    for k in range(steps):
+        a = int(rng.integers(model.n_actions)) if actions is None else model.check_action(actions[k])
+        st = sample_next(model, st, a, rng)
+        states[k + 1], readings[k + 1], acts[k] = st[0], sample_readings(model, st, rng)[0], a
+    return states, acts, readings

@@ -12,7 +12,8 @@ import argparse
 import gymnasium as gym
 
 import gym_gridloc
-from agents.policies import make_policy
+from gym_gridloc_agents.policies import make_policy
+from gym_gridloc_agents.rollout import rollout
 
 
 def main() -> None:
@@ -28,17 +29,13 @@ def main() -> None:
         policy = make_policy(name, env.unwrapped.model, env_id="RingSensor8x8-v0")
         edge = corner = n = 0
         for i in range(args.episodes):
-            obs, info = env.reset(seed=i)
-            policy.reset(seed=i)
-            for _ in range(args.steps):
-                obs, _, terminated, truncated, info = env.step(policy.act(obs["observation"], env.filter.full_belief))
+            ep = rollout(env, policy, i, keep=True, max_steps=args.steps)
+            for info in ep.infos[1:]:  # where the robot is after each step
                 r, c = info["position"]
                 k = (r in (0, h - 1)) + (c in (0, w - 1))
                 edge += k >= 1
                 corner += k == 2
                 n += 1
-                if terminated or truncated:
-                    break
         print(f"| {name} | {n} | {edge / n:.3f} | {corner / n:.3f} |")
 
 

@@ -44,6 +44,8 @@ from tqdm import tqdm
 import gym_gridloc
 from gym_gridloc import FixedLagSmoother, ForwardFilter, ImpossibleObservationError, ParticleFilter, smooth
 from gym_gridloc.recording import kidnap_steps, steps_to_recover
+from gym_gridloc_agents.policies import RandomPolicy
+from gym_gridloc_agents.rollout import rollout
 
 LAGS = (1, 3, 5)
 PARTICLES = (50, 200, 1000)
@@ -61,17 +63,9 @@ class Episode:
 
 def run_episode(env, n_steps: int, seed: int) -> Episode:
     """Random actions on an unwrapped environment, not stopped at localisation."""
-    obs, info = env.reset(seed=seed)
-    rng = np.random.default_rng([seed, 7])
-    acts, observations, positions, states = [], [obs], [info["position"]], [env.state]
-    for _ in range(n_steps):
-        a = int(rng.integers(env.action_space.n))
-        obs, _, _, _, info = env.step(a)
-        acts.append(a)
-        observations.append(obs)
-        positions.append(info["position"])
-        states.append(env.state)
-    return Episode(acts, observations, positions, states)
+    ep = rollout(env, RandomPolicy(env.model), seed, keep=True, max_steps=n_steps, until_truncated=True,
+                 policy_seed=[seed, 7])
+    return Episode(ep.actions, ep.observations, [i["position"] for i in ep.infos], ep.states)
 
 
 def estimate(belief: np.ndarray) -> tuple[tuple[int, int], float]:

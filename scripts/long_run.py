@@ -29,14 +29,14 @@ import numpy as np
 from tqdm import tqdm
 
 import gym_gridloc  # noqa: F401  (registers the environments)
-from gym_gridloc import ForwardFilter
+from gym_gridloc import ForwardFilter, engine
 
 #: Sharp-sensor versions of every environment: (env id, keyword arguments).
 SHARP = {
     "colour": ("ColourGrid-v0", {"accuracy": 0.999}),
     "windy": ("WindyMaze-v0", {"p_detect": 0.999, "p_false_alarm": 0.001}),
     "ring": ("RingSensor8x8-v0", {"p_true": 0.99, "p_ring1": 0.00125, "p_ring2": 0.0}),
-    "ring-seed": ("RingSensor8x8-v0", {"dynamics": "seed", "p_true": 0.99, "p_ring1": 0.00125, "p_ring2": 0.0}),
+    "ring-seed": ("RingSensor8x8-v0", {"dynamics": "passive", "p_true": 0.99, "p_ring1": 0.00125, "p_ring2": 0.0}),
 }
 
 
@@ -59,8 +59,8 @@ def long_run(name: str, steps: int, seed: int = 0, warmup: int = 5000, trace_fro
     rng = np.random.default_rng(seed)
     sensor = model.sensor
     filt = ForwardFilter(model)
-    state = model.sample_initial_state(rng)
-    filt.reset(sensor.to_observation(model.sample_reading(state, rng)))
+    states = engine.sample_initial(model, 1, rng)
+    filt.reset(sensor.to_observation(int(engine.sample_readings(model, states, rng)[0])))
     warmup = min(warmup, steps // 4)
     trace_start = max(warmup, int(trace_from * steps))
     trace_first = min(trace_start + warmup, steps - 1)
@@ -73,8 +73,8 @@ def long_run(name: str, steps: int, seed: int = 0, warmup: int = 5000, trace_fro
     for t in tqdm(range(1, steps + 1), desc=f"{name:>9}", unit="step", mininterval=2.0, disable=not progress,
                   file=sys.stderr):
         action = int(rng.integers(model.n_actions))
-        state = model.sample_next_state(state, action, rng)
-        obs = sensor.to_observation(model.sample_reading(state, rng))
+        states = engine.sample_next(model, states, action, rng)
+        obs = sensor.to_observation(int(engine.sample_readings(model, states, rng)[0]))
         ll_before = filt.log_likelihood
         filt.step(action, obs)
         min_z = min(min_z, filt.log_likelihood - ll_before)
@@ -95,7 +95,7 @@ def long_run(name: str, steps: int, seed: int = 0, warmup: int = 5000, trace_fro
         positive = b[b > 0]
         min_positive = min(min_positive, float(positive.min()))
         estimate = np.unravel_index(int(np.argmax(b.sum(axis=0))), model.shape)
-        hits += estimate == (state[1], state[2])
+        hits += estimate == (int(states[0, 1]), int(states[0, 2]))
     elapsed = time.perf_counter() - start
     if tracemalloc.is_tracing():
         traced_end, traced_peak = tracemalloc.get_traced_memory()

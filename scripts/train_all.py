@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from agents.cli import main
+from gym_gridloc_agents.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -52,6 +52,19 @@ class Sensor(ABC):
             out[i] = row
         return out
 
+    def reading_probabilities(self, masses: np.ndarray) -> np.ndarray:
+        """``q[m, z] = sum_s P(z | s) masses[m, s]`` for M (unnormalised) masses over positions
+        ``(M, H, W)`` (over states ``(M, L, H, W)`` for a layered sensor): ``(M, n_readings)``."""
+        flat = np.asarray(masses).reshape(masses.shape[0], -1)
+        table = self.likelihoods(np.arange(self.n_readings))  # (Z, cells)
+        return flat @ table.T
+
+    def reading_entropy(self) -> np.ndarray:
+        """The entropy (bits) of the reading in each position, ``(H, W)`` (``(L, H, W)`` for a
+        layered sensor); zero on obstacles."""
+        table = self.likelihoods(np.arange(self.n_readings))
+        return -_xlogx(table).sum(axis=0).reshape(np.shape(self.likelihood(0)))
+
     def distribution(self, row: int, col: int, layer: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """The readings possible in state ``(layer, row, col)`` and their probabilities (summing to 1)."""
         table = np.stack([np.asarray(self.likelihood(z)) for z in range(self.n_readings)])
@@ -137,6 +150,11 @@ class Sensor(ABC):
         return f"{shown!r}" if text == str(shown) else f"{shown!r} ({text})"
 
 
+def _xlogx(x: np.ndarray) -> np.ndarray:
+    """``x * log2(x)`` elementwise with ``0 log 0 = 0`` (x >= 0)."""
+    return x * np.log2(np.where(x > 0.0, x, 1.0))
+
+
 class TableSensor(Sensor):
     """A sensor whose likelihoods are one stored (H, W) table per reading (colour, wall)."""
 
@@ -154,6 +172,13 @@ class TableSensor(Sensor):
 
     def distribution(self, row: int, col: int, layer: int = 0) -> tuple[np.ndarray, np.ndarray]:
         return np.arange(self.n_readings), self.table[:, row, col].copy()
+
+    def reading_probabilities(self, masses: np.ndarray) -> np.ndarray:
+        flat = np.asarray(masses).reshape(masses.shape[0], -1)
+        return flat @ self.table.reshape(self.table.shape[0], -1).T
+
+    def reading_entropy(self) -> np.ndarray:
+        return -_xlogx(self.table).sum(axis=0)
 
 
 class ColourSensor(TableSensor):
@@ -328,6 +353,34 @@ class RingSensor(Sensor):
                         r, c, k = rr[ok], cc[ok], cells[ok]
                         out[k, r * w + c] = self.kernel[i, j] * free[r, c]
         return out
+
+    def reading_probabilities(self, masses: np.ndarray) -> np.ndarray:
+        """Cell readings: the masses correlated with the 5x5 kernel (25 shifted adds); then
+        nothing.  Never a (readings x cells) table."""
+        m = np.asarray(masses, dtype=np.float64)
+        n, (h, w) = m.shape[0], self.grid.shape
+        c = m * self.grid.free
+        padded = np.zeros((n, h + 4, w + 4))
+        padded[:, 2:-2, 2:-2] = c
+        q = np.zeros((n, h * w + 1))
+        cells = q[:, : h * w].reshape(n, h, w)
+        for i in range(5):
+            for j in range(5):
+                # reading (r, c) from a robot at (r + 2 - i, c + 2 - j): kernel[i, j]
+                cells += self.kernel[i, j] * padded[:, 4 - i : 4 - i + h, 4 - j : 4 - j + w]
+        q[:, h * w] = (c * self._nothing).reshape(n, -1).sum(axis=1)
+        return q
+
+    def reading_entropy(self) -> np.ndarray:
+        h, w = self.grid.shape
+        inside = np.zeros((h + 4, w + 4))
+        inside[2:-2, 2:-2] = 1.0
+        ent = -_xlogx(self._nothing)
+        k = -_xlogx(self.kernel)
+        for i in range(5):
+            for j in range(5):
+                ent = ent + k[i, j] * inside[i : i + h, j : j + w]
+        return np.where(self.grid.free, ent, 0.0)
 
     def distribution(self, row: int, col: int, layer: int = 0) -> tuple[np.ndarray, np.ndarray]:
         h, w = self.grid.shape

@@ -1,7 +1,7 @@
-#!/usr/bin/env python
-"""Reproduce the numbers printed in the seed documents (SPEC section 6) with gym_gridloc.
+"""Reproduce the numbers printed in the seed documents with gym_gridloc (``gridloc reproduce``).
 
-    .venv/bin/python scripts/reproduce_seeds.py [--runs 20] [--steps 1000] [--seed 0] [--quiet]
+    gridloc reproduce [--runs 20] [--steps 1000] [--seed 0] [--quiet]
+    python -m gym_gridloc.reproduce ...          # the same, without the agents' extra
 
 For every seed it prints the seed's table beside ours and the largest difference, then PASS or
 FAIL per item; the exit status is 1 if any item fails.
@@ -13,7 +13,7 @@ FAIL per item; the exit status is 1 if any item fails.
   filter) in percent within 0.01.
 * Seed 001: the ring sensor's probability of "nothing" on 8x8 (exact).
 * Seed 003: transition rows and reading distributions sum to 1; tracking on a 5x5 grid with the
-  seed dynamics, 20 runs of 1000 steps: most probable position exactly right 28-33% of the time,
+  passive dynamics, 20 runs of 1000 steps: most probable position exactly right 28-33% of the time,
   mean Manhattan error 1.2-2.
 """
 
@@ -22,16 +22,20 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-from gym_gridloc import ForwardFilter, colour_grid_model, ring_sensor_model, windy_maze_model
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from seed_data import (  # noqa: E402  (transcribed tables live beside the tests)
+from gym_gridloc import engine
+from gym_gridloc.filter import ForwardFilter
+from gym_gridloc.models import colour_grid_model, ring_sensor_model, windy_maze_model
+from gym_gridloc.seeds import (
     COLOUR_GRID_LAYOUT,
     SEED000_MOVES,
+    SEED000_READINGS,
+    SEED000_SKIPPED,
+    SEED001_NOTHING,
+    SEED003_ERROR_RANGE,
+    SEED003_HIT_RANGE,
     SEED004_INITIAL,
     SEED004_TABLES,
     WINDY_MAZE_LAYOUT,
@@ -42,14 +46,6 @@ SEED000_TOL = 0.00005
 SEED004_TOL = 0.01  # percent
 SEED001_TOL = 1e-12
 SUM_TOL = 1e-12
-#: Seed 000's readings: moves 1-8, the unprinted move (index 8), moves 9-11.
-SEED000_READINGS = list("RRRYRRRY") + ["Y"] + list("YGB")
-SEED000_SKIPPED = 8
-#: Seed 001's P(nothing) on 8x8, keyed by the sorted pair of (distance to the nearest edge, capped at 2)
-#: of row and column: corner, edge next to a corner, other edge, (1,1)-type, rest of inner ring, inside.
-SEED001_NOTHING = {(0, 0): 0.625, (0, 1): 0.5, (0, 2): 0.425, (1, 1): 0.325, (1, 2): 0.225, (2, 2): 0.1}
-SEED003_HIT_RANGE = (0.28, 0.33)
-SEED003_ERROR_RANGE = (1.2, 2.0)
 
 
 class Report:
@@ -78,7 +74,7 @@ def fmt_table(table, fmt, obstacle: str) -> list[str]:
 # -- seed 000 --------------------------------------------------------------------------------------
 def seed000_beliefs(readings: list[str]) -> list[np.ndarray]:
     """Position beliefs after each move: uniform prior, then predict-then-update per reading."""
-    model = colour_grid_model(list(COLOUR_GRID_LAYOUT), slip=1.0)
+    model = colour_grid_model(COLOUR_GRID_LAYOUT, slip=1.0)
     f = ForwardFilter(model).reset()
     out = []
     for colour in readings:
@@ -119,7 +115,7 @@ def seed000(report: Report, verbose: bool) -> None:
 # -- seed 004 --------------------------------------------------------------------------------------
 def seed004_beliefs() -> list[np.ndarray]:
     """Position beliefs (percent) after each of the seed's seven operations."""
-    f = ForwardFilter(windy_maze_model(list(WINDY_MAZE_LAYOUT))).reset()
+    f = ForwardFilter(windy_maze_model(WINDY_MAZE_LAYOUT)).reset()
     out = [100.0 * f.position_belief]
     for kind, arg, _ in SEED004_TABLES:
         if kind == "filter":
@@ -207,13 +203,13 @@ def track(model, runs: int, steps: int, seed: int) -> tuple[float, float]:
     hits = 0
     error = 0
     for _ in range(runs):
-        state = model.sample_initial_state(rng)
+        states = engine.sample_initial(model, 1, rng)
         f = ForwardFilter(model).reset()
         for _ in range(steps):
-            state = model.sample_next_state(state, 0, rng)
-            f.step(0, model.sensor.to_observation(model.sample_reading(state, rng)))
+            states = engine.sample_next(model, states, 0, rng)
+            f.step(0, int(engine.sample_readings(model, states, rng)[0]))
             er, ec = divmod(int(np.argmax(f.position_belief)), w)
-            d = abs(er - state[1]) + abs(ec - state[2])
+            d = abs(er - int(states[0, 1])) + abs(ec - int(states[0, 2]))
             hits += d == 0
             error += d
     n = runs * steps
@@ -224,7 +220,7 @@ def seed003(report: Report, runs: int, steps: int, seed: int) -> None:
     print("=" * 100)
     print("Seed 003: RingSensor, sums and tracking")
     for size in [(8, 8), (5, 5)]:
-        for dynamics in ("seed", "commanded"):
+        for dynamics in ("passive", "commanded"):
             model = ring_sensor_model(size, dynamics=dynamics)
             t_err, o_err = max_sum_errors(model)
             report.check(
@@ -233,11 +229,11 @@ def seed003(report: Report, runs: int, steps: int, seed: int) -> None:
                 f"{model.n_states} states; largest |transition row sum - 1| = {t_err:.1e}, "
                 f"largest |reading distribution sum - 1| = {o_err:.1e}",
             )
-    model = ring_sensor_model((5, 5), dynamics="seed")
+    model = ring_sensor_model((5, 5), dynamics="passive")
     t0 = time.perf_counter()
     hit, err = track(model, runs, steps, seed)
     secs = time.perf_counter() - t0
-    print(f"  tracking, 5x5 seed dynamics, {runs} runs x {steps} steps (rng seed {seed}, {secs:.1f} s): "
+    print(f"  tracking, 5x5 passive dynamics, {runs} runs x {steps} steps (rng seed {seed}, {secs:.1f} s): "
           f"exactly right {100 * hit:.2f}%, mean Manhattan error {err:.3f}")
     lo, hi = SEED003_HIT_RANGE
     report.check("seed 003, fraction exactly right", lo <= hit <= hi,
@@ -247,7 +243,7 @@ def seed003(report: Report, runs: int, steps: int, seed: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    parser = argparse.ArgumentParser(prog="gridloc reproduce", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=int, default=20, help="seed 003: number of tracking runs (default 20)")
     parser.add_argument("--steps", type=int, default=1000, help="seed 003: steps per run (default 1000)")

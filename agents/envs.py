@@ -1,0 +1,133 @@
+"""Environment factories for training, evaluation and the benchmark, and the stable-baselines3
+adapter of the native vector environment (:class:`SB3VecEnv`)."""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import gymnasium as gym
+import numpy as np
+
+def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, wrapper: dict[str, Any] | None = None) -> gym.Env:
+    """``gym.make(env_id, **env_kwargs)``, behind ``HMMBeliefWrapper(**wrapper)`` unless
+    ``wrapper["belief"]`` is false (raw readings).  ``wrapper=None``: the Dict belief observation
+    every policy of the benchmark reads."""
+    import gym_gridloc
+
+    env = gym.make(env_id, **dict(env_kwargs or {}))
+    opts = {"belief": True} if wrapper is None else dict(wrapper)
+    if opts.pop("belief", True) is False:
+        return env
+    return gym_gridloc.HMMBeliefWrapper(env, **opts)
+
+
+def env_thunk(cfg: dict[str, Any]) -> Callable[[], gym.Env]:
+    """A picklable thunk building one (wrapped) training environment from a validated config."""
+    env_id, env_kwargs, wrapper = cfg["env_id"], dict(cfg["env_kwargs"]), dict(cfg["wrapper"])
+
+    def thunk() -> gym.Env:
+        return make_env(env_id, env_kwargs, wrapper)
+
+    return thunk
+
+
+def make_training_env(cfg: dict[str, Any]):
+    """The SB3 ``VecEnv`` a config trains on: ``cfg["vec_env"]`` ``"dummy"`` (SB3's DummyVecEnv
+    of wrapped environments, seeded ``seed + i``) or ``"native"`` (gym_gridloc's vector env
+    through :class:`SB3VecEnv`)."""
+    if cfg.get("vec_env", "dummy") == "native":
+        wrapper = dict(cfg["wrapper"])
+        venv = SB3VecEnv.make(cfg["env_id"], cfg["n_envs"], belief="exact" if wrapper.pop("belief", True) else None,
+                              **wrapper,
+                              **cfg["env_kwargs"])
+        venv.seed(cfg["seed"])
+        return venv
+    from stable_baselines3.common.env_util import make_vec_env
+
+    return make_vec_env(env_thunk(cfg), n_envs=cfg["n_envs"], seed=cfg["seed"])
+
+
+def _vec_env_base():
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+    return VecEnv
+
+
+class SB3VecEnv(_vec_env_base()):
+    """stable-baselines3 ``VecEnv`` over a :class:`gym_gridloc.vector.GridLocVectorEnv` (SB3
+    takes its own VecEnv API, not Gymnasium's ``VectorEnv``).
+
+    SB3 resets a finished environment in the same step: the returned observation is the new
+    episode's first, ``infos[i]["terminal_observation"]`` the last one of the finished episode
+    and ``infos[i]["TimeLimit.truncated"]`` says a time limit (not localisation) ended it.  The
+    vector env is switched to ``AutoresetMode.SAME_STEP`` for this.
+
+    >>> import gymnasium as gym, gym_gridloc
+    >>> from gym_gridloc_agents.envs import SB3VecEnv
+    >>> venv = SB3VecEnv(gym.make_vec("WindyMaze-v0", num_envs=8, vectorization_mode="vector_entry_point"))
+    >>> venv.num_envs
+    8
+
+    ``SB3VecEnv.make(env_id, num_envs, **kwargs)`` builds the native env and the adapter.
+    """
+
+    def __init__(self, venv) -> None:
+        from gymnasium.vector import AutoresetMode
+
+        from gym_gridloc.vector import GridLocVectorEnv
+
+        env = getattr(venv, "unwrapped", venv)
+        if not isinstance(env, GridLocVectorEnv):
+            raise TypeError(f"SB3VecEnv needs a gym_gridloc native vector env (GridLocVectorEnv), got {type(venv).__name__}")
+        env.set_autoreset_mode(AutoresetMode.SAME_STEP)
+        self.venv = env
+        super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
+        self._actions: np.ndarray | None = None
+
+    @classmethod
+    def make(cls, env_id: str, num_envs: int, **kwargs: Any) -> "SB3VecEnv":
+        return cls(gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs))
+
+    def reset(self):
+        seeds = [s for s in self._seeds if s is not None]
+        obs, _ = self.venv.reset(seed=seeds[0] if seeds else None)
+        self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = [{} for _ in range(self.num_envs)]
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        acts = np.asarray(actions).reshape(self.num_envs)
+        if not np.issubdtype(acts.dtype, np.integer):
+            whole = np.issubdtype(acts.dtype, np.floating) and np.all(acts == np.round(acts))
+            if not whole:
+                raise ValueError(f"actions must be integers (one per environment), got {actions!r}")
+        self._actions = acts.astype(np.int64)
+
+    def step_wait(self):
+        obs, rewards, terminated, truncated, info = self.venv.step(self._actions)
+        dones = terminated | truncated
+        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        for i in np.flatnonzero(dones):
+            final = dict(info["final_info"][i])
+            final["terminal_observation"] = info["final_obs"][i]
+            final["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+            infos[i] = final
+        return obs, rewards.astype(np.float32), dones, infos
+
+    def close(self) -> None:
+        self.venv.close()
+
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        if attr_name == "render_mode":
+            return [None for _ in self._get_indices(indices)]
+        return [getattr(self.venv.template, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        raise AttributeError(f"the native vector env's {self.num_envs} environments share one template; cannot set {attr_name!r} per environment")
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        raise AttributeError(f"the native vector env has no per-environment objects to call {method_name!r} on")
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]

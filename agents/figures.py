@@ -1,0 +1,71 @@
+"""Pictures of episodes: strips of belief heatmaps and GIFs from the environments' ``rgb_array``
+frames (``gridloc render``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+
+def episode_frames(env_id: str, seed: int, max_frames: int, env_kwargs: dict | None = None) -> list[tuple[np.ndarray, str]]:
+    """``(frame, caption)`` of one episode under random (seeded) actions, at most ``max_frames``:
+    the first, the last and evenly spaced ones between."""
+    import gymnasium as gym
+
+    from gym_gridloc_agents.policies import RandomPolicy
+    from gym_gridloc_agents.rollout import rollout
+
+    env = gym.make(env_id, render_mode="rgb_array", **(env_kwargs or {}))
+    ep = rollout(env, RandomPolicy(env.unwrapped.model), seed, keep=True, frames=True)
+    env.close()
+    frames = []
+    for t, (image, info) in enumerate(zip(ep.frames, ep.infos)):
+        caption = "reset" if t == 0 else f"step {t}"
+        ended = t == len(ep.frames) - 1 and ep.terminated
+        frames.append((image, f"{caption}  p={info['confidence']:.2f}" + ("  localised" if ended else "")))
+    if len(frames) > max_frames:
+        keep = np.unique(np.linspace(0, len(frames) - 1, max_frames).round().astype(int))
+        frames = [frames[k] for k in keep]
+    return frames
+
+
+def episode_strips(env_ids: Sequence[str], seed: int, n_frames: int, out: str | Path) -> None:
+    """One row of ``n_frames`` frames per environment, written to the PNG ``out`` (atomically)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from gym_gridloc_agents.files import atomic_path
+
+    rows = [episode_frames(env_id, seed, n_frames) for env_id in env_ids]
+    ncol = max(len(r) for r in rows)
+    fig, axes = plt.subplots(len(rows), ncol, figsize=(2.1 * ncol, 2.4 * len(rows)), squeeze=False)
+    for i, (env_id, frames) in enumerate(zip(env_ids, rows)):
+        for j in range(ncol):
+            ax = axes[i, j]
+            ax.axis("off")
+            if j < len(frames):
+                ax.imshow(frames[j][0], interpolation="nearest")
+                ax.set_title(frames[j][1], fontsize=8)
+        axes[i, 0].text(-0.08, 0.5, env_id, transform=axes[i, 0].transAxes, rotation=90,
+                        ha="right", va="center", fontsize=9)
+    fig.tight_layout()
+    try:
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, dpi=80, format="png")
+    finally:
+        plt.close(fig)
+
+
+def write_gif(frames: Sequence[np.ndarray], out: str | Path, *, duration_ms: int = 500) -> None:
+    """An animated GIF of RGB frames (Pillow), written atomically."""
+    from PIL import Image
+
+    from gym_gridloc_agents.files import atomic_path
+
+    images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
+    with atomic_path(out) as tmp:
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=duration_ms, loop=0)

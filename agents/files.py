@@ -1,0 +1,146 @@
+"""Files: atomic writes, model metadata, and loading stable-baselines3 models safely.
+
+A model ``X.zip`` has its metadata beside it in ``X.json`` (config, seed, versions, evaluations).
+Writes go to a temporary file in the same directory, named so a person recognises it
+(``.X.zip.gridloc-tmp-<random>``), and are renamed into place: a crash never leaves half a file,
+and :func:`clean_stale_temporaries` removes what a killed process left behind.
+
+Model zip files are pickles: load only files from a trusted source.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+#: Marks the temporary files of atomic writes (``.<name>.gridloc-tmp-<random>``).
+TMP_MARK = ".gridloc-tmp-"
+
+
+def _umask_mode() -> int:
+    old = os.umask(0)
+    os.umask(old)
+    return 0o666 & ~old
+
+
+def clean_stale_temporaries(directory: str | Path, name: str | None = None) -> list[Path]:
+    """Remove the temporary files an interrupted atomic write left in ``directory`` (for the
+    file ``name`` only, if given); returns what was removed."""
+    d = Path(directory)
+    if not d.is_dir():
+        return []
+    pattern = f".{name}{TMP_MARK}*" if name else f".*{TMP_MARK}*"
+    removed = []
+    for p in d.glob(pattern):
+        with contextlib.suppress(OSError):
+            p.unlink()
+            removed.append(p)
+    return removed
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path):
+    """Yield a temporary path beside ``path`` (with ``path``'s suffix, so that libraries that
+    add a suffix do not); on success give it the usual file mode and rename it onto ``path``, on
+    any error remove it and leave ``path`` as it was."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    clean_stale_temporaries(path.parent, path.name)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TMP_MARK}", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        yield tmp
+        os.chmod(tmp, _umask_mode())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file in the same directory and a rename."""
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
+def atomic_write_json(path: str | Path, data: Any) -> None:
+    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
+
+
+def atomic_save_model(model, path: str | Path) -> None:
+    """``model.save`` to a temporary ``.zip`` beside ``path``, then rename."""
+    with atomic_path(path) as tmp:
+        model.save(tmp)
+
+
+def metadata_path(model_path: str | Path) -> Path:
+    """Where the metadata of a model file lives: the same name with ``.json``."""
+    return Path(model_path).with_suffix(".json")
+
+
+def read_metadata(model_path: str | Path) -> dict[str, Any]:
+    """The metadata JSON beside a model (``{}`` if there is none); a clear error naming the file
+    if it is not a JSON object."""
+    meta = metadata_path(model_path)
+    if not meta.exists():
+        return {}
+    try:
+        data = json.loads(meta.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{meta}: the model's metadata is not readable JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{meta}: the model's metadata must be a JSON object, got {type(data).__name__}")
+    return data
+
+
+def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None, env_kwargs: dict | None = None,
+               observation_space=None, env=None):
+    """Load an sb3 model, refusing one trained for another algorithm, environment (id or keyword
+    arguments) or observation space.  Returns ``(model, metadata)``.  Zip files are pickles:
+    trusted sources only."""
+    from gym_gridloc_agents.config import algo_class
+
+    path = Path(path)
+    if not path.is_file():
+        hint = ""
+        if path.parent.name == "policies":
+            hint = " (train it with `gridloc train configs/...`, or pass --ppo-model PATH)"
+        raise FileNotFoundError(f"model file {str(path)!r} does not exist{hint}")
+    meta = read_metadata(path)
+    if meta.get("algo") not in (None, algo):
+        raise ValueError(f"{path} holds a {meta['algo']} model, not {algo}")
+    if env_id is not None and meta.get("env_id") not in (None, env_id):
+        raise ValueError(f"{path} was trained for {meta['env_id']}, not {env_id}; train one for {env_id} or pick its model")
+    if env_kwargs is not None and "env_kwargs" in meta and _canonical(meta["env_kwargs"]) != _canonical(env_kwargs):
+        raise ValueError(
+            f"{path} was trained for {meta.get('env_id', 'its environment')} with env_kwargs {meta['env_kwargs']}, "
+            f"not {dict(env_kwargs)}: pass the same keyword arguments, or a model trained for these"
+        )
+    Algo = algo_class(algo)
+    try:
+        model = Algo.load(path, env=env, device="cpu")
+    except (ValueError, KeyError) as exc:
+        if env is not None and "space" in str(exc).lower():
+            raise ValueError(f"{path} does not fit this environment: {exc}") from None
+        raise ValueError(f"{path} is not a loadable {algo} model: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - a broken or foreign zip
+        raise ValueError(f"{path} is not a loadable {algo} model: {type(exc).__name__}: {exc}") from None
+    if observation_space is not None and model.observation_space != observation_space:
+        where = f" (trained for {meta['env_id']})" if meta.get("env_id") else ""
+        raise ValueError(
+            f"{path}{where} expects observations {model.observation_space}, but this environment gives "
+            f"{observation_space}: it was trained for another environment or observation space"
+        )
+    return model, meta
+
+
+def _canonical(kwargs: dict) -> str:
+    """Keyword arguments in one comparable form (tuples and lists alike, keys sorted)."""
+    return json.dumps(kwargs, sort_keys=True, default=str)

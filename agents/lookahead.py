@@ -1,0 +1,108 @@
+"""Exact lookahead on the belief: what the entropy-greedy policies and the planners compute.
+
+Every prediction goes through :func:`gym_gridloc.engine.predict` (batched, kidnapping included,
+never a dense S x S matrix), and every expectation over readings through the sensor's
+:meth:`~gym_gridloc.Sensor.reading_probabilities` and :meth:`~gym_gridloc.Sensor.reading_entropy`,
+so no (readings x states) posterior table is built.
+
+The identity used: for an unnormalised predicted mass ``c`` over the target variable X (positions,
+or full states where the referee tests poses) and a sensor ``P(z | x)``, the expected posterior
+entropy times the mass is ``m * E_z[H(X | z)] = sum_x c(x) h(x) - sum_x c log c + sum_z q log q``
+with ``q(z) = sum_x P(z | x) c(x)`` and ``h(x)`` the entropy of the reading at x (bits).  It holds
+for positions when the sensor sees the position only (the headings of a position are summed
+first), and for full states always.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gym_gridloc import engine
+from gym_gridloc.core.model import GridModel
+
+#: A lookahead refuses to build more than this many predicted beliefs x cells in one call.
+MAX_WORK = 50_000_000
+
+
+def xlogx(x: np.ndarray) -> np.ndarray:
+    """``x * log2(x)`` elementwise with ``0 log 0 = 0`` (x >= 0)."""
+    return x * np.log2(np.where(x > 0.0, x, 1.0))
+
+
+class Lookahead:
+    """Exact one- and two-step expectations on one model (see the module docstring).
+
+    ``pose``: the target variable is the full hidden state (the referee of DepthMaze), else the
+    position.
+    """
+
+    def __init__(self, model: GridModel, *, pose: bool = False) -> None:
+        if not isinstance(model, GridModel):
+            raise TypeError(f"a lookahead needs the environment's GridModel, got {type(model).__name__}")
+        self.model = model
+        self.pose = bool(pose or model.sensor.layered)
+        self.n_actions = model.n_actions
+        self.h = model.sensor.reading_entropy()
+        if self.pose and self.h.ndim == 2:
+            self.h = np.broadcast_to(self.h, model.belief_shape)
+
+    def _check_work(self, n_beliefs: int, what: str) -> None:
+        work = n_beliefs * self.model.n_layers * self.model.shape[0] * self.model.shape[1]
+        if work > MAX_WORK:
+            raise ValueError(
+                f"{what} would predict {n_beliefs} beliefs of {self.model.n_states} states on {self.model!r} "
+                f"({work:.3g} cells, limit {MAX_WORK:.3g}); use a one-step policy (greedy) or a smaller map"
+            )
+
+    def predict_all(self, beliefs: np.ndarray) -> np.ndarray:
+        """Every action applied to each of N beliefs ``(N, L, H, W)``: ``(N, A, L, H, W)``."""
+        n, A = beliefs.shape[0], self.n_actions
+        self._check_work(n * A, "the lookahead")
+        rep = np.repeat(beliefs, A, axis=0)
+        out = engine.predict(self.model, rep, np.tile(np.arange(A), n))
+        return out.reshape(n, A, *self.model.belief_shape)
+
+    def target(self, masses: np.ndarray) -> np.ndarray:
+        """Masses over hidden states ``(..., L, H, W)`` as masses over the target variable."""
+        return masses if self.pose else masses.sum(axis=-3)
+
+    def reading_probabilities(self, masses: np.ndarray) -> np.ndarray:
+        """``(M, Z)`` reading probabilities of M masses over hidden states ``(M, L, H, W)``."""
+        sensor = self.model.sensor
+        return sensor.reading_probabilities(masses if sensor.layered else masses.sum(axis=1))
+
+    def weighted_entropy(self, masses: np.ndarray) -> np.ndarray:
+        """``m * E_z[H(X | z)]`` for unnormalised masses over hidden states ``(..., L, H, W)``."""
+        lead = masses.shape[:-3]
+        full = masses.reshape(-1, *self.model.belief_shape)
+        q = self.reading_probabilities(full)
+        flat = self.target(full).reshape(full.shape[0], -1)
+        w = flat @ self.h.reshape(-1) - xlogx(flat).sum(axis=1) + xlogx(q).sum(axis=1)
+        return w.reshape(lead)
+
+    def one_step(self, belief: np.ndarray) -> np.ndarray:
+        """Expected target entropy (bits) after each action's move and reading, ``(A,)``."""
+        b = belief / belief.sum()
+        return self.weighted_entropy(self.predict_all(b[None])[0])
+
+    def readings_after(self, predicted: np.ndarray, *, prune: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """The posterior masses after each possible reading of M predicted beliefs
+        ``(M, L, H, W)``: ``(readings (K,), masses (M, K, L, H, W))`` for the K readings some
+        belief can give (probability above ``prune`` for one of them)."""
+        m = predicted.shape[0]
+        q = self.reading_probabilities(predicted)
+        keep = np.flatnonzero(q.max(axis=0) > prune)
+        self._check_work(m * keep.size, "the lookahead")
+        lik = engine.likelihoods(self.model, keep)  # (K, cells) or (K, L*cells)
+        shape = self.model.belief_shape
+        lik = lik.reshape(keep.size, *shape) if lik.shape[1] == np.prod(shape) else lik.reshape(keep.size, 1, *shape[1:])
+        return keep, predicted[:, None] * lik[None]
+
+    def two_step(self, belief: np.ndarray) -> np.ndarray:
+        """``sum_{z1} min_{a2} m * E_z2[H]`` for each first action (the two-step expectimax)."""
+        b = belief / belief.sum()
+        pred1 = self.predict_all(b[None])[0]  # (A1, L, H, W)
+        _, joint = self.readings_after(pred1)  # (A1, K, L, H, W), mass p(z1 | a1)
+        a1, k = joint.shape[:2]
+        w = self.weighted_entropy(self.predict_all(joint.reshape(a1 * k, *joint.shape[2:])))  # (A1*K, A2)
+        return w.reshape(a1, k, -1).min(axis=-1).sum(axis=-1)
