@@ -19,14 +19,10 @@ import numpy as np
 
 from gym_gridloc import engine
 from gym_gridloc.core.model import GridModel
+from gym_gridloc.core.sensors import xlogx
 
 #: A lookahead refuses to build more than this many predicted beliefs x cells in one call.
 MAX_WORK = 50_000_000
-
-
-def xlogx(x: np.ndarray) -> np.ndarray:
-    """``x * log2(x)`` elementwise with ``0 log 0 = 0`` (x >= 0)."""
-    return x * np.log2(np.where(x > 0.0, x, 1.0))
 
 
 class Lookahead:

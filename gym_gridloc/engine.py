@@ -20,6 +20,9 @@ beliefs, :func:`sample_next` draws it.
 
 What the engine derives from a model (the plan of its kernel, the average transition) is cached
 here, per model object, never stored on the model: a :class:`GridModel` is frozen data.
+
+This module is longer than 400 lines on purpose: it is the one place where a model's numbers are
+applied, so that no caller writes a prediction, an update or a sampler again.
 """
 
 from __future__ import annotations
@@ -267,55 +270,47 @@ def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out
     nothing the caller holds changes (``out`` may be overwritten) and
     :class:`ImpossibleObservationError` names it.
     """
-    d = _derived(model)
-    if type(beliefs) is np.ndarray and beliefs.ndim == 3 and mask is None:
-        return _step_one(model, d, beliefs, actions, readings, out, normalise)
     flat, single = _flat(model, beliefs)
     if single:
-        return _step_one(model, d, beliefs, actions, readings, out, normalise)
-    n = flat.shape[0]
+        res = _out(out, flat, model.belief_shape)
+        return res, stepper(model, normalise=normalise)(flat.reshape(model.belief_shape), actions, int(readings), res)
+    d, n = _derived(model), flat.shape[0]
     acts = action_indices(model, actions, n)
     rs = np.asarray(readings, dtype=np.int64).reshape(-1)
     if rs.size != n:
         raise ValueError(f"step() needs one reading per belief: {n} beliefs, {rs.size} readings")
     sel = _all(n) if mask is None else np.asarray(mask, dtype=bool)
     if mask is not None:
-        acts = np.where(sel, acts, 0)
+        acts, rs_used = np.where(sel, acts, 0), np.where(sel, rs, 0)
+    else:
+        rs_used = rs
     res = _out(out, flat, (n, *model.belief_shape))
     res2 = res.reshape(n, -1)
-    p = d.plan(model)
-    lik = likelihoods(model, np.where(sel, rs, 0) if mask is not None else rs)
-    layered = d.layered
-    mode = 1 if normalise else 2
-    if model.kidnap_prob > 0.0:  # predict, mix, then weigh: the kernel's fused pass cannot mix
-        p.run(flat, acts, _no_liks(n), 0, res2, 0, sel)
-        keep = None if mask is None else res2[~sel].copy()
-        _kidnap(model, flat, res2)
-        view = res2 if layered else res2.reshape(n, model.n_layers, -1)
-        view *= lik if layered else lik[:, None, :]
-        z = res2.sum(axis=1)
-        if normalise:
-            res2 /= np.where((z > 0) & np.isfinite(z), z, 1.0)[:, None]
-        if keep is not None:
-            res2[~sel] = keep
-            z[~sel] = 1.0
+    lik = likelihoods(model, rs_used)
+    if model.kidnap_prob > 0.0:
+        z = _mixed_step(model, d, flat, acts, lik, res2, normalise, sel)
     else:
-        z = p.run(flat, acts, lik, layered, res2, mode, sel)
+        z = d.plan(model).run(flat, acts, lik, d.layered, res2, 1 if normalise else 2, sel)
     _check_z(model, z, rs, True, None if mask is None else sel)
     return res, z
 
 
-def _step_one(model: GridModel, d: _Derived, belief: np.ndarray, action: Any, reading: Any,
-              out: np.ndarray | None, normalise: bool) -> tuple[np.ndarray, float]:
-    """:func:`step` of one belief."""
-    shape = model.belief_shape
-    if belief.shape != shape or belief.dtype != np.float64 or not belief.flags.c_contiguous:
-        belief = _flat(model, belief)[0].reshape(shape)
-    if out is None:
-        out = np.empty(shape)
-    elif out is belief or out.shape != shape or out.dtype != np.float64 or not out.flags.c_contiguous:
-        raise ValueError(f"out must be a C-contiguous float64 array of shape {shape}, apart from the belief")
-    return out, d.stepper(model, normalise)(belief, action, reading, out)
+def _mixed_step(model: GridModel, d: _Derived, flat: np.ndarray, acts: np.ndarray, lik: np.ndarray,
+                out: np.ndarray, normalise: bool, sel: np.ndarray) -> np.ndarray:
+    """:func:`step` with kidnapping: predict, mix, then weigh (the kernels' fused pass cannot mix)."""
+    n = flat.shape[0]
+    keep = None if sel.all() else out[~sel].copy()
+    d.plan(model).run(flat, acts, _no_liks(n), 0, out, 0, sel)
+    _kidnap(model, flat, out)
+    view = out if d.layered else out.reshape(n, model.n_layers, -1)
+    view *= lik if d.layered else lik[:, None, :]
+    z = out.sum(axis=1)
+    if normalise:
+        out /= np.where((z > 0) & np.isfinite(z), z, 1.0)[:, None]
+    if keep is not None:
+        out[~sel] = keep
+        z[~sel] = 1.0
+    return z
 
 
 def stepper(model: GridModel, *, normalise: bool = True):
@@ -326,12 +321,10 @@ def stepper(model: GridModel, *, normalise: bool = True):
 
 
 def _make_stepper(model: GridModel, d: _Derived, normalise: bool):
-    plan_ = d.plan(model)
-    n_actions, layered, kidnap = model.n_actions, d.layered, model.kidnap_prob
-    mode = 1 if normalise else 2
-    lik_of, liks = d.lik, d._liks
-    check_action = model.check_action
-    run_one = plan_.run_one
+    n_actions, layered, mode = model.n_actions, d.layered, 1 if normalise else 2
+    lik_of, liks, check_action = d.lik, d._liks, model.check_action
+    run_one = d.plan(model).run_one
+    mixed = model.kidnap_prob > 0.0
 
     def step_one(belief: np.ndarray, action: Any, reading: int, out: np.ndarray) -> float:
         if action is None:
@@ -344,17 +337,8 @@ def _make_stepper(model: GridModel, d: _Derived, normalise: bool):
         if lik is None:
             lik = lik_of(model, int(reading))
         b, o = belief.reshape(-1), out.reshape(-1)
-        if kidnap > 0.0:  # predict, mix, then weigh: the kernel's fused pass cannot mix
-            run_one(b, a, _NO_LIK, 0, o, 0)
-            _kidnap(model, b[None], o[None])
-            if layered:
-                o *= lik
-            else:
-                view = o.reshape(model.n_layers, -1)
-                view *= lik
-            z = float(o.sum())
-            if normalise and z > 0.0 and z < math.inf:
-                o *= 1.0 / z
+        if mixed:
+            z = float(_mixed_step(model, d, b[None], np.array([a]), lik[None], o[None], normalise, _all(1))[0])
         else:
             z = run_one(b, a, lik, layered, o, mode)
         if not (z > 0.0 and z < math.inf):

@@ -11,7 +11,8 @@ from typing import NamedTuple
 import numpy as np
 
 from gym_gridloc.core.model import GridModel
-from gym_gridloc.core.sensors import ColourSensor, RingSensor, WallSensor
+from gym_gridloc.core.ring import RingSensor
+from gym_gridloc.core.sensors import ColourSensor, WallSensor
 
 COLOUR_RGB = {"R": (220, 50, 47), "G": (60, 170, 60), "B": (50, 100, 220), "Y": (230, 200, 30)}
 FREE_RGB = (235, 235, 235)

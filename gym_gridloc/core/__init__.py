@@ -3,9 +3,10 @@
 from gym_gridloc.core.errors import GridLocError, ImpossibleObservationError, MapError
 from gym_gridloc.core.grid import DIRECTIONS, GridMap
 from gym_gridloc.core.model import GridModel, Term
-from gym_gridloc.core.sensors import ColourSensor, RingSensor, Sensor, WallSensor
+from gym_gridloc.core.ring import RingSensor
+from gym_gridloc.core.sensors import ColourSensor, Sensor, TableSensor, WallSensor
 
 __all__ = [
     "DIRECTIONS", "GridMap", "GridModel", "Term", "Sensor", "ColourSensor", "RingSensor",
-    "WallSensor", "GridLocError", "MapError", "ImpossibleObservationError",
+    "WallSensor", "TableSensor", "GridLocError", "MapError", "ImpossibleObservationError",
 ]

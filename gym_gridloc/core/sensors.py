@@ -4,8 +4,9 @@ A reading is an integer index in ``0..n_readings-1``; an observation is what the
 emits (an int for ``Discrete`` spaces, an int8 array for ``MultiBinary``).  Every method that
 the simulator, the filters and the vector environment call is batched over N readings or
 states (``states`` are ``(N, 3)`` int arrays of ``(layer, row, col)``), so no caller needs a
-sensor's inner tables.  The sensors here see the position only (``layered = False``): their
-likelihoods are ``(H, W)`` and the same for every layer of a hidden state.
+sensor's inner tables.  The sensors here (and :class:`~gym_gridloc.core.ring.RingSensor`) see the position only
+(``layered = False``): their likelihoods are ``(H, W)`` and the same for every layer of a hidden
+state.
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ class Sensor(ABC):
         """The entropy (bits) of the reading in each position, ``(H, W)`` (``(L, H, W)`` for a
         layered sensor); zero on obstacles."""
         table = self.likelihoods(np.arange(self.n_readings))
-        return -_xlogx(table).sum(axis=0).reshape(np.shape(self.likelihood(0)))
+        return -xlogx(table).sum(axis=0).reshape(np.shape(self.likelihood(0)))
 
     def distribution(self, row: int, col: int, layer: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """The readings possible in state ``(layer, row, col)`` and their probabilities (summing to 1)."""
@@ -150,7 +151,7 @@ class Sensor(ABC):
         return f"{shown!r}" if text == str(shown) else f"{shown!r} ({text})"
 
 
-def _xlogx(x: np.ndarray) -> np.ndarray:
+def xlogx(x: np.ndarray) -> np.ndarray:
     """``x * log2(x)`` elementwise with ``0 log 0 = 0`` (x >= 0)."""
     return x * np.log2(np.where(x > 0.0, x, 1.0))
 
@@ -178,7 +179,7 @@ class TableSensor(Sensor):
         return flat @ self.table.reshape(self.table.shape[0], -1).T
 
     def reading_entropy(self) -> np.ndarray:
-        return -_xlogx(self.table).sum(axis=0)
+        return -xlogx(self.table).sum(axis=0)
 
 
 class ColourSensor(TableSensor):
@@ -277,135 +278,3 @@ class WallSensor(TableSensor):
     def describe(self, reading: int) -> str:
         bits = self.to_observation(reading)
         return "[" + ", ".join("o" if b else "-" for b in bits) + "]  (W, N, E, S)"
-
-
-class RingSensor(Sensor):
-    """Reports a cell near the robot, or nothing.
-
-    The true cell with ``p_true``; each of the 8 cells at Chebyshev distance 1 with ``p_ring1``;
-    each of the 16 at distance 2 with ``p_ring2``; a reading that would fall outside the grid, and
-    the rest, is "nothing".  Reading ``r * W + c`` is a cell, ``H * W`` is nothing.  The
-    likelihood of a cell reading is computed from its 5x5 neighbourhood, never stored densely.
-    """
-
-    def __init__(self, grid: GridMap, p_true: float = 0.1, p_ring1: float = 0.05, p_ring2: float = 0.025) -> None:
-        super().__init__(grid)
-        self.p_true = check_probability("p_true", p_true)
-        self.p_ring1 = check_probability("p_ring1", p_ring1)
-        self.p_ring2 = check_probability("p_ring2", p_ring2)
-        total = self.p_true + 8 * self.p_ring1 + 16 * self.p_ring2
-        if total > 1.0 + 1e-12:
-            raise ValueError(
-                f"p_true + 8 p_ring1 + 16 p_ring2 must be at most 1, got {total:.6g} "
-                f"(p_true={p_true!r}, p_ring1={p_ring1!r}, p_ring2={p_ring2!r})"
-            )
-        h, w = grid.shape
-        self.n_readings = h * w + 1
-        self.nothing = h * w
-        self.observation_space = spaces.Discrete(h * w + 1)
-        off = np.arange(-2, 3)
-        dist = np.maximum(np.abs(off)[:, None], np.abs(off)[None, :])
-        #: P(reading the cell at offset (i-2, j-2)), (5, 5), symmetric.
-        self.kernel = np.choose(dist, [self.p_true, self.p_ring1, self.p_ring2])
-        self.kernel.setflags(write=False)
-        # P(nothing | cell) = 1 - sum of the kernel over the in-grid part of the window.
-        inside = np.zeros((h + 4, w + 4))
-        inside[2:-2, 2:-2] = 1.0
-        in_grid_mass = np.zeros((h, w))
-        for i in range(5):
-            for j in range(5):
-                in_grid_mass += self.kernel[i, j] * inside[i : i + h, j : j + w]
-        self._nothing = np.where(grid.free, np.clip(1.0 - in_grid_mass, 0.0, 1.0), 0.0)
-        self._nothing.setflags(write=False)
-
-    @property
-    def nothing_probability(self) -> np.ndarray:
-        """P(nothing | cell) as an (H, W) array."""
-        return self._nothing
-
-    def likelihood(self, reading: int) -> np.ndarray:
-        if reading == self.nothing:
-            return self._nothing
-        return self.likelihoods(np.array([reading]))[0].reshape(self.grid.shape)
-
-    def likelihoods(self, readings: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Cell readings write the 5x5 kernel round the cell (25 scatters over the batch),
-        "nothing" its (H, W) row."""
-        h, w = self.grid.shape
-        readings = np.asarray(readings, dtype=np.int64).reshape(-1)
-        if out is None:
-            out = np.zeros((readings.size, h * w))
-        else:
-            out.fill(0.0)
-        nothing = readings == self.nothing
-        if nothing.any():
-            out[nothing] = self._nothing.reshape(-1)
-        cells = np.flatnonzero(~nothing)
-        if cells.size:
-            r0, c0 = np.divmod(readings[cells], w)
-            free = self.grid.free
-            for i in range(5):
-                rr = r0 + i - 2
-                for j in range(5):
-                    cc = c0 + j - 2
-                    ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-                    if ok.any():
-                        r, c, k = rr[ok], cc[ok], cells[ok]
-                        out[k, r * w + c] = self.kernel[i, j] * free[r, c]
-        return out
-
-    def reading_probabilities(self, masses: np.ndarray) -> np.ndarray:
-        """Cell readings: the masses correlated with the 5x5 kernel (25 shifted adds); then
-        nothing.  Never a (readings x cells) table."""
-        m = np.asarray(masses, dtype=np.float64)
-        n, (h, w) = m.shape[0], self.grid.shape
-        c = m * self.grid.free
-        padded = np.zeros((n, h + 4, w + 4))
-        padded[:, 2:-2, 2:-2] = c
-        q = np.zeros((n, h * w + 1))
-        cells = q[:, : h * w].reshape(n, h, w)
-        for i in range(5):
-            for j in range(5):
-                # reading (r, c) from a robot at (r + 2 - i, c + 2 - j): kernel[i, j]
-                cells += self.kernel[i, j] * padded[:, 4 - i : 4 - i + h, 4 - j : 4 - j + w]
-        q[:, h * w] = (c * self._nothing).reshape(n, -1).sum(axis=1)
-        return q
-
-    def reading_entropy(self) -> np.ndarray:
-        h, w = self.grid.shape
-        inside = np.zeros((h + 4, w + 4))
-        inside[2:-2, 2:-2] = 1.0
-        ent = -_xlogx(self._nothing)
-        k = -_xlogx(self.kernel)
-        for i in range(5):
-            for j in range(5):
-                ent = ent + k[i, j] * inside[i : i + h, j : j + w]
-        return np.where(self.grid.free, ent, 0.0)
-
-    def distribution(self, row: int, col: int, layer: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        h, w = self.grid.shape
-        r1, r2, c1, c2 = max(0, row - 2), min(h, row + 3), max(0, col - 2), min(w, col + 3)
-        rr, cc = np.mgrid[r1:r2, c1:c2]
-        probs = self.kernel[rr - row + 2, cc - col + 2].ravel()
-        readings = (rr * w + cc).ravel()
-        return np.append(readings, self.nothing), np.append(probs, self._nothing[row, col])
-
-    def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """The 25 window cells in row-major order (zero off the grid), then nothing."""
-        h, w = self.grid.shape
-        r, c = states[:, 1], states[:, 2]
-        di, dj = np.divmod(np.arange(25), 5)
-        rr = r[:, None] + di[None, :] - 2
-        cc = c[:, None] + dj[None, :] - 2
-        inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-        probs = np.empty((states.shape[0], 26))
-        probs[:, :25] = np.where(inside, self.kernel.reshape(-1)[None, :], 0.0)
-        probs[:, 25] = self._nothing[r, c]
-        k = self._categorical(probs, rng)
-        cell = np.take_along_axis(rr * w + cc, np.minimum(k, 24)[:, None], axis=1)[:, 0]
-        return np.where(k == 25, self.nothing, cell)
-
-    def describe(self, reading: int) -> str:
-        if reading == self.nothing:
-            return "nothing"
-        return str(divmod(int(reading), self.grid.width))

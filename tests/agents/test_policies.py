@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import gym_gridloc
-from agents.policies import (
+from gym_gridloc_agents.policies import (
     POLICY_NAMES,
     Greedy2Policy,
     GreedyPolicy,
@@ -72,7 +72,7 @@ def _beliefs(env_id, n_steps, seed=0, **kwargs):
         ("WindyMaze-v0", {}),
         ("ColourGrid-v0", {}),
         ("RingSensor8x8-v0", {"size": (4, 5)}),
-        ("RingSensor8x8-v0", {"size": (4, 4), "dynamics": "seed"}),
+        ("RingSensor8x8-v0", {"size": (4, 4), "dynamics": "passive"}),
         ("ColourGrid-v0", {"slip": 0.5}),
     ],
 )
@@ -96,7 +96,7 @@ def test_greedy_with_kidnapping_equals_brute_force():
 
 
 @pytest.mark.parametrize("env_id,kwargs", [("WindyMaze-v0", {}), ("RingSensor8x8-v0", {"size": (3, 4)}),
-                                          ("RingSensor8x8-v0", {"size": (3, 3), "dynamics": "seed"})])
+                                          ("RingSensor8x8-v0", {"size": (3, 3), "dynamics": "passive"})])
 def test_greedy2_equals_brute_force(env_id, kwargs):
     model, beliefs = _beliefs(env_id, 2, **kwargs)
     g2 = Greedy2Policy(model)
@@ -113,7 +113,7 @@ def test_greedy_accepts_position_belief_and_rejects_wrong_shape():
     np.testing.assert_allclose(g.expected_entropies(b[0]), g.expected_entropies(b))
     with pytest.raises(ValueError, match="belief must be"):
         g.act(None, np.ones((3, 3)))
-    seed_model = gym_gridloc.ring_sensor_model((4, 4), dynamics="seed")
+    seed_model = gym_gridloc.ring_sensor_model((4, 4), dynamics="passive")
     with pytest.raises(ValueError, match=r"\(4, 4, 4\)"):
         GreedyPolicy(seed_model).act(None, np.ones((4, 4)) / 16)
 
@@ -197,6 +197,14 @@ def test_unknown_policy_name():
         make_policy("smart", gym_gridloc.colour_grid_model())
 
 
-def test_greedy_refuses_maps_too_large_for_its_table():
-    with pytest.raises(ValueError, match="10001 x 10000 is too large"):
-        GreedyPolicy(gym_gridloc.ring_sensor_model((100, 100)))
+def test_greedy_plans_on_large_maps_without_a_readings_table_and_greedy2_refuses_clearly():
+    # One step predicts 4 beliefs and correlates them with the ring kernel: no (readings x states)
+    # table (10001 x 10000 here) and no dense transition, also with kidnapping.
+    model = gym_gridloc.ring_sensor_model((100, 100)).with_kidnapping(0.01)
+    belief = model.prior()
+    belief[:, :50] *= 3.0
+    belief /= belief.sum()
+    p = GreedyPolicy(model, seed=0)
+    assert p.act(None, belief) in range(4)
+    with pytest.raises(ValueError, match=r"would predict \d+ beliefs .* use a one-step policy \(greedy\) or a smaller map"):
+        Greedy2Policy(model, seed=0).act(None, belief)

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 import gym_gridloc
-from agents.cli import main
-from agents.config import ConfigError, load_config, validate_config
-from agents.policies import PPOPolicy, RecurrentPolicy
-from agents.train import TrainingInterrupted, atomic_save_model, atomic_write_json, train
+from gym_gridloc_agents.cli import main
+from gym_gridloc_agents.config import ConfigError, load_config, validate_config
+from gym_gridloc_agents.policies import PPOPolicy, RecurrentPolicy
+from gym_gridloc_agents.train import TrainingInterrupted, atomic_save_model, atomic_write_json, train
 
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
 
 def tiny(tmp_path, **over):
@@ -112,7 +112,7 @@ def test_resume_refuses_a_checkpoint_of_another_environment(tmp_path):
 
 
 def test_cli_ctrl_c_exit_code(tmp_path, monkeypatch, capsys):
-    import agents.train as t
+    import gym_gridloc_agents.train as t
 
     def interrupted(*a, **k):
         raise TrainingInterrupted(tmp_path / "ckpt" / "interrupted_step_5.zip", 5)
@@ -207,7 +207,7 @@ def test_held_out_evaluation_keeps_the_best_model(tmp_path):
     best = min(ev, key=lambda h: h["mean_steps"])
     assert info["selected_timesteps"] == best["num_timesteps"]
     assert info["eval_seeds"].startswith("2000000..")
-    from agents.train import evaluate, load_model
+    from gym_gridloc_agents.train import evaluate, load_model
 
     model, _ = load_model(tmp_path / "model.zip", env_id="ColourGrid-v0")
     cfg = validate_config(tiny(tmp_path))

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from agents.bench import markdown_table, run_benchmark, run_episodes
-from agents.cli import main
+from gym_gridloc_agents.bench import markdown_table, run_benchmark, run_episodes
+from gym_gridloc_agents.cli import main
 
 KEYS = {"env", "policy", "episodes", "success_rate", "truncated_rate", "mean_steps", "median_steps",
         "mean_steps_ci95", "accuracy_at", "seconds", "localised_correct_rate"}
@@ -93,7 +93,7 @@ def test_cli_bench_writes_json_and_plot(tmp_path, capsys):
 
 
 def test_cli_bench_user_model(tmp_path, capsys):
-    from agents.policies import default_model_path
+    from gym_gridloc_agents.policies import default_model_path
 
     js = tmp_path / "b.json"
     assert main(["bench", "--env", "ColourGrid-v0", "--policies", "ppo", "--episodes", "2", "--no-progress",
@@ -140,7 +140,7 @@ def test_cli_update_merges_rows(tmp_path, capsys):
 
 
 def test_wilson_interval_matches_known_values():
-    from agents.bench import wilson_ci95
+    from gym_gridloc_agents.bench import wilson_ci95
 
     # 0 of 10 and 10 of 10: the interval still has width (the normal approximation's would not).
     assert wilson_ci95(0, 10)[0] == 0.0 and abs(wilson_ci95(0, 10)[1] - 0.27753) < 1e-4
@@ -152,7 +152,7 @@ def test_wilson_interval_matches_known_values():
 def test_cli_without_the_rl_extra_says_what_to_install(monkeypatch, capsys):
     import importlib.util
 
-    import agents.cli as cli
+    import gym_gridloc_agents.cli as cli
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "tqdm" else real(name, *a))

@@ -1,0 +1,137 @@
+"""The package as a whole: its layers, its import graph, its install names and its files."""
+
+from __future__ import annotations
+
+import ast
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = {"gym_gridloc": ROOT / "gym_gridloc", "gym_gridloc_agents": ROOT / "agents"}
+MAX_LINES = 400
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for name, directory in PACKAGES.items():
+        for f in directory.rglob("*.py"):
+            parts = [name, *f.relative_to(directory).with_suffix("").parts]
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = f
+    return out
+
+
+MODULES = _modules()
+
+
+def _imports(module: str, path: Path) -> set[str]:
+    """The package modules ``module`` imports, at the top or inside functions alike."""
+    package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
+            for a in node.names:
+                found.add(f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base)
+    return {m for m in found if m in MODULES and m != module}
+
+
+GRAPH = {m: _imports(m, p) for m, p in MODULES.items()}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_import_cycles():
+    assert _cycles(GRAPH) == []
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_the_core_never_imports_the_agents():
+    offenders = {m: sorted(deps) for m, deps in GRAPH.items() if m.startswith("gym_gridloc.")
+                 and any(d.startswith("gym_gridloc_agents") for d in deps)}
+    assert offenders == {}
+
+
+def test_core_model_layer_imports_nothing_above_it():
+    for m, deps in GRAPH.items():
+        if m.startswith("gym_gridloc.core"):
+            assert all(d.startswith("gym_gridloc.core") for d in deps), (m, deps)
+
+
+def test_source_files_are_short_or_say_why():
+    long = []
+    for module, path in MODULES.items():
+        n = len(path.read_text(encoding="utf-8").splitlines())
+        doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
+        if n > MAX_LINES and "longer than 400 lines" not in doc:
+            long.append((module, n))
+    assert long == []
+
+
+@pytest.mark.parametrize("folder", ["tests", "scripts"])
+def test_no_sys_path_edits(folder):
+    pattern = re.compile(r"sys\.path\.(insert|append)|sys\.path\s*=")
+    hits = [str(p.relative_to(ROOT)) for p in (ROOT / folder).rglob("*.py")
+            if p.resolve() != Path(__file__).resolve() and pattern.search(p.read_text(encoding="utf-8"))]
+    assert hits == []
+
+
+def test_import_agents_from_outside_the_repository_finds_nothing_of_ours(tmp_path):
+    code = (
+        "import importlib.util, sys\n"
+        "spec = importlib.util.find_spec('agents')\n"
+        "print('none' if spec is None else spec.origin)\n"
+        "import gym_gridloc_agents, gym_gridloc\n"
+        "print(gym_gridloc_agents.__name__)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    first, second = out.stdout.split()
+    assert first == "none" or str(ROOT) not in first
+    assert second == "gym_gridloc_agents"
