@@ -101,8 +101,14 @@ def _plot(args) -> int:
 
 def _train(args) -> int:
     from gym_gridloc_agents.config import ConfigError
-    from gym_gridloc_agents.train import TrainingInterrupted, train
+    from gym_gridloc_agents.train import OutputError, TrainingInterrupted, train
 
+    if args.timesteps is not None and args.timesteps < 1:
+        print(f"gridloc train: error: --timesteps must be at least 1, got {args.timesteps}", file=sys.stderr)
+        return 2
+    if args.torch_threads < 1:
+        print(f"gridloc train: error: --torch-threads must be at least 1, got {args.torch_threads}", file=sys.stderr)
+        return 2
     try:
         info = train(
             args.config,
@@ -118,7 +124,7 @@ def _train(args) -> int:
     except TrainingInterrupted as exc:
         print(f"gridloc train: {exc}; resume with: gridloc train {args.config} --resume {exc.checkpoint}", file=sys.stderr)
         return 130
-    except (ConfigError, FileExistsError, FileNotFoundError, ValueError) as exc:
+    except (ConfigError, OutputError, FileExistsError, FileNotFoundError, ValueError) as exc:
         print(f"gridloc train: error: {exc}", file=sys.stderr)
         return 2
     out = info["config"]["output"]

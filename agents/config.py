@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import copy
 import inspect
+import math
 from pathlib import Path
 from typing import Any
 
@@ -88,6 +89,25 @@ class ConfigError(ValueError):
     """A training config is malformed; the message names the file and the key."""
 
 
+def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, error: type[Exception]) -> None:
+    """Build ``gym.make(env_id, **env_kwargs)`` once: a gym_gridloc environment, or ``error``
+    naming ``what`` and the reason (an unknown keyword, a bad value, another package's env)."""
+    import gymnasium as gym
+
+    from gym_gridloc.envs.base import GridLocEnv
+
+    try:
+        env = gym.make(env_id, **env_kwargs)
+    except (TypeError, ValueError) as exc:
+        raise error(f"{what}: {env_id} does not build with {env_kwargs}: {exc}") from None
+    ok = isinstance(env.unwrapped, GridLocEnv)
+    env.close()
+    if not ok:
+        import gym_gridloc
+
+        raise error(f"{what}: {env_id} is not a gym_gridloc environment (allowed: {', '.join(gym_gridloc.ENV_IDS)})")
+
+
 def algo_class(algo: str):
     if algo == "ppo":
         from stable_baselines3 import PPO
@@ -127,16 +147,32 @@ def load_config(path: str | Path) -> dict[str, Any]:
     return validate_config(raw, source=str(path))
 
 
-def _num(source: str, key: str, value: Any, *, integer: bool, minimum: float) -> Any:
+def _num(source: str, key: str, value: Any, *, integer: bool, minimum: float, maximum: float | None = None,
+         above: bool = False) -> Any:
+    """A finite number (a whole one with ``integer``) at least ``minimum`` (above it, with
+    ``above``) and at most ``maximum``; else a :class:`ConfigError` naming the key."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"{source}: {key} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ConfigError(f"{source}: {key} must be a finite number, got {value!r}")
     if integer:
-        if float(value) != int(value):
+        if not isinstance(value, int) and float(value) != int(value):
             raise ConfigError(f"{source}: {key} must be a whole number, got {value!r}")
         value = int(value)
-    if value < minimum:
-        raise ConfigError(f"{source}: {key} must be >= {minimum}, got {value!r}")
+    if value < minimum or (above and value == minimum):
+        raise ConfigError(f"{source}: {key} must be {'>' if above else '>='} {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ConfigError(f"{source}: {key} must be <= {maximum}, got {value!r}")
     return value
+
+
+#: Ranges of the algorithms' numeric hyperparameters: (integer, minimum, strictly above it, maximum).
+HYPER_RANGES = {
+    "n_steps": (True, 1, False, None), "batch_size": (True, 2, False, None), "n_epochs": (True, 1, False, None),
+    "learning_rate": (False, 0, True, None), "gamma": (False, 0, True, 1), "gae_lambda": (False, 0, False, 1),
+    "clip_range": (False, 0, True, None), "ent_coef": (False, 0, False, None), "vf_coef": (False, 0, False, None),
+    "max_grad_norm": (False, 0, True, None), "target_kl": (False, 0, True, None),
+}
 
 
 def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
@@ -164,6 +200,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     cfg.setdefault("env_kwargs", {})
     if not isinstance(cfg["env_kwargs"], dict):
         raise ConfigError(f"{source}: env_kwargs must be a mapping, got {cfg['env_kwargs']!r}")
+    check_environment(cfg["env_id"], cfg["env_kwargs"], what=f"{source}: env_id/env_kwargs", error=ConfigError)
 
     wrapper = cfg.setdefault("wrapper", {})
     if not isinstance(wrapper, dict):
@@ -181,7 +218,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         raise ConfigError(f"{source}: wrapper.flatten / wrapper.full_state need wrapper.belief: true")
 
     cfg["n_envs"] = _num(source, "n_envs", cfg.get("n_envs", 8), integer=True, minimum=1)
-    cfg["seed"] = _num(source, "seed", cfg.get("seed", 0), integer=True, minimum=0)
+    cfg["seed"] = _num(source, "seed", cfg.get("seed", 0), integer=True, minimum=0, maximum=2**32 - 1)
     if "total_timesteps" not in cfg:
         raise ConfigError(f"{source}: missing required key 'total_timesteps'")
     cfg["total_timesteps"] = _num(source, "total_timesteps", cfg["total_timesteps"], integer=True, minimum=1)
@@ -189,10 +226,15 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     cfg["eval_episodes"] = _num(source, "eval_episodes", cfg.get("eval_episodes", 200), integer=True, minimum=1)
     cfg["checkpoint_freq"] = _num(source, "checkpoint_freq", cfg.get("checkpoint_freq", 0), integer=True, minimum=0)
 
-    default_policy = POLICIES[algo][0] if wrapper["flatten"] or not wrapper["belief"] else POLICIES[algo][1]
-    cfg.setdefault("policy", default_policy)
+    dict_obs = wrapper["belief"] and not wrapper["flatten"]
+    cfg.setdefault("policy", POLICIES[algo][1] if dict_obs else POLICIES[algo][0])
     if cfg["policy"] not in POLICIES[algo]:
         raise ConfigError(f"{source}: policy for {algo} must be one of {', '.join(POLICIES[algo])}, got {cfg['policy']!r}")
+    if (cfg["policy"] == POLICIES[algo][1]) != dict_obs:
+        raise ConfigError(
+            f"{source}: policy {cfg['policy']} needs {'Dict' if cfg['policy'] == POLICIES[algo][1] else 'flat'} observations, "
+            f"but wrapper {wrapper} gives {'Dict' if dict_obs else 'flat'} ones; use policy {POLICIES[algo][1] if dict_obs else POLICIES[algo][0]}"
+        )
 
     pk = cfg.setdefault("policy_kwargs", {})
     if not isinstance(pk, dict):
@@ -222,6 +264,13 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     for k, v in hp.items():
         if isinstance(v, str):
             raise ConfigError(f"{source}: hyperparams.{k} must be a number or boolean (strings are not evaluated), got {v!r}")
+        if k in HYPER_RANGES and v is not None:
+            integer, lo, above, hi = HYPER_RANGES[k]
+            hp[k] = _num(source, f"hyperparams.{k}", v, integer=integer, minimum=lo, maximum=hi, above=above)
+        elif isinstance(v, float) and not math.isfinite(v):
+            raise ConfigError(f"{source}: hyperparams.{k} must be a finite number, got {v!r}")
+    if hp.get("n_steps", 2048) * cfg["n_envs"] < 2:
+        raise ConfigError(f"{source}: hyperparams.n_steps x n_envs must be at least 2, got {hp.get('n_steps')} x {cfg['n_envs']}")
 
     if "output" not in cfg:
         raise ConfigError(f"{source}: missing required key 'output' (the model file to write, .zip)")

@@ -1,9 +1,16 @@
-"""Training from a validated config (see :mod:`agents.config`), and safe model loading.
+"""Training from a validated config (see :mod:`gym_gridloc_agents.config`).
 
-Training never loses work: a checkpoint every ``checkpoint_freq`` steps and one on Ctrl-C (both in
-``checkpoint_dir``), ``resume=`` continues from a checkpoint to ``total_timesteps``; an existing
-model file is not overwritten unless ``force=True``; the model and its metadata JSON are written to
-a temporary file and renamed into place, so a crash never leaves half a file.
+Training never loses work:
+
+* every output (model, metadata JSON, checkpoint directory, TensorBoard directory) is checked
+  before the first step, and an existing model or metadata file is kept unless ``force=True``;
+* a checkpoint every ``checkpoint_freq`` steps and one on Ctrl-C, also during the warm start (its
+  expert episodes are cached), in a checkpoint directory of this output's own;
+* ``resume=`` continues from a checkpoint to ``total_timesteps``, with the evaluations made
+  before the interruption and the best model so far;
+* files are written to a temporary file and renamed into place; if the final write still fails,
+  the model is saved in the checkpoint directory (or the system's temporary directory) and the
+  error says where.
 
 Model zip files are pickles: load only files from a trusted source.
 """
@@ -11,25 +18,39 @@ Model zip files are pickles: load only files from a trusted source.
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import os
 import platform
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable
 
 from gym_gridloc_agents.config import ConfigError, activation, algo_class, validate_config
 from gym_gridloc_agents.envs import make_env, make_training_env
-from gym_gridloc_agents.files import atomic_save_model, atomic_write_json, load_model, metadata_path, read_metadata
+from gym_gridloc_agents.files import (
+    TMP_MARK,
+    atomic_save_model,
+    atomic_write_json,
+    load_model,
+    metadata_path,
+    read_metadata,
+)
 
 
 class TrainingInterrupted(Exception):
     """Raised by :func:`train` after Ctrl-C, once the checkpoint has been written."""
 
-    def __init__(self, checkpoint: Path, num_timesteps: int) -> None:
-        super().__init__(f"training interrupted at {num_timesteps} steps; checkpoint saved to {checkpoint}")
+    def __init__(self, checkpoint: Path, num_timesteps: int, during: str = "training") -> None:
+        super().__init__(f"{during} interrupted at {num_timesteps} steps; checkpoint saved to {checkpoint}")
         self.checkpoint = checkpoint
         self.num_timesteps = num_timesteps
+
+
+class OutputError(OSError):
+    """An output of the training cannot be written (checked before the first step), or the final
+    write failed (the message says where the model was saved instead)."""
 
 
 def versions() -> dict[str, str]:
@@ -53,9 +74,45 @@ def _policy_kwargs(cfg: dict[str, Any]) -> dict[str, Any]:
 
 
 def default_checkpoint_dir(cfg: dict[str, Any]) -> Path:
+    """``checkpoint_dir``, or ``runs/checkpoints/<stem>-<hash of the output's full path>``: two
+    outputs of the same name in different directories never share checkpoints."""
     if cfg.get("checkpoint_dir"):
         return Path(cfg["checkpoint_dir"])
-    return Path("runs") / "checkpoints" / Path(cfg["output"]).stem
+    out = Path(cfg["output"]).expanduser().resolve()
+    return Path("runs") / "checkpoints" / f"{out.stem}-{hashlib.sha1(str(out).encode()).hexdigest()[:8]}"
+
+
+def check_outputs(cfg: dict[str, Any], ckpt_dir: Path, *, force: bool) -> None:
+    """Everything training will write, checked before the first step: the model and its
+    metadata (kept unless ``force``), and writable directories for them, the checkpoints and the
+    TensorBoard log.  Raises :class:`FileExistsError` or :class:`OutputError` naming the path."""
+    out = Path(cfg["output"])
+    for path in (out, metadata_path(out)):
+        if path.is_dir():
+            raise OutputError(f"output {path} is a directory; give a file name ending in .zip")
+        if path.exists() and not force:
+            what = "model" if path == out else "file (it would be replaced by the model's metadata)"
+            raise FileExistsError(f"{path} exists: a {what}; pass --force (force=True) to overwrite it, or choose another --output")
+    dirs = [("output directory", out.parent), ("checkpoint directory", ckpt_dir)]
+    if cfg.get("tensorboard_log"):
+        dirs.append(("TensorBoard directory", Path(cfg["tensorboard_log"])))
+    for what, d in dirs:
+        writable_directory(d, what)
+
+
+def writable_directory(directory: Path, what: str) -> None:
+    """Create ``directory`` if needed and prove a file can be written there, or raise
+    :class:`OutputError` naming it and why."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        probe = tempfile.NamedTemporaryFile(dir=directory, prefix=f".gridloc-probe{TMP_MARK}", delete=True)
+        probe.close()
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        blocker = next((p for p in [directory, *directory.parents] if p.exists() and not p.is_dir()), None)
+        if blocker is not None:
+            reason = f"{blocker} is a file, not a directory"
+        raise OutputError(f"cannot write to the {what} {directory}: {reason}") from None
 
 
 # -- evaluation on held-out seeds -------------------------------------------------------------------
@@ -76,7 +133,7 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> float:
     return total / episodes
 
 
-def _eval_callback(cfg: dict[str, Any], directory: Path, history: list):
+def _eval_callback(cfg: dict[str, Any], directory: Path, history: list, on_evaluation=None):
     from stable_baselines3.common.callbacks import BaseCallback
 
     freq, episodes = cfg["eval_freq"], cfg["eval_episodes"]
@@ -88,19 +145,24 @@ def _eval_callback(cfg: dict[str, Any], directory: Path, history: list):
             if self.next_at is None:
                 self.next_at = (self.num_timesteps // freq + 1) * freq
             if self.num_timesteps >= self.next_at:
-                record_evaluation(self.model, cfg, episodes, directory, history)
+                record_evaluation(self.model, cfg, episodes, directory, history, on_evaluation)
                 self.next_at = (self.num_timesteps // freq + 1) * freq
             return True
 
     return Eval()
 
 
-def record_evaluation(model, cfg, episodes, directory: Path, history: list) -> None:
+def record_evaluation(model, cfg, episodes, directory: Path, history: list, on_evaluation=None) -> None:
+    """Evaluate, append to ``history`` (which may hold the evaluations of an interrupted run) and
+    keep the best model so far as ``best.zip``."""
     mean = evaluate(model, cfg, episodes)
     best = min((h["mean_steps"] for h in history), default=float("inf"))
-    history.append({"num_timesteps": int(model.num_timesteps), "mean_steps": round(mean, 4)})
-    if mean < best:
+    entry = {"num_timesteps": int(model.num_timesteps), "mean_steps": round(mean, 4)}
+    history.append(entry)
+    if mean < best or not (directory / "best.zip").is_file():
         atomic_save_model(model, directory / "best.zip")
+    if on_evaluation is not None:
+        on_evaluation(dict(entry))
 
 
 # -- training -------------------------------------------------------------------------------------
@@ -139,14 +201,17 @@ def train(
     torch_threads: int | None = 1,
     callbacks: list | None = None,
     command: str | None = None,
+    on_evaluation: Callable[[dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """Train the model a config describes; returns the metadata written beside it.
 
     ``output``, ``total_timesteps`` and ``tensorboard_log`` override the config.  Raises
-    :class:`FileExistsError` if the output exists and ``force`` is false (before any training),
-    :class:`TrainingInterrupted` after Ctrl-C (the checkpoint is saved first).
+    :class:`FileExistsError` / :class:`OutputError` before any training when an output cannot be
+    written, :class:`TrainingInterrupted` after Ctrl-C (the checkpoint is saved first).
+    ``on_evaluation`` is called with each held-out evaluation (e.g. to report it to a tuner).
     """
     from gym_gridloc_agents.config import load_config
+    from gym_gridloc_agents.pretrain import WarmStartInterrupted, behaviour_cloning
 
     cfg = load_config(config) if isinstance(config, (str, Path)) else validate_config(config)
     if output is not None:
@@ -154,14 +219,25 @@ def train(
         if not cfg["output"].endswith(".zip"):
             raise ConfigError(f"--output must end in .zip, got {cfg['output']!r}")
     if total_timesteps is not None:
-        if int(total_timesteps) < 1:
-            raise ConfigError(f"total_timesteps must be >= 1, got {total_timesteps!r}")
+        if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, int) or total_timesteps < 1:
+            raise ConfigError(f"total_timesteps must be a whole number >= 1, got {total_timesteps!r}")
         cfg["total_timesteps"] = int(total_timesteps)
     if tensorboard_log is not None:
         cfg["tensorboard_log"] = str(tensorboard_log)
     out = Path(cfg["output"])
-    if out.exists() and not force:
-        raise FileExistsError(f"{out} exists; pass --force (force=True) to overwrite it")
+    ckpt_dir = default_checkpoint_dir(cfg)
+    prev: dict[str, Any] = {}
+    if resume is not None:
+        resume = Path(resume)
+        if not resume.is_file():
+            raise FileNotFoundError(f"checkpoint {str(resume)!r} does not exist")
+        prev = read_metadata(resume)
+        if prev.get("env_id") not in (None, cfg["env_id"]) or prev.get("algo") not in (None, cfg["algo"]):
+            raise ValueError(
+                f"checkpoint {resume} was trained with {prev.get('algo')} on {prev.get('env_id')}, "
+                f"but the config asks for {cfg['algo']} on {cfg['env_id']}"
+            )
+    check_outputs(cfg, ckpt_dir, force=force)
 
     import torch
 
@@ -169,113 +245,112 @@ def train(
         torch.set_num_threads(int(torch_threads))
     Algo = algo_class(cfg["algo"])
     venv = make_training_env(cfg)
-    ckpt_dir = default_checkpoint_dir(cfg)
-    previous_wall = previous_cpu = 0.0
-    prev_pretrain = None
-    resumed_from = None
     if resume is not None:
-        resume = Path(resume)
-        if not resume.is_file():
-            raise FileNotFoundError(f"checkpoint {str(resume)!r} does not exist")
-        prev = read_metadata(resume)
-        if prev:
-            if prev.get("env_id") not in (None, cfg["env_id"]) or prev.get("algo") not in (None, cfg["algo"]):
-                raise ValueError(
-                    f"checkpoint {resume} was trained with {prev.get('algo')} on {prev.get('env_id')}, "
-                    f"but the config asks for {cfg['algo']} on {cfg['env_id']}"
-                )
         model = load_model(resume, algo=cfg["algo"], env=venv)[0]
-        previous_wall = float(prev.get("wall_time_seconds", 0.0))
-        previous_cpu = float(prev.get("cpu_seconds", 0.0))
-        prev_pretrain = prev.get("pretrain")
-        resumed_from = str(resume)
         if cfg["tensorboard_log"]:
             model.tensorboard_log = cfg["tensorboard_log"]
     else:
-        model = Algo(
-            cfg["policy"],
-            venv,
-            seed=cfg["seed"],
-            policy_kwargs=_policy_kwargs(cfg),
-            tensorboard_log=cfg["tensorboard_log"],
-            device="cpu",
-            verbose=0,
-            **cfg["hyperparams"],
-        )
+        model = Algo(cfg["policy"], venv, seed=cfg["seed"], policy_kwargs=_policy_kwargs(cfg),
+                     tensorboard_log=cfg["tensorboard_log"], device="cpu", verbose=0, **cfg["hyperparams"])
 
-    start = time.perf_counter()
-    cpu_start = time.process_time()
-    pretrain_info = None
-    if cfg.get("pretrain") and resume is None:
-        from gym_gridloc_agents.pretrain import behaviour_cloning
-
-        pretrain_info = behaviour_cloning(model, cfg, progress=progress_bar)
+    start, cpu_start = time.perf_counter(), time.process_time()
+    evaluations: list[dict[str, Any]] = list(prev.get("evaluations") or [])
+    state: dict[str, Any] = {"pretrain": prev.get("pretrain"), "warm_start": prev.get("warm_start")}
 
     def meta() -> dict[str, Any]:
         return {
-            "algo": cfg["algo"],
-            "env_id": cfg["env_id"],
-            "env_kwargs": cfg["env_kwargs"],
-            "wrapper": cfg["wrapper"],
-            "observation_space": repr(venv.observation_space),
-            "action_space": repr(venv.action_space),
-            "seed": cfg["seed"],
-            "total_timesteps": cfg["total_timesteps"],
-            "num_timesteps": int(model.num_timesteps),
-            "wall_time_seconds": round(previous_wall + time.perf_counter() - start, 2),
-            "cpu_seconds": round(previous_cpu + time.process_time() - cpu_start, 2),
-            "pretrain": pretrain_info if resume is None else prev_pretrain,
-            "torch_threads": torch.get_num_threads(),
-            "cpu_count": os.cpu_count(),
-            "versions": versions(),
-            "config": cfg,
-            "resumed_from": resumed_from,
+            "algo": cfg["algo"], "env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"], "wrapper": cfg["wrapper"],
+            "observation_space": repr(venv.observation_space), "action_space": repr(venv.action_space),
+            "seed": cfg["seed"], "total_timesteps": cfg["total_timesteps"], "num_timesteps": int(model.num_timesteps),
+            "wall_time_seconds": round(float(prev.get("wall_time_seconds", 0.0)) + time.perf_counter() - start, 2),
+            "cpu_seconds": round(float(prev.get("cpu_seconds", 0.0)) + time.process_time() - cpu_start, 2),
+            "pretrain": state["pretrain"], "warm_start": state["warm_start"], "evaluations": list(evaluations),
+            "torch_threads": torch.get_num_threads(), "cpu_count": os.cpu_count(), "versions": versions(),
+            "config": cfg, "resumed_from": None if resume is None else str(resume),
             "command": command or " ".join(sys.argv),
             "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "package_version": _package_version(),
         }
+
+    def interrupted(during: str, extra: dict[str, Any]) -> TrainingInterrupted:
+        path = ckpt_dir / f"interrupted_step_{int(model.num_timesteps)}.zip"
+        atomic_save_model(model, path)
+        atomic_write_json(metadata_path(path), {**meta(), "interrupted": True, **extra})
+        venv.close()
+        return TrainingInterrupted(path, int(model.num_timesteps), during)
+
+    # The warm start: from scratch, or continued where an interrupted one stopped.
+    warm = state["warm_start"] or {}
+    if cfg.get("pretrain") and (resume is None or not warm.get("done", True)):
+        try:
+            state["pretrain"] = behaviour_cloning(model, cfg, progress=progress_bar, cache=ckpt_dir / "expert.npz",
+                                                  start_epoch=int(warm.get("epochs", 0)))
+            state["warm_start"] = {"done": True}
+        except WarmStartInterrupted as exc:
+            state["warm_start"] = {"done": False, "episodes": exc.episodes, "epochs": exc.epochs}
+            raise interrupted("warm start", {}) from None
 
     cbs = list(callbacks or [])
     if cfg["checkpoint_freq"] > 0:
         cbs.append(_checkpoint_callback(cfg["checkpoint_freq"], ckpt_dir, meta))
-    evaluations: list[dict[str, Any]] = []
     if cfg["eval_freq"] > 0:
-        cbs.append(_eval_callback(cfg, ckpt_dir, evaluations))
+        cbs.append(_eval_callback(cfg, ckpt_dir, evaluations, on_evaluation))
     remaining = cfg["total_timesteps"] - int(model.num_timesteps)
     try:
         if remaining > 0:
-            model.learn(
-                remaining,
-                callback=cbs or None,
-                progress_bar=progress_bar,
-                reset_num_timesteps=resume is None,
-                tb_log_name=f"{cfg['algo']}_{cfg['env_id']}_seed{cfg['seed']}",
-            )
+            model.learn(remaining, callback=cbs or None, progress_bar=progress_bar, reset_num_timesteps=resume is None,
+                        tb_log_name=f"{cfg['algo']}_{cfg['env_id']}_seed{cfg['seed']}")
     except KeyboardInterrupt:
-        path = ckpt_dir / f"interrupted_step_{int(model.num_timesteps)}.zip"
-        atomic_save_model(model, path)
-        atomic_write_json(metadata_path(path), {**meta(), "interrupted": True})
-        venv.close()
-        raise TrainingInterrupted(path, int(model.num_timesteps)) from None
+        raise interrupted("training", {}) from None
     selected = None
     if cfg["eval_freq"] > 0:
         # Keep the best of the held-out evaluations (the final model included), as rl-zoo's
         # best_model: PPO's evaluation curve is noisy from one update to the next.
         if not evaluations or evaluations[-1]["num_timesteps"] != int(model.num_timesteps):
-            record_evaluation(model, cfg, cfg["eval_episodes"], ckpt_dir, evaluations)
+            record_evaluation(model, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
         best = min(evaluations, key=lambda h: h["mean_steps"])
         selected = best["num_timesteps"]
         final_timesteps = int(model.num_timesteps)
         model = Algo.load(ckpt_dir / "best.zip", device="cpu")
         model.num_timesteps = final_timesteps
-    info = {**meta(), "interrupted": False, "evaluations": evaluations, "selected_timesteps": selected,
+    info = {**meta(), "interrupted": False, "selected_timesteps": selected,
             "eval_seeds": f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + cfg['eval_episodes'] - 1}" if evaluations else None}
-    if out.exists() and not force:  # appeared while training
-        raise FileExistsError(f"{out} appeared during training; pass --force to overwrite it")
     # The final model is for acting: drop Adam's moment estimates (two thirds of the file); the
     # checkpoints keep them for resuming.
     model.policy.optimizer.state.clear()
     info["optimizer_state"] = "dropped (checkpoints keep it)"
-    atomic_save_model(model, out)
-    atomic_write_json(metadata_path(out), info)
+    save_final(model, info, out, ckpt_dir, force=force)
     venv.close()
     return info
+
+
+def save_final(model, info: dict[str, Any], out: Path, ckpt_dir: Path, *, force: bool) -> None:
+    """Write the trained model and its metadata to ``out``; if that fails (or the file appeared
+    meanwhile, without ``force``), save them in the checkpoint directory or the system's
+    temporary directory and raise :class:`OutputError` saying where."""
+    problem = None
+    if not force and (out.exists() or metadata_path(out).exists()):
+        problem = f"{out} (or its .json) appeared during training"
+    else:
+        try:
+            atomic_save_model(model, out)
+            atomic_write_json(metadata_path(out), info)
+            return
+        except OSError as exc:
+            problem = f"cannot write {out}: {exc.strerror or exc}"
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    for directory in (ckpt_dir, Path(tempfile.gettempdir())):
+        rescue = directory / f"{out.stem}-rescued-{stamp}.zip"
+        try:
+            atomic_save_model(model, rescue)
+            atomic_write_json(metadata_path(rescue), {**info, "rescued_from": str(out)})
+        except OSError:
+            continue
+        raise OutputError(f"{problem}; the trained model is saved at {rescue} (with {metadata_path(rescue).name})")
+    raise OutputError(f"{problem}; saving the model elsewhere failed too (checkpoints in {ckpt_dir})")
+
+
+def _package_version() -> str:
+    import gym_gridloc
+
+    return gym_gridloc.__version__

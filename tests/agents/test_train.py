@@ -217,3 +217,182 @@ def test_held_out_evaluation_keeps_the_best_model(tmp_path):
 def test_tensorboard_logging(tmp_path):
     train(tiny(tmp_path), progress_bar=False, tensorboard_log=tmp_path / "tb")
     assert list((tmp_path / "tb").rglob("events.out.tfevents.*"))
+
+
+# -- nothing lost (issue: finished work survives every failure) ---------------------------------------
+def test_an_output_that_cannot_be_written_fails_before_any_training(tmp_path, capsys):
+    blocker = tmp_path / "plain-file"
+    blocker.write_text("I am a file")
+    cfg = tiny(tmp_path, output=str(blocker / "sub" / "model.zip"))
+    from gym_gridloc_agents.train import OutputError
+
+    with pytest.raises(OutputError, match=r"plain-file is a file, not a directory"):
+        train(cfg, progress_bar=False)
+    assert not (tmp_path / "ckpt").exists(), "nothing may start before the outputs are checked"
+    assert main(["train", str(_write_yaml(tmp_path, cfg)), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("gridloc train: error: cannot write") and "Traceback" not in err
+    # The checkpoint and TensorBoard directories are checked too.
+    for key in ("checkpoint_dir", "tensorboard_log"):
+        with pytest.raises(OutputError, match="plain-file is a file"):
+            train(tiny(tmp_path, **{key: str(blocker / "x")}), progress_bar=False)
+
+
+def test_a_metadata_file_in_the_way_is_kept_without_force(tmp_path):
+    js = tmp_path / "model.json"
+    js.write_text('{"mine": true}')
+    with pytest.raises(FileExistsError, match="model.json exists: a file \\(it would be replaced by the model's metadata\\)"):
+        train(tiny(tmp_path), progress_bar=False)
+    assert js.read_text() == '{"mine": true}'
+
+
+def test_outputs_of_the_same_name_in_different_directories_never_share_checkpoints(tmp_path):
+    from gym_gridloc_agents.train import default_checkpoint_dir
+
+    a = default_checkpoint_dir({"output": str(tmp_path / "a" / "bench.zip")})
+    b = default_checkpoint_dir({"output": str(tmp_path / "b" / "bench.zip")})
+    assert a != b and a.name.startswith("bench-") and b.name.startswith("bench-")
+    assert a == default_checkpoint_dir({"output": str(tmp_path / "a" / ".." / "a" / "bench.zip")})
+
+
+def test_a_failed_final_write_saves_the_model_elsewhere_and_says_where(tmp_path, monkeypatch):
+    import gym_gridloc_agents.train as t
+    from gym_gridloc_agents.train import OutputError
+
+    real = t.atomic_save_model
+    out = tmp_path / "model.zip"
+
+    def failing(model, path):
+        if Path(path) == out:
+            raise OSError(28, "No space left on device")
+        return real(model, path)
+
+    monkeypatch.setattr(t, "atomic_save_model", failing)
+    with pytest.raises(OutputError, match=r"cannot write .*model.zip: No space left on device; the trained model is saved at (\S+) ") as exc:
+        train(tiny(tmp_path), progress_bar=False)
+    rescued = Path(str(exc.value).split("saved at ")[1].split(" ")[0])
+    assert rescued.is_file() and rescued.parent == tmp_path / "ckpt"
+    meta = json.loads(rescued.with_suffix(".json").read_text())
+    assert meta["rescued_from"] == str(out) and meta["num_timesteps"] >= 256
+    assert not out.exists()
+
+
+def _pretrain_cfg(tmp_path, **over):
+    return tiny(tmp_path, pretrain={"expert": "greedy", "episodes": 6, "epochs": 3, "batch_size": 32}, **over)
+
+
+def test_ctrl_c_while_the_expert_plays_keeps_its_episodes_and_resume_goes_on(tmp_path, monkeypatch):
+    import gym_gridloc_agents.rollout as r
+
+    real, calls = r.rollout, []
+
+    def interrupt_on_the_fourth(*a, **k):
+        calls.append(1)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(r, "rollout", interrupt_on_the_fourth)
+    cfg = _pretrain_cfg(tmp_path)
+    with pytest.raises(TrainingInterrupted, match="warm start interrupted") as exc:
+        train(cfg, progress_bar=False)
+    meta = json.loads(exc.value.checkpoint.with_suffix(".json").read_text())
+    assert meta["warm_start"] == {"done": False, "episodes": 3, "epochs": 0}
+    with np.load(tmp_path / "ckpt" / "expert.npz") as data:
+        assert len(data["lengths"]) == 3
+    calls.clear()
+    info = train(cfg, progress_bar=False, resume=exc.value.checkpoint)
+    assert len(calls) == 3, "only the episodes not yet played are played again"
+    assert info["warm_start"] == {"done": True} and info["pretrain"]["episodes"] == 6
+    assert (tmp_path / "model.zip").is_file()
+
+
+def test_ctrl_c_during_cloning_epochs_resumes_at_the_next_epoch(tmp_path, monkeypatch):
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    real, calls = ActorCriticPolicy.evaluate_actions, []
+
+    def interrupt_in_the_second_epoch(self, *a, **k):
+        calls.append(1)
+        if len(calls) == 3:  # 6 greedy episodes are under 32 samples: one batch per epoch
+            raise KeyboardInterrupt
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(ActorCriticPolicy, "evaluate_actions", interrupt_in_the_second_epoch)
+    cfg = _pretrain_cfg(tmp_path)
+    with pytest.raises(TrainingInterrupted) as exc:
+        train(cfg, progress_bar=False)
+    meta = json.loads(exc.value.checkpoint.with_suffix(".json").read_text())
+    assert meta["warm_start"]["epochs"] == 2 and meta["warm_start"]["done"] is False
+    monkeypatch.setattr(ActorCriticPolicy, "evaluate_actions", real)
+    info = train(cfg, progress_bar=False, resume=exc.value.checkpoint)
+    assert info["pretrain"]["resumed_at_epoch"] == 2 and info["warm_start"]["done"] is True
+
+
+def test_resume_keeps_the_evaluations_and_the_best_model_of_the_interrupted_run(tmp_path, monkeypatch):
+    import gym_gridloc_agents.train as t
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    scores = iter([3.0, 9.0, 9.0, 9.0, 9.0, 9.0])
+    monkeypatch.setattr(t, "evaluate", lambda model, cfg, episodes: next(scores))
+
+    class CtrlC(BaseCallback):
+        def _on_step(self):
+            if self.num_timesteps >= 300:
+                raise KeyboardInterrupt
+            return True
+
+    cfg = tiny(tmp_path, total_timesteps=640, eval_freq=128, eval_episodes=2)
+    with pytest.raises(TrainingInterrupted) as exc:
+        train(cfg, progress_bar=False, callbacks=[CtrlC()])
+    first = json.loads(exc.value.checkpoint.with_suffix(".json").read_text())["evaluations"]
+    assert [e["mean_steps"] for e in first] == [3.0, 9.0]
+    best_before = (tmp_path / "ckpt" / "best.zip").read_bytes()
+    info = train(cfg, progress_bar=False, resume=exc.value.checkpoint)
+    assert [e["mean_steps"] for e in info["evaluations"]][:2] == [3.0, 9.0]
+    assert info["selected_timesteps"] == first[0]["num_timesteps"]
+    assert (tmp_path / "ckpt" / "best.zip").read_bytes() == best_before
+
+
+def test_temporaries_of_a_killed_write_are_recognisable_and_cleaned(tmp_path):
+    from gym_gridloc_agents.files import TMP_MARK, atomic_write_json
+
+    stale = tmp_path / f".model.json{TMP_MARK}abc123.json"
+    stale.write_text("half")
+    atomic_write_json(tmp_path / "model.json", {"a": 1})
+    assert not stale.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json"]
+
+
+def test_a_metadata_file_that_is_not_a_json_object_is_named(tmp_path):
+    from gym_gridloc_agents.files import read_metadata
+
+    (tmp_path / "m.json").write_text("{not json")
+    with pytest.raises(ValueError, match=r"m.json: the model's metadata is not readable JSON"):
+        read_metadata(tmp_path / "m.zip")
+    (tmp_path / "m.json").write_text("[1, 2]")
+    with pytest.raises(ValueError, match=r"m.json: the model's metadata must be a JSON object, got list"):
+        read_metadata(tmp_path / "m.zip")
+
+
+@pytest.mark.parametrize("line, message", [
+    ("total_timesteps: .inf", "total_timesteps must be a finite number"),
+    ("total_timesteps: .nan", "total_timesteps must be a finite number"),
+    ("env_kwargs: {foo: 1}", "ColourGrid-v0 does not build with {'foo': 1}"),
+    ("env_id: CartPole-v1", "CartPole-v1 is not a gym_gridloc environment"),
+    ("hyperparams: {n_steps: -5}", "hyperparams.n_steps must be >= 1, got -5"),
+    ("hyperparams: {batch_size: 0}", "hyperparams.batch_size must be >= 2, got 0"),
+    ("hyperparams: {gamma: 1.5}", "hyperparams.gamma must be <= 1"),
+    ("policy_kwargs: {net_arch: [64, -1]}", "net_arch must be a list of positive integers"),
+    ("policy: MultiInputPolicy", "policy MultiInputPolicy needs Dict observations"),
+    ("seed: 99999999999999999999999", "seed must be <= 4294967295"),
+])
+def test_bad_config_values_get_one_line_and_exit_status_2(tmp_path, capsys, line, message):
+    import yaml
+
+    cfg = tiny(tmp_path)
+    cfg.update(yaml.safe_load(line))
+    path = _write_yaml(tmp_path, cfg)
+    assert main(["train", str(path), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
