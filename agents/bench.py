@@ -215,6 +215,23 @@ def run_benchmark(
     return rows
 
 
+#: Keys every benchmark row has (what ``--update`` checks an existing file for).
+ROW_KEYS = ("env", "policy", "episodes", "mean_steps", "success_rate")
+
+
+def read_rows(path: str | Path) -> list[dict[str, Any]]:
+    """The rows of a bench JSON, or ``ValueError`` naming the file and what is wrong with it."""
+    import json
+
+    try:
+        rows = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path} is not a readable bench JSON ({exc}); --update merges into a file gridloc bench wrote") from None
+    if not isinstance(rows, list) or not all(isinstance(r, dict) and all(k in r for k in ROW_KEYS) for r in rows):
+        raise ValueError(f"{path} is not a bench JSON (a list of rows with {', '.join(ROW_KEYS)}); --update merges into a file gridloc bench wrote")
+    return rows
+
+
 def public_row(row: dict[str, Any]) -> dict[str, Any]:
     """A row without its curves (for tables)."""
     return {k: v for k, v in row.items() if not k.endswith("_curve")}

@@ -83,15 +83,15 @@ def _render(args) -> int:
 
 
 def _plot(args) -> int:
-    import json
-
-    from gym_gridloc_agents.bench import plot
+    from gym_gridloc_agents.bench import plot, read_rows
 
     src = Path(args.json)
     if not src.is_file():
-        print(f"gridloc plot: error: {src} does not exist; run `gridloc bench --all` first", file=sys.stderr)
-        return 2
-    rows = json.loads(src.read_text(encoding="utf-8"))
+        return _fail("plot", f"{src} does not exist; run `gridloc bench --all` first")
+    try:
+        rows = read_rows(src)
+    except ValueError as exc:
+        return _fail("plot", str(exc))
     for env in sorted({r["env"] for r in rows}):
         out = src.parent / f"bench_{env}.png"
         plot([r for r in rows if r["env"] == env], out)
@@ -132,71 +132,82 @@ def _train(args) -> int:
     return 0
 
 
+def _fail(command: str, message: str) -> int:
+    print(f"gridloc {command}: error: {message}", file=sys.stderr)
+    return 2
+
+
 def _bench(args) -> int:
     import gym_gridloc
-    from gym_gridloc_agents.bench import markdown_table, plot, public_row, run_benchmark
+    from gym_gridloc_agents.bench import markdown_table, plot, public_row, read_rows, run_benchmark
+    from gym_gridloc_agents.envs import check_environment
+    from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write, writable_file
     from gym_gridloc_agents.policies import POLICY_NAMES
-    from gym_gridloc_agents.files import atomic_write_json
 
     if args.all == bool(args.env):
-        print("gridloc bench: error: give exactly one of --env ENV_ID or --all", file=sys.stderr)
-        return 2
+        return _fail("bench", "give exactly one of --env ENV_ID or --all")
     envs = list(gym_gridloc.ENV_IDS) if args.all else [args.env]
-    import gymnasium as gym
-
-    for e in envs:
-        if e not in gym.registry:
-            print(f"gridloc bench: error: --env {e!r} is not a registered environment; allowed: {', '.join(gym_gridloc.ENV_IDS)}", file=sys.stderr)
-            return 2
     policies = [p.strip() for p in (args.policies or ",".join(POLICY_NAMES)).split(",") if p.strip()]
     episodes = args.episodes if args.episodes is not None else (1000 if args.all else 200)
-    if episodes < 1:
-        print(f"gridloc bench: error: --episodes must be >= 1, got {episodes}", file=sys.stderr)
-        return 2
-    if args.plot and len(envs) > 1:
-        print("gridloc bench: error: --plot takes one environment; --all writes results/bench_<env>.png", file=sys.stderr)
-        return 2
+    json_path = args.json or (str(RESULTS / "bench.json") if args.all else None)
+    # Everything is checked before the first episode: a long run never ends in a traceback.
+    try:
+        for e in envs:
+            check_environment(e, {}, what=f"--env {e}", error=ValueError)
+        if not policies:
+            raise ValueError(f"--policies names no policy (got {args.policies!r}); allowed: {', '.join(POLICY_NAMES)}")
+        if episodes < 1:
+            raise ValueError(f"--episodes must be >= 1, got {episodes}")
+        if args.seed < 0 or args.seed + episodes > 2**32:
+            raise ValueError(f"--seed must be in 0..{2**32 - episodes} (episode i uses seed+i), got {args.seed}")
+        if args.jobs < 1:
+            raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+        if args.plot and len(envs) > 1:
+            raise ValueError("--plot takes one environment; --all writes results/bench_<env>.png")
+        if args.update and not json_path:
+            raise ValueError("--update needs --json PATH (or --all)")
+        outputs = [(json_path, "results JSON")] if json_path else []
+        outputs += [(args.plot, "plot")] if args.plot else []
+        outputs += [(RESULTS / f"bench_{e}.png", "plot") for e in envs] if args.all else []
+        for path, what in outputs:
+            writable_file(path, what)
+        old_rows = read_rows(json_path) if args.update and Path(json_path).exists() else []
+    except (ValueError, OutputError) as exc:
+        return _fail("bench", str(exc))
     try:
         rows = run_benchmark(
             envs, policies, episodes, seed_start=args.seed, ppo_model=args.ppo_model,
             recurrent_model=args.recurrent_model, progress=not args.no_progress, jobs=args.jobs,
         )
     except (ValueError, FileNotFoundError) as exc:
-        print(f"gridloc bench: error: {exc}", file=sys.stderr)
-        return 2
-    json_path = args.json or (str(RESULTS / "bench.json") if args.all else None)
+        return _fail("bench", str(exc))
     if args.update:
-        if not json_path:
-            print("gridloc bench: error: --update needs --json PATH (or --all)", file=sys.stderr)
-            return 2
-        rows = merge_rows(json_path, rows)
+        rows = merge_rows(old_rows, rows)
     print(markdown_table(rows))
-    if json_path:
-        atomic_write_json(json_path, rows)
-        print(f"\nwrote {json_path}", file=sys.stderr)
-    if args.plot:
-        plot([r for r in rows if r["env"] == envs[0]], args.plot)
-        print(f"wrote {args.plot}", file=sys.stderr)
-    if args.all:
-        for e in sorted({r["env"] for r in rows}):
-            path = RESULTS / f"bench_{e}.png"
-            plot([r for r in rows if r["env"] == e], path)
-            print(f"wrote {path}", file=sys.stderr)
-        atomic_write_json(RESULTS / "bench_table.json", [public_row(r) for r in rows])
+    try:  # the rows are computed: a failing write puts them elsewhere and says where
+        if json_path:
+            rescue_write(lambda p: atomic_write_json(p, rows), Path(json_path), "results JSON")
+            print(f"\nwrote {json_path}", file=sys.stderr)
+        if args.plot:
+            rescue_write(lambda p: plot([r for r in rows if r["env"] == envs[0]], p), Path(args.plot), "plot")
+            print(f"wrote {args.plot}", file=sys.stderr)
+        if args.all:
+            for e in sorted({r["env"] for r in rows}):
+                path = RESULTS / f"bench_{e}.png"
+                rescue_write(lambda p, e=e: plot([r for r in rows if r["env"] == e], p), path, "plot")
+                print(f"wrote {path}", file=sys.stderr)
+            rescue_write(lambda p: atomic_write_json(p, [public_row(r) for r in rows]), RESULTS / "bench_table.json", "table JSON")
+    except OutputError as exc:
+        return _fail("bench", str(exc))
     return 0
 
 
-def merge_rows(path: str, new: list[dict]) -> list[dict]:
-    """Rows of the JSON at ``path`` with ``new`` merged in (same env and policy: replaced), in
-    the order environment, then policy as in POLICY_NAMES."""
-    import json
-
+def merge_rows(old: list[dict], new: list[dict]) -> list[dict]:
+    """``old`` rows with ``new`` merged in (same env and policy: replaced), in the order
+    environment, then policy as in POLICY_NAMES."""
     import gym_gridloc
     from gym_gridloc_agents.policies import POLICY_NAMES
 
-    old = []
-    if Path(path).exists():
-        old = json.loads(Path(path).read_text(encoding="utf-8"))
     keyed = {(r["env"], r["policy"]): r for r in old}
     keyed.update({(r["env"], r["policy"]): r for r in new})
     envs = list(gym_gridloc.ENV_IDS)

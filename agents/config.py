@@ -89,25 +89,6 @@ class ConfigError(ValueError):
     """A training config is malformed; the message names the file and the key."""
 
 
-def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, error: type[Exception]) -> None:
-    """Build ``gym.make(env_id, **env_kwargs)`` once: a gym_gridloc environment, or ``error``
-    naming ``what`` and the reason (an unknown keyword, a bad value, another package's env)."""
-    import gymnasium as gym
-
-    from gym_gridloc.envs.base import GridLocEnv
-
-    try:
-        env = gym.make(env_id, **env_kwargs)
-    except (TypeError, ValueError) as exc:
-        raise error(f"{what}: {env_id} does not build with {env_kwargs}: {exc}") from None
-    ok = isinstance(env.unwrapped, GridLocEnv)
-    env.close()
-    if not ok:
-        import gym_gridloc
-
-        raise error(f"{what}: {env_id} is not a gym_gridloc environment (allowed: {', '.join(gym_gridloc.ENV_IDS)})")
-
-
 def algo_class(algo: str):
     if algo == "ppo":
         from stable_baselines3 import PPO
@@ -200,6 +181,8 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     cfg.setdefault("env_kwargs", {})
     if not isinstance(cfg["env_kwargs"], dict):
         raise ConfigError(f"{source}: env_kwargs must be a mapping, got {cfg['env_kwargs']!r}")
+    from gym_gridloc_agents.envs import check_environment
+
     check_environment(cfg["env_id"], cfg["env_kwargs"], what=f"{source}: env_id/env_kwargs", error=ConfigError)
 
     wrapper = cfg.setdefault("wrapper", {})

@@ -8,6 +8,25 @@ from typing import Any, Callable
 import gymnasium as gym
 import numpy as np
 
+def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, error: type[Exception]) -> None:
+    """Build ``gym.make(env_id, **env_kwargs)`` once: a gym_gridloc environment, or ``error``
+    naming ``what`` and the reason (an unknown keyword, a bad value, another package's env)."""
+    from gym_gridloc.envs.base import GridLocEnv
+
+    import gym_gridloc
+
+    if not isinstance(env_id, str) or env_id not in gym.registry:
+        raise error(f"{what}: {env_id!r} is not a registered environment (gym_gridloc's: {', '.join(gym_gridloc.ENV_IDS)})")
+    try:
+        env = gym.make(env_id, **env_kwargs)
+    except (TypeError, ValueError, gym.error.Error) as exc:
+        raise error(f"{what}: {env_id} does not build with {env_kwargs}: {exc}") from None
+    ok = isinstance(env.unwrapped, GridLocEnv)
+    env.close()
+    if not ok:
+        raise error(f"{what}: {env_id} is not a gym_gridloc environment (allowed: {', '.join(gym_gridloc.ENV_IDS)})")
+
+
 def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, wrapper: dict[str, Any] | None = None) -> gym.Env:
     """``gym.make(env_id, **env_kwargs)``, behind ``HMMBeliefWrapper(**wrapper)`` unless
     ``wrapper["belief"]`` is false (raw readings).  ``wrapper=None``: the Dict belief observation

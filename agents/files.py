@@ -14,11 +14,64 @@ import contextlib
 import json
 import os
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
 #: Marks the temporary files of atomic writes (``.<name>.gridloc-tmp-<random>``).
 TMP_MARK = ".gridloc-tmp-"
+
+
+class OutputError(OSError):
+    """An output cannot be written (checked before a long run starts), or a final write failed
+    (the message says where the work was saved instead)."""
+
+
+def writable_directory(directory: Path, what: str) -> None:
+    """Create ``directory`` if needed and prove a file can be written there, or raise
+    :class:`OutputError` naming it and why."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        probe = tempfile.NamedTemporaryFile(dir=directory, prefix=f".gridloc-probe{TMP_MARK}", delete=True)
+        probe.close()
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        blocker = next((p for p in [directory, *directory.parents] if p.exists() and not p.is_dir()), None)
+        if blocker is not None:
+            reason = f"{blocker} is a file, not a directory"
+        raise OutputError(f"cannot write to the {what} {directory}: {reason}") from None
+
+
+def writable_file(path: str | Path, what: str) -> Path:
+    """``path`` can be written (its directory is created and probed; it is not a directory), or
+    :class:`OutputError` naming it."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"the {what} {path} is a directory; give a file name")
+    writable_directory(path.parent, f"directory of the {what}")
+    return path
+
+
+def rescue_write(write, path: Path, what: str, *, places: tuple[Path, ...] = (), problem: str | None = None) -> None:
+    """Call ``write(target)`` for ``path`` (unless ``problem`` already says why not); if that
+    fails, for ``<stem>-rescued-<time><suffix>`` in each of ``places``, then the working
+    directory, then the system's temporary directory, and raise :class:`OutputError` saying where
+    the work went (or that it could not be saved)."""
+    if problem is None:
+        try:
+            write(path)
+            return
+        except OSError as exc:
+            problem = f"cannot write the {what} {path}: {exc.strerror or exc}"
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    for directory in (*places, Path.cwd(), Path(tempfile.gettempdir())):
+        target = directory / f"{path.stem}-rescued-{stamp}{path.suffix}"
+        try:
+            write(target)
+        except OSError:
+            continue
+        raise OutputError(f"{problem}; written to {target} instead")
+    raise OutputError(f"{problem}; writing it elsewhere failed too")
 
 
 def _umask_mode() -> int:

@@ -30,12 +30,14 @@ from typing import Any, Callable
 from gym_gridloc_agents.config import ConfigError, activation, algo_class, validate_config
 from gym_gridloc_agents.envs import make_env, make_training_env
 from gym_gridloc_agents.files import (
-    TMP_MARK,
+    OutputError,
     atomic_save_model,
     atomic_write_json,
     load_model,
     metadata_path,
     read_metadata,
+    rescue_write,
+    writable_directory,
 )
 
 
@@ -46,11 +48,6 @@ class TrainingInterrupted(Exception):
         super().__init__(f"{during} interrupted at {num_timesteps} steps; checkpoint saved to {checkpoint}")
         self.checkpoint = checkpoint
         self.num_timesteps = num_timesteps
-
-
-class OutputError(OSError):
-    """An output of the training cannot be written (checked before the first step), or the final
-    write failed (the message says where the model was saved instead)."""
 
 
 def versions() -> dict[str, str]:
@@ -98,21 +95,6 @@ def check_outputs(cfg: dict[str, Any], ckpt_dir: Path, *, force: bool) -> None:
         dirs.append(("TensorBoard directory", Path(cfg["tensorboard_log"])))
     for what, d in dirs:
         writable_directory(d, what)
-
-
-def writable_directory(directory: Path, what: str) -> None:
-    """Create ``directory`` if needed and prove a file can be written there, or raise
-    :class:`OutputError` naming it and why."""
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        probe = tempfile.NamedTemporaryFile(dir=directory, prefix=f".gridloc-probe{TMP_MARK}", delete=True)
-        probe.close()
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-        blocker = next((p for p in [directory, *directory.parents] if p.exists() and not p.is_dir()), None)
-        if blocker is not None:
-            reason = f"{blocker} is a file, not a directory"
-        raise OutputError(f"cannot write to the {what} {directory}: {reason}") from None
 
 
 # -- evaluation on held-out seeds -------------------------------------------------------------------
@@ -326,28 +308,15 @@ def train(
 
 def save_final(model, info: dict[str, Any], out: Path, ckpt_dir: Path, *, force: bool) -> None:
     """Write the trained model and its metadata to ``out``; if that fails (or the file appeared
-    meanwhile, without ``force``), save them in the checkpoint directory or the system's
-    temporary directory and raise :class:`OutputError` saying where."""
-    problem = None
-    if not force and (out.exists() or metadata_path(out).exists()):
-        problem = f"{out} (or its .json) appeared during training"
-    else:
-        try:
-            atomic_save_model(model, out)
-            atomic_write_json(metadata_path(out), info)
-            return
-        except OSError as exc:
-            problem = f"cannot write {out}: {exc.strerror or exc}"
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    for directory in (ckpt_dir, Path(tempfile.gettempdir())):
-        rescue = directory / f"{out.stem}-rescued-{stamp}.zip"
-        try:
-            atomic_save_model(model, rescue)
-            atomic_write_json(metadata_path(rescue), {**info, "rescued_from": str(out)})
-        except OSError:
-            continue
-        raise OutputError(f"{problem}; the trained model is saved at {rescue} (with {metadata_path(rescue).name})")
-    raise OutputError(f"{problem}; saving the model elsewhere failed too (checkpoints in {ckpt_dir})")
+    meanwhile, without ``force``), save them in the checkpoint directory (or elsewhere) and raise
+    :class:`OutputError` saying where."""
+    def write(target: Path) -> None:
+        atomic_save_model(model, target)
+        atomic_write_json(metadata_path(target), info if target == out else {**info, "rescued_from": str(out)})
+
+    appeared = not force and (out.exists() or metadata_path(out).exists())
+    rescue_write(write, out, "model", places=(ckpt_dir,),
+                 problem=f"{out} (or its .json) appeared during training" if appeared else None)
 
 
 def _package_version() -> str:

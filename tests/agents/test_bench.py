@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -159,3 +160,57 @@ def test_cli_without_the_rl_extra_says_what_to_install(monkeypatch, capsys):
     assert cli.main(["bench", "--env", "WindyMaze-v0", "--policies", "random", "--episodes", "1"]) == 2
     err = capsys.readouterr().err
     assert "needs the 'rl' extra (missing: tqdm)" in err and "pip install torch==2.13.0" in err
+
+
+# -- nothing lost, nothing unexplained -----------------------------------------------------------------
+@pytest.mark.parametrize("argv, message", [
+    (["--env", "CartPole-v1"], "--env CartPole-v1: CartPole-v1 is not a gym_gridloc environment"),
+    (["--env", "Nope-v0"], "--env Nope-v0: 'Nope-v0' is not a registered environment"),
+    (["--env", "WindyMaze-v0", "--seed", "-1"], "--seed must be in 0.."),
+    (["--env", "WindyMaze-v0", "--policies", ","], "--policies names no policy"),
+    (["--env", "WindyMaze-v0", "--jobs", "0"], "--jobs must be >= 1, got 0"),
+    (["--env", "WindyMaze-v0", "--episodes", "0"], "--episodes must be >= 1, got 0"),
+    (["--env", "WindyMaze-v0", "--policies", "random,smart"], "unknown policy 'smart'"),
+])
+def test_bad_bench_arguments_get_one_line_and_exit_status_2(argv, message, capsys):
+    extra = [] if "--episodes" in argv else ["--episodes", "2"]
+    assert main(["bench", *argv, *extra, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_unwritable_outputs_are_refused_before_the_first_episode(tmp_path, capsys, monkeypatch):
+    import gym_gridloc_agents.bench as b
+
+    monkeypatch.setattr(b, "run_benchmark", lambda *a, **k: pytest.fail("ran although an output is unwritable"))
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    for flag in ("--json", "--plot"):
+        assert main(["bench", "--env", "WindyMaze-v0", "--policies", "random", flag, str(blocker / "out"), "--no-progress"]) == 2
+        assert "is a file, not a directory" in capsys.readouterr().err
+    other = tmp_path / "other.json"
+    other.write_text('{"not": "rows"}')
+    assert main(["bench", "--env", "WindyMaze-v0", "--policies", "random", "--json", str(other), "--update", "--no-progress"]) == 2
+    assert "is not a bench JSON" in capsys.readouterr().err
+    assert other.read_text() == '{"not": "rows"}'
+
+
+def test_computed_rows_survive_a_failing_write(tmp_path, capsys, monkeypatch):
+    import gym_gridloc_agents.files as f
+
+    target = tmp_path / "out.json"
+    real = f.atomic_write_json
+
+    def failing(path, data):
+        if Path(path) == target:
+            raise OSError(28, "No space left on device")
+        return real(path, data)
+
+    monkeypatch.setattr(f, "atomic_write_json", failing)
+    monkeypatch.chdir(tmp_path)
+    assert main(["bench", "--env", "WindyMaze-v0", "--policies", "random", "--episodes", "3", "--json", str(target), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "No space left on device; written to" in err
+    rescued = Path(err.split("written to ")[1].split(" instead")[0])
+    rows = json.loads(rescued.read_text())
+    assert rows[0]["policy"] == "random" and rows[0]["episodes"] == 3

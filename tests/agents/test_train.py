@@ -268,9 +268,9 @@ def test_a_failed_final_write_saves_the_model_elsewhere_and_says_where(tmp_path,
         return real(model, path)
 
     monkeypatch.setattr(t, "atomic_save_model", failing)
-    with pytest.raises(OutputError, match=r"cannot write .*model.zip: No space left on device; the trained model is saved at (\S+) ") as exc:
+    with pytest.raises(OutputError, match=r"cannot write the model .*model.zip: No space left on device; written to (\S+) instead") as exc:
         train(tiny(tmp_path), progress_bar=False)
-    rescued = Path(str(exc.value).split("saved at ")[1].split(" ")[0])
+    rescued = Path(str(exc.value).split("written to ")[1].split(" ")[0])
     assert rescued.is_file() and rescued.parent == tmp_path / "ckpt"
     meta = json.loads(rescued.with_suffix(".json").read_text())
     assert meta["rescued_from"] == str(out) and meta["num_timesteps"] >= 256
