@@ -1,6 +1,7 @@
 """gym_gridloc: active localisation on grid maps, with exact HMM beliefs.
 
-Importing the package registers ``ColourGrid-v0``, ``RingSensor8x8-v0`` and ``WindyMaze-v0``.
+Importing the package registers ``ColourGrid-v0``, ``RingSensor8x8-v0``, ``WindyMaze-v0`` and
+``DepthMaze-v0``.
 """
 
 from gymnasium.envs.registration import register, registry
@@ -8,6 +9,7 @@ from gymnasium.envs.registration import register, registry
 from gym_gridloc.core import (
     DIRECTIONS,
     ColourSensor,
+    DepthSensor,
     GridLocError,
     GridMap,
     GridModel,
@@ -18,10 +20,11 @@ from gym_gridloc.core import (
     Term,
     WallSensor,
 )
-from gym_gridloc.envs import ColourGridEnv, GridLocEnv, RingSensorEnv, WindyMazeEnv
+from gym_gridloc.envs import ColourGridEnv, DepthMazeEnv, GridLocEnv, RingSensorEnv, WindyMazeEnv
 from gym_gridloc.filter import BatchFilter, ForwardFilter
 from gym_gridloc.models import (
     colour_grid_model,
+    depth_maze_model,
     parse_colour_map,
     parse_maze,
     ring_sensor_model,
@@ -36,7 +39,7 @@ from gym_gridloc.vector import GridLocVectorEnv
 __version__ = "0.1.0"
 
 #: The registered environment ids.
-ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0")
+ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0", "DepthMaze-v0")
 
 
 def _register() -> None:
@@ -44,12 +47,14 @@ def _register() -> None:
         "ColourGrid-v0": ("gym_gridloc.envs.colour_grid:ColourGridEnv", 100, {}),
         "RingSensor8x8-v0": ("gym_gridloc.envs.ring_sensor:RingSensorEnv", 400, {"size": (8, 8)}),
         "WindyMaze-v0": ("gym_gridloc.envs.windy_maze:WindyMazeEnv", 100, {}),
+        "DepthMaze-v0": ("gym_gridloc.envs.depth_maze:DepthMazeEnv", 100, {}),
     }
     # Native vector envs: gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point").
     vector = {
         "ColourGrid-v0": "gym_gridloc.vector:ColourGridVectorEnv",
         "RingSensor8x8-v0": "gym_gridloc.vector:RingSensorVectorEnv",
         "WindyMaze-v0": "gym_gridloc.vector:WindyMazeVectorEnv",
+        "DepthMaze-v0": "gym_gridloc.vector:DepthMazeVectorEnv",
     }
     for env_id, (entry_point, steps, kwargs) in specs.items():
         if env_id not in registry:
@@ -60,7 +65,7 @@ def _register() -> None:
 _register()
 
 __all__ = [
-    "ENV_IDS", "DIRECTIONS", "ColourGridEnv", "ColourSensor", "ForwardFilter", "GridLocEnv",
+    "ENV_IDS", "DIRECTIONS", "ColourGridEnv", "ColourSensor", "DepthMazeEnv", "DepthSensor", "depth_maze_model", "ForwardFilter", "GridLocEnv",
     "GridLocError", "GridMap", "GridModel", "HMMBeliefWrapper", "ImpossibleObservationError",
     "MapError", "RingSensor", "RingSensorEnv", "Sensor", "Term", "WallSensor", "WindyMazeEnv",
     "colour_grid_model", "parse_colour_map", "parse_maze", "ring_sensor_model", "windy_maze_model",

@@ -93,10 +93,10 @@ _DERIVED: "weakref.WeakKeyDictionary[GridModel, _Derived]" = weakref.WeakKeyDict
 
 
 def _derived(model: GridModel) -> _Derived:
+    if not isinstance(model, GridModel):  # before the lookup: a str cannot be a weak key
+        raise TypeError(f"expected a GridModel, got {type(model).__name__}")
     d = _DERIVED.get(model)
     if d is None:
-        if not isinstance(model, GridModel):
-            raise TypeError(f"expected a GridModel, got {type(model).__name__}")
         d = _DERIVED[model] = _Derived(model)
     return d
 
@@ -139,7 +139,7 @@ def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
     bad = (out < 0) | (out >= A)
     if np.any(bad):
         i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"action {arr[i]!r} of belief {i} is outside 0..{A - 1}")
+        raise ValueError(f"action {arr[i].item()!r} of belief {i} is outside 0..{A - 1}")
     return out
 
 

@@ -1,4 +1,5 @@
-"""Generated maps, reproducible from a seed: random colour grids and mazes of any size.
+"""Generated maps, reproducible from a seed: random colour grids, mazes of any size, and perfect
+mazes (Kruskal's algorithm).
 
 Every generator takes a ``numpy.random.Generator`` (or an int seed) and returns a
 :class:`~gym_gridloc.core.grid.GridMap` whose free cells are connected (4-neighbourhood).  The same
@@ -30,8 +31,10 @@ def as_rng(seed: Any, name: str = "map_seed") -> np.random.Generator:
         return seed
     if seed is None:
         return np.random.default_rng()
-    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or int(seed) < 0:
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
         raise TypeError(f"{name} must be a non-negative integer, a numpy Generator or None, got {seed!r}")
+    if int(seed) < 0:
+        raise ValueError(f"{name} must be a non-negative integer, got {seed!r}")
     return np.random.default_rng(int(seed))
 
 
@@ -137,3 +140,44 @@ def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:
         free[:, w - 1] = free[:, w - 2] & (rng.random(h) < 0.5) & (np.arange(h) % 2 == 0)
     return GridMap(np.where(free, 0, -1), ("O",))
 
+
+
+def perfect_maze(size: int, *, seed: Any = None) -> GridMap:
+    """A perfect maze of odd side ``size`` (>= 5): walls all round, exactly one path between any
+    two free cells (connected, no cycle).
+
+    The rooms are the cells at odd (row, col); Kruskal's algorithm joins them: every wall between
+    two neighbouring rooms is listed once, the list is shuffled, and a wall is opened when the
+    rooms on its two sides are not yet joined (a union-find forest over the rooms tells).  Each
+    opened wall joins two trees, so the result is one spanning tree of the rooms.
+    """
+    from gym_gridloc.core.validation import check_int
+
+    n = check_int("size", size, 5, MAX_SIDE)
+    if n % 2 == 0:
+        raise ValueError(f"size must be odd (rooms at odd coordinates, walls all round), got {size!r}")
+    rng = as_rng(seed)
+    k = (n - 1) // 2  # rooms per side
+    parent = np.arange(k * k)
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = int(parent[i])
+        return i
+
+    # Walls between rooms: (room, room to the east) and (room, room to the south).
+    rooms = np.arange(k * k).reshape(k, k)
+    walls = np.concatenate([
+        np.stack([rooms[:, :-1].ravel(), rooms[:, 1:].ravel()], axis=1),
+        np.stack([rooms[:-1, :].ravel(), rooms[1:, :].ravel()], axis=1),
+    ])
+    free = np.zeros((n, n), dtype=bool)
+    free[1::2, 1::2] = True
+    for a, b in walls[rng.permutation(len(walls))]:
+        ra, rb = root(int(a)), root(int(b))
+        if ra != rb:
+            parent[ra] = rb
+            (r1, c1), (r2, c2) = divmod(int(a), k), divmod(int(b), k)
+            free[r1 + r2 + 1, c1 + c2 + 1] = True  # the wall cell between rooms (2r1+1, 2c1+1) and (2r2+1, 2c2+1)
+    return GridMap(np.where(free, 0, -1), ("O",))

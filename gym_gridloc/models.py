@@ -11,7 +11,7 @@ import numpy as np
 from gym_gridloc.core.grid import DIRECTIONS, GridMap, parse_rows, read_layout
 from gym_gridloc.core.model import GridModel, Term, move_terms
 from gym_gridloc.core.ring import RingSensor
-from gym_gridloc.core.sensors import ColourSensor, WallSensor
+from gym_gridloc.core.sensors import ColourSensor, DepthSensor, WallSensor
 from gym_gridloc.core.validation import check_choice, check_probability, check_size
 from gym_gridloc.seeds import COLOUR_GRID_LAYOUT, WINDY_MAZE_LAYOUT
 
@@ -174,3 +174,48 @@ def ring_sensor_model(
         # move.  No move is blocked (the rule only picks open headings), except where none is open.
         transitions.append(move_terms(grid, hp[a]))
     return GridModel(grid, transitions, sensor, name="RingSensor", params=params)
+
+
+def depth_maze_model(
+    layout: str | os.PathLike | Sequence[str] | GridMap,
+    *,
+    p_turn_fail: float = 0.0,
+    p_move_fail: float = 0.0,
+    p_depth_error: float = 0.0,
+    max_depth: int | None = None,
+) -> GridModel:
+    """The Maze2D robot of Active Neural Localization: a heading (layers ``0 = N, 1 = E, 2 = S,
+    3 = W``) and a depth sensor.
+
+    Actions: ``0`` turns left (heading - 1 mod 4), ``1`` turns right (heading + 1 mod 4), ``2``
+    moves one cell forward (into a wall: stays); each fails (does nothing) with ``p_turn_fail`` or
+    ``p_move_fail``.  The reading is the depth to the wall ahead (see :class:`DepthSensor`), off
+    by one with ``p_depth_error``.  ``max_depth`` (the observation space's largest depth) defaults
+    to the largest a map of this shape can have: ``max(H, W) - 2`` with walls all round, else
+    ``max(H, W)``.
+    """
+    grid = layout if isinstance(layout, GridMap) else parse_maze(layout)
+    turn_fail = check_probability("p_turn_fail", p_turn_fail)
+    move_fail = check_probability("p_move_fail", p_move_fail)
+    if max_depth is None:
+        walled = not (grid.free[0].any() or grid.free[-1].any() or grid.free[:, 0].any() or grid.free[:, -1].any())
+        max_depth = max(grid.shape) - 2 if walled and min(grid.shape) > 2 else max(grid.shape)
+    free = grid.free.astype(np.float64)
+    blocked = grid.blocked()
+    turns = []
+    for step in (-1, 1):  # left, right
+        terms = []
+        for h in range(4):
+            terms.append(Term(h, (h + step) % 4, 0, 0, (1.0 - turn_fail) * free))
+            terms.append(Term(h, h, 0, 0, turn_fail * free))
+        turns.append(terms)
+    forward = []
+    for h, (dr, dc) in enumerate(DIRECTIONS):
+        go = (1.0 - move_fail) * np.where(blocked[h], 0.0, free)
+        forward.append(Term(h, h, int(dr), int(dc), go))
+        forward.append(Term(h, h, 0, 0, free - go))
+    sensor = DepthSensor(grid, max_depth, p_depth_error)
+    return GridModel(grid, [*turns, forward], sensor, n_layers=4, name="DepthMaze",
+                     action_names=("left", "right", "forward"),
+                     params={"p_turn_fail": turn_fail, "p_move_fail": move_fail, "p_depth_error": p_depth_error,
+                             "max_depth": sensor.max_depth})

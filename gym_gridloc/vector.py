@@ -343,3 +343,9 @@ class WindyMazeVectorEnv(GridLocVectorEnv):
     """Native vector version of ``WindyMaze-v0`` (see :class:`GridLocVectorEnv`)."""
 
     from gym_gridloc.envs.windy_maze import WindyMazeEnv as env_class  # noqa: N813
+
+
+class DepthMazeVectorEnv(GridLocVectorEnv):
+    """Native vector version of ``DepthMaze-v0`` (see :class:`GridLocVectorEnv`)."""
+
+    from gym_gridloc.envs.depth_maze import DepthMazeEnv as env_class  # noqa: N813

@@ -119,7 +119,8 @@ class Sensor(ABC):
         bad = (readings < 0) | (readings >= space.n)
         if np.any(bad):
             i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"observation {obs[i]!r}{'' if single is not None else f' of belief {i}'} is not in the sensor's space {space}")
+            shown = single if single is not None else obs[i].tolist()
+            raise ValueError(f"observation {shown!r}{'' if single is not None else f' of belief {i}'} is not in the sensor's space {space}")
         return readings
 
     @staticmethod
@@ -157,12 +158,24 @@ def xlogx(x: np.ndarray) -> np.ndarray:
 
 
 class TableSensor(Sensor):
-    """A sensor whose likelihoods are one stored (H, W) table per reading (colour, wall)."""
+    """A sensor whose likelihoods are one stored table per reading: ``(H, W)`` (colour, wall), or
+    ``(L, H, W)`` for a layered sensor (depth)."""
 
-    table: np.ndarray  # (n_readings, H, W), zero on obstacles, read-only
+    table: np.ndarray  # (n_readings, H, W) or (n_readings, L, H, W), zero on obstacles, read-only
 
     def likelihood(self, reading: int) -> np.ndarray:
         return self.table[reading]
+
+    def _columns(self, states: np.ndarray) -> np.ndarray:
+        """P(reading | state) for each of N states, ``(N, n_readings)``."""
+        if states.shape[0] == 1:
+            s = tuple(int(v) for v in states[0, 0 if self.layered else 1:])
+            return self.table[(slice(None), *s)][None]
+        idx = (states[:, 0], states[:, 1], states[:, 2]) if self.layered else (states[:, 1], states[:, 2])
+        return np.ascontiguousarray(self.table[(slice(None), *idx)].T)
+
+    def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        return self._categorical(self._columns(states), rng)
 
     def likelihoods(self, readings: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         flat = self.table.reshape(self.table.shape[0], -1)
@@ -172,7 +185,8 @@ class TableSensor(Sensor):
         return np.take(flat, readings, axis=0, out=out)
 
     def distribution(self, row: int, col: int, layer: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        return np.arange(self.n_readings), self.table[:, row, col].copy()
+        column = self.table[:, layer, row, col] if self.layered else self.table[:, row, col]
+        return np.arange(self.n_readings), column.copy()
 
     def reading_probabilities(self, masses: np.ndarray) -> np.ndarray:
         flat = np.asarray(masses).reshape(masses.shape[0], -1)
@@ -201,12 +215,6 @@ class ColourSensor(TableSensor):
         table[:, ~grid.free] = 0.0
         table.setflags(write=False)
         self.table = table
-
-    def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        if states.shape[0] == 1:
-            return self._categorical(self.table[:, int(states[0, 1]), int(states[0, 2])][None], rng)
-        probs = np.ascontiguousarray(self.table[:, states[:, 1], states[:, 2]].T)  # (N, k)
-        return self._categorical(probs, rng)
 
     def describe(self, reading: int) -> str:
         return self.colours[reading]
@@ -265,7 +273,8 @@ class WallSensor(TableSensor):
         bad = np.any((bits != 0) & (bits != 1), axis=1)
         if np.any(bad):
             i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"observation {obs[i]!r}{'' if single is not None else f' of belief {i}'} is not in the sensor's space {self.observation_space}")
+            shown = single if single is not None else obs[i].tolist()
+            raise ValueError(f"observation {shown!r}{'' if single is not None else f' of belief {i}'} is not in the sensor's space {self.observation_space}")
         return bits @ self._BITS
 
     @property
@@ -278,3 +287,60 @@ class WallSensor(TableSensor):
     def describe(self, reading: int) -> str:
         bits = self.to_observation(reading)
         return "[" + ", ".join("o" if b else "-" for b in bits) + "]  (W, N, E, S)"
+
+
+class DepthSensor(TableSensor):
+    """The depth to the wall ahead, for a robot with a heading (the Maze2D sensor of Active Neural
+    Localization): ``1 +`` the number of free cells between the robot and the first wall (or the
+    edge) in the direction of its heading (layer ``0 = N, 1 = E, 2 = S, 3 = W``).
+
+    Readings are depths ``1..max_depth`` (0 is never read); the observation space is
+    ``Discrete(max_depth + 1)``, so the reading index is the depth itself.  With
+    ``p_depth_error`` the depth is off by one with that total probability, split evenly between
+    ``d - 1`` and ``d + 1`` where both are in ``1..max_depth`` (all of it to the one that is).
+    """
+
+    layered = True
+
+    def __init__(self, grid: GridMap, max_depth: int, p_depth_error: float = 0.0) -> None:
+        super().__init__(grid)
+        self.p_depth_error = check_probability("p_depth_error", p_depth_error)
+        from gym_gridloc.core.grid import DIRECTIONS
+
+        h, w = grid.shape
+        free = grid.free
+        depth = np.zeros((4, h, w), dtype=np.int64)
+        for d, (dr, dc) in enumerate(DIRECTIONS):
+            run = np.zeros((h, w), dtype=np.int64)  # free cells ahead
+            rows = range(h) if dr < 0 else range(h - 1, -1, -1) if dr > 0 else range(h)
+            cols = range(w) if dc < 0 else range(w - 1, -1, -1) if dc > 0 else range(w)
+            for r in rows:
+                for c in cols:
+                    rr, cc = r + dr, c + dc
+                    if 0 <= rr < h and 0 <= cc < w and free[rr, cc]:
+                        run[r, c] = run[rr, cc] + 1
+            depth[d] = np.where(free, run + 1, 0)
+        if int(depth.max()) > max_depth:
+            raise ValueError(f"max_depth={max_depth} is below the map's largest depth {int(depth.max())}")
+        self.depth = depth
+        self.depth.setflags(write=False)
+        self.max_depth = int(max_depth)
+        self.n_readings = self.max_depth + 1
+        self.observation_space = spaces.Discrete(self.n_readings)
+        table = np.zeros((self.n_readings, 4, h, w))
+        eps = self.p_depth_error
+        for z in range(1, self.n_readings):
+            table[z] += np.where(depth == z, 1.0 - eps, 0.0)
+            for other, sign in ((z - 1, -1), (z + 1, 1)):
+                # P(read z | true depth `other`): the error that lands on z from `other`
+                if 1 <= other <= self.max_depth:
+                    two_sided = (other - 1 >= 1) & (other + 1 <= self.max_depth)
+                    table[z] += np.where(depth == other, eps / 2 if two_sided else eps, 0.0)
+        if self.max_depth == 1:
+            table[1] = np.where(free, 1.0, 0.0)
+        table[:, :, ~free] = 0.0
+        table.setflags(write=False)
+        self.table = table
+
+    def describe(self, reading: int) -> str:
+        return f"depth {reading}"

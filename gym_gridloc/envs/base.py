@@ -21,16 +21,22 @@ class GridLocEnv(gym.Env):
     and keeps the exact posterior as the referee of the termination rule
     (:mod:`gym_gridloc.referee`); the observation is only the reading.
 
-    Keyword arguments the subclasses pass on: ``localise_threshold``; ``map_factory`` (``rng ->
-    GridModel``, a new map at every reset); ``referee_pose`` (the referee tests the most probable
-    hidden state rather than position); ``episode_length`` (a fixed number of steps: truncated
-    there, never terminated early); ``reward`` (``"step"``: -1 per step, or ``"belief"``: the
-    referee's confidence).
+    Keyword arguments the subclasses pass on: ``localise_threshold``; ``builder`` (``GridMap ->
+    GridModel``: the family's model on another map, for the ``map`` reset option); ``map_factory``
+    (``rng -> GridModel``, a new map at every reset); ``referee_pose`` (the referee tests the most
+    probable hidden state rather than position); ``episode_length`` (a fixed number of steps:
+    truncated there, never terminated early); ``reward`` (``"step"``: -1 per step, or
+    ``"belief"``: the referee's confidence).
+
+    Reset options: ``state`` (``(row, col)`` or ``(layer, row, col)``: the start), ``map`` (a
+    :class:`~gym_gridloc.GridMap` or a layout of this family: the map of this episode only, e.g.
+    a held-out test map).
     """
 
     metadata = {"render_modes": ["ansi", "rgb_array", "human"], "render_fps": 4}
 
     def __init__(self, model: GridModel, *, localise_threshold: float = 0.9, render_mode: str | None = None,
+                 builder: Callable[[Any], GridModel] | None = None,
                  map_factory: Callable[[np.random.Generator], GridModel] | None = None,
                  referee_pose: bool = False, episode_length: int | None = None, reward: str = "step") -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -46,6 +52,8 @@ class GridLocEnv(gym.Env):
         self.observation_space = model.sensor.observation_space
         self.action_space = spaces.Discrete(model.n_actions)
         self._referee = ForwardFilter(model)
+        self._fixed_model = model
+        self._builder = builder
         self._map_factory = map_factory
         self._states: np.ndarray | None = None  # (1, 3): layer, row, col
         self._last_reading: int | None = None
@@ -56,8 +64,16 @@ class GridLocEnv(gym.Env):
     # -- Gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
-        if self._map_factory is not None:  # a new map from np_random: same seed, same map
+        options = dict(options or {})
+        unknown = set(options) - {"state", "map"}
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; allowed: 'state' (row, col) or (layer, row, col), 'map'")
+        if "map" in options:  # this episode's map, given
+            self._set_model(self._model_on(options["map"]))
+        elif self._map_factory is not None:  # a new map from np_random: same seed, same map
             self._set_model(self._map_factory(self.np_random))
+        elif self.model is not self._fixed_model:
+            self._set_model(self._fixed_model)
         start = self._start_state(options)
         self._states = start if start is not None else engine.sample_initial(self.model, 1, self.np_random)
         self._last_action = None
@@ -113,19 +129,26 @@ class GridLocEnv(gym.Env):
 
     # -- helpers ---------------------------------------------------------------------------------
     def _set_model(self, model: GridModel) -> None:
-        """Replace the model (a redrawn map of the same size and sensor)."""
+        """Replace the model (another map of the same family and spaces)."""
         if model.sensor.observation_space != self.observation_space or model.n_actions != self.action_space.n:
-            raise ValueError("a redrawn map must keep the observation and action spaces")
-        self.model = model
-        self._referee = ForwardFilter(model)
+            raise ValueError(
+                f"the map of this episode must keep the observation space {self.observation_space} and "
+                f"{self.action_space.n} actions; its model has {model.sensor.observation_space} and {model.n_actions}"
+            )
+        if model is not self.model:
+            self.model = model
+            self._referee = ForwardFilter(model)
+
+    def _model_on(self, layout: Any) -> GridModel:
+        """The family's model on the map ``layout`` (the ``map`` reset option)."""
+        if self._builder is None:
+            raise ValueError(f"{type(self).__name__} takes no 'map' reset option (it has no builder for other maps)")
+        return self._builder(layout)
 
     def _start_state(self, options) -> np.ndarray | None:
         """The start state a reset option asks for, as (1, 3), or None (draw it)."""
-        if not options:
+        if "state" not in options:
             return None
-        unknown = set(options) - {"state"}
-        if unknown:
-            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; allowed: 'state' (row, col) or (layer, row, col)")
         given = options["state"]
         st = _int_tuple(given)
         if st is not None and len(st) == 2:

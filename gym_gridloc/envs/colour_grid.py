@@ -75,5 +75,5 @@ class ColourGridEnv(GridLocEnv):
                               n_colours=4 if n_colours is None else n_colours, seed=rng)
 
         grid = draw(0 if map_seed is None else map_seed) if generated else layout
-        super().__init__(build(grid), localise_threshold=localise_threshold, render_mode=render_mode,
+        super().__init__(build(grid), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
                          map_factory=(lambda rng: build(draw(rng))) if new_map_each_reset else None)

@@ -67,5 +67,5 @@ class WindyMazeEnv(GridLocEnv):
             return maze_map((7, 7) if size is None else size, seed=rng)
 
         grid = draw(0 if map_seed is None else map_seed) if generated else layout
-        super().__init__(build(grid), localise_threshold=localise_threshold, render_mode=render_mode,
+        super().__init__(build(grid), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
                          map_factory=(lambda rng: build(draw(rng))) if new_map_each_reset else None)

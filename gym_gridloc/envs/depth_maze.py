@@ -1,0 +1,84 @@
+from __future__ import annotations
+
+from gym_gridloc.envs.base import GridLocEnv
+from gym_gridloc.models import depth_maze_model
+
+
+class DepthMazeEnv(GridLocEnv):
+    """A robot with a heading and a depth sensor in random perfect mazes (the Maze2D setting of
+    Active Neural Localization, Chaplot et al., ICLR 2018).
+
+    ## Description
+    The robot sits on an unknown free cell of a maze, facing an unknown direction.  It can turn
+    or move forward, and it reads the depth to the wall ahead.  The goal is to localise its pose
+    (cell and heading).  By default a new maze is drawn at every reset, so a policy must work on
+    mazes it never saw.
+
+    ## Action Space
+    ``Discrete(3)``: 0 = turn left (heading - 1 mod 4), 1 = turn right (heading + 1 mod 4),
+    2 = move one cell forward (into a wall: stay).  A turn fails (does nothing) with
+    ``p_turn_fail``, a move with ``p_move_fail`` (both 0 by default).
+
+    ## Observation Space
+    ``Discrete(D + 1)``: the depth ``1 +`` (free cells between the robot and the first wall ahead);
+    1 = a wall right ahead; 0 is never read.  ``D = size - 2``, the largest depth a maze of this
+    size can have.  With ``p_depth_error`` the depth is off by one (either way) with that
+    probability.
+
+    ## Starting State
+    Uniform over the free cells and the four headings (0 = N, 1 = E, 2 = S, 3 = W); the first
+    observation is a reading there.
+
+    ## Rewards
+    -1 per step (``reward="step"``), or the belief's largest pose probability after the step
+    (``reward="belief"``, the research protocol's reward).
+
+    ## Episode End
+    Terminated when the largest posterior probability of a POSE (cell and heading) reaches
+    ``localise_threshold``; truncated at ``max_episode_steps`` (100 for ``DepthMaze-v0``).  With
+    ``episode_length=L``, the research protocol: exactly L steps, never terminated early
+    (truncated at L).
+
+    ## Arguments
+    ``size`` (7: an odd side >= 5; the protocol's sizes are 7, 15 and 21), ``layout`` (a fixed maze:
+    a file or rows of ``O`` and ``#``), ``map_seed`` (a fixed generated maze), ``new_map_each_reset``
+    (default True unless ``layout`` or ``map_seed`` is given: a new maze at every reset, drawn from
+    the environment's ``np_random``, so the same reset seed gives the same maze), ``p_turn_fail``,
+    ``p_move_fail``, ``p_depth_error`` (0.0 each), ``localise_threshold`` (0.9), ``episode_length``
+    (None), ``reward`` (``"step"`` or ``"belief"``), ``kidnap_prob`` (0.0), ``render_mode``.
+
+    Mazes are perfect (one path between any two cells, walls all round), drawn by Kruskal's
+    algorithm (:func:`gym_gridloc.generators.perfect_maze`).  Held-out test mazes:
+    :func:`gym_gridloc.maps.test_set`.
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    def __init__(self, size: int = 7, *, layout=None, map_seed: int | None = None,
+                 new_map_each_reset: bool | None = None, p_turn_fail: float = 0.0, p_move_fail: float = 0.0,
+                 p_depth_error: float = 0.0, localise_threshold: float = 0.9, episode_length: int | None = None,
+                 reward: str = "step", kidnap_prob: float = 0.0, render_mode: str | None = None) -> None:
+        from gym_gridloc.core.validation import check_int
+        from gym_gridloc.generators import perfect_maze
+
+        if new_map_each_reset is None:
+            new_map_each_reset = layout is None and map_seed is None
+        if not isinstance(new_map_each_reset, bool):
+            raise TypeError(f"new_map_each_reset must be True or False, got {new_map_each_reset!r}")
+        if layout is not None and (map_seed is not None or new_map_each_reset):
+            raise ValueError("give either layout=... (a fixed maze) or a generated one (map_seed, new_map_each_reset), not both")
+        n = check_int("size", size, 5, 4095)
+        if n % 2 == 0:
+            raise ValueError(f"size must be odd (rooms at odd coordinates, walls all round), got {size!r}")
+
+        def build(grid):
+            return depth_maze_model(grid, p_turn_fail=p_turn_fail, p_move_fail=p_move_fail,
+                                    p_depth_error=p_depth_error, max_depth=n - 2 if layout is None else None
+                                    ).with_kidnapping(kidnap_prob)
+
+        first = layout if layout is not None else perfect_maze(n, seed=0 if map_seed is None else map_seed)
+        super().__init__(build(first), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
+                         map_factory=(lambda rng: build(perfect_maze(n, seed=rng))) if new_map_each_reset else None,
+                         referee_pose=True, episode_length=episode_length, reward=reward)
+        self.size = n
