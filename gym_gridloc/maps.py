@@ -1,0 +1,128 @@
+"""Held-out maps: fixed test and validation sets per environment family and size.
+
+:func:`test_set` gives ``n`` (default 1000) maps with a start pose each, the same on every
+machine (the first 1000 of each stored size are checked against a SHA-256 checksum kept here).
+They are drawn from seed sequences that training never uses: map ``i`` of a set comes from
+``numpy.random.SeedSequence([TAG, purpose, family, size]).spawn(n)[i]``, a spawned sequence,
+while an environment reset with ``reset(seed=s)`` (``s`` an int) draws from
+``SeedSequence(s)``, which is never spawned: the two can never be the same stream.
+:func:`validation_set` is the same with another ``purpose`` (for training curves: never the
+test set).
+
+>>> from gym_gridloc.maps import test_set
+>>> maps = test_set("DepthMaze-v0", 7, n=3)
+>>> maps[0].grid.shape, len(maps[0].state)
+((7, 7), 3)
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from gym_gridloc.core.grid import GridMap
+
+#: The sets' seed-sequence tag (the letters "gridloc" in ASCII, folded into 32 bits).
+TAG = 0x67726C63
+PURPOSES = {"test": 1, "validation": 2}
+
+
+def _generators() -> dict[str, tuple[int, Callable[[int, np.random.Generator], GridMap]]]:
+    from gym_gridloc.generators import colour_map, maze_map, perfect_maze
+
+    return {
+        "DepthMaze-v0": (1, lambda size, rng: perfect_maze(size, seed=rng)),
+        "WindyMaze-v0": (2, lambda size, rng: maze_map((size, size), seed=rng)),
+        "ColourGrid-v0": (3, lambda size, rng: colour_map((size, size), obstacle_density=0.2, n_colours=4, seed=rng)),
+    }
+
+
+#: SHA-256 of the first 1000 maps and start states of each stored set (see :func:`checksum`).
+CHECKSUMS: dict[tuple[str, str, int], str] = {
+    ("DepthMaze-v0", "test", 7): "8c1dbf08e476d7ee85ea6d2ed395b1e673bc2a7443a226528a04f345ed6510e5",
+    ("DepthMaze-v0", "validation", 7): "95ff7a5f842e926998367f7c0a0518b335ade8d863c6581b473c89759c5b2ab0",
+    ("DepthMaze-v0", "test", 15): "281fdfaf265fdef129fe9df8e8e45ba2b291b0fa00443c2499118e32e317d21a",
+    ("DepthMaze-v0", "validation", 15): "2ed48b4b6ecf9110ab61445334fa8013168620a238e87ce260a20c3f9288ae89",
+    ("DepthMaze-v0", "test", 21): "c2c46375db1fa4cd8fb0e5701f85ae7116f7d39e6b483134959ebdd60f379ebd",
+    ("DepthMaze-v0", "validation", 21): "ac0b64b43fed905019e3b5a7d799a4f709fb85bf1d231d7308f85cd8dac763cd",
+    ("WindyMaze-v0", "test", 9): "ab84b91ebfba7c71a49fb8594cb74dccf2172e170bcc0e1510669ffce2b2b2db",
+    ("WindyMaze-v0", "validation", 9): "273649cc0c8ca5b34ca23c6498b1f8cfb7ffc4f5918b53c37fdcaff1d128b3da",
+    ("WindyMaze-v0", "test", 15): "83b8ca37663b71b2073e26564f3da393ec346cde6418a3056c85538ba3bd97ed",
+    ("WindyMaze-v0", "validation", 15): "40a51470505996481e9f3a555cc325257599984d38e53a52d241eb032848cdde",
+    ("ColourGrid-v0", "test", 9): "8a735ea7514b7d28bd9f9e1ff1421902cc5e7b9fd2efbc0ca6c4880f7c36939b",
+    ("ColourGrid-v0", "validation", 9): "4af5a4ac48f10d1f63bdb471259951dca15caa266eec302086bb12b91ecaf8ea",
+}
+
+
+@dataclass(frozen=True, eq=False)
+class HeldOutMap:
+    """One held-out episode: the map and the start state ``(layer, row, col)``."""
+
+    grid: GridMap
+    state: tuple[int, int, int]
+    index: int
+
+
+def families() -> tuple[str, ...]:
+    """The environment ids that have held-out sets."""
+    return tuple(_generators())
+
+
+def _draw(env_id: str, size: int, n: int, purpose: str) -> list[HeldOutMap]:
+    gens = _generators()
+    if env_id not in gens:
+        raise ValueError(f"no held-out maps for {env_id!r}; families with random maps: {', '.join(gens)}")
+    from gym_gridloc.core.validation import check_int
+
+    size = check_int("size", size, 2, 4096)
+    n = check_int("n", n, 1, 100_000)
+    family, generate = gens[env_id]
+    layers = 4 if env_id == "DepthMaze-v0" else 1
+    children = np.random.SeedSequence([TAG, PURPOSES[purpose], family, size]).spawn(n)
+    out = []
+    for i, child in enumerate(children):
+        rng = np.random.default_rng(child)
+        grid = generate(size, rng)
+        s = int(rng.integers(layers * grid.n_free))
+        layer, cell = divmod(s, grid.n_free)
+        r, c = grid.free_cells[cell]
+        out.append(HeldOutMap(grid, (int(layer), int(r), int(c)), i))
+    return out
+
+
+def checksum(maps: list[HeldOutMap]) -> str:
+    """SHA-256 over every map's labels and start state, in order."""
+    h = hashlib.sha256()
+    for m in maps:
+        h.update(np.ascontiguousarray(m.grid.labels, dtype=np.int64).tobytes())
+        h.update(np.array(m.state, dtype=np.int64).tobytes())
+    return h.hexdigest()
+
+
+def _checked(env_id: str, size: int, n: int, purpose: str) -> list[HeldOutMap]:
+    full = max(n, 1000) if (env_id, purpose, size) in CHECKSUMS else n
+    maps = _draw(env_id, size, full, purpose)
+    expected = CHECKSUMS.get((env_id, purpose, size))
+    if expected is not None and checksum(maps[:1000]) != expected:
+        raise RuntimeError(
+            f"the {purpose} maps of {env_id} size {size} differ from the stored checksum: the map generator "
+            "changed, so results on them are not comparable with earlier ones"
+        )
+    return maps[:n]
+
+
+def test_set(env_id: str, size: int, n: int = 1000) -> list[HeldOutMap]:
+    """``n`` fixed held-out maps with start states for ``env_id`` (``DepthMaze-v0``,
+    ``WindyMaze-v0``, ``ColourGrid-v0``) at side ``size``; identical on every machine."""
+    return _checked(env_id, size, n, "test")
+
+
+def validation_set(env_id: str, size: int, n: int = 200) -> list[HeldOutMap]:
+    """Like :func:`test_set`, from other seeds: for training curves and model selection."""
+    return _checked(env_id, size, n, "validation")
+
+
+test_set.__test__ = False  # not a pytest test
