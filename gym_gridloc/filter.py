@@ -232,7 +232,7 @@ class BatchFilter:
         acts = np.asarray(actions)
         if acts.shape != (self.n,):
             raise ValueError(f"actions must be {self.n} actions (one per belief), got shape {acts.shape}")
-        acts = engine.action_indices(self.model, np.where(sel, acts, 0) if acts.dtype != object else acts, self.n)
+        acts = np.where(sel, acts, 0)  # checked (None: unknown) by the engine, masked-out ones skipped
         rs = self._readings(observations, readings)
         partial = not sel.all()
         if partial:

@@ -31,7 +31,7 @@ from gymnasium.vector.utils import batch_space
 
 from gym_gridloc import engine, referee
 from gym_gridloc.envs.base import GridLocEnv
-from gym_gridloc.wrappers import belief_observation_space, check_belief_option
+from gym_gridloc.wrappers import batch_observation, belief_observation_space, check_belief_option, map_channels
 
 
 class GridLocVectorEnv(gym.vector.VectorEnv):
@@ -46,7 +46,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     belief:
         ``"exact"`` (default): Dict observations ``observation`` and ``belief`` batched as
         ``HMMBeliefWrapper`` would give them; ``None``: the readings only.
-    flatten, full_state:
+    flatten, full_state, map:
         As for :class:`HMMBeliefWrapper` (with a belief only).
     max_episode_steps:
         Truncation, as ``TimeLimit`` (``gym.make_vec`` passes the registered value).
@@ -65,6 +65,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         belief: Any = "exact",
         flatten: bool = False,
         full_state: bool = False,
+        map: bool = False,
         max_episode_steps: int | None = None,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         render_mode: str | None = None,
@@ -76,7 +77,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         if render_mode is not None:
             raise ValueError(f"the native vector env does not render (render_mode must be None, got {render_mode!r}); use vectorization_mode='sync' to render")
         self.belief = check_belief_option(belief, ("exact", None))
-        for name, value in (("flatten", flatten), ("full_state", full_state)):
+        for name, value in (("flatten", flatten), ("full_state", full_state), ("map", map)):
             if not isinstance(value, bool):
                 raise TypeError(f"{name} must be True or False, got {value!r}")
         if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
@@ -90,9 +91,10 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self.metadata = {"autoreset_mode": self.autoreset_mode, "render_modes": []}
         self.render_mode = None
-        self.flatten, self.full_state = flatten, full_state
+        self.flatten, self.full_state, self.map = flatten, full_state, map
         if self.belief is not None:
-            self.single_observation_space = belief_observation_space(model, template.observation_space, flatten=flatten, full_state=full_state)
+            self.single_observation_space = belief_observation_space(model, template.observation_space, flatten=flatten,
+                                                                     full_state=full_state, map=map)
         else:
             self.single_observation_space = template.observation_space
         self.single_action_space = template.action_space
@@ -187,16 +189,18 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
 
     # -- observations and infos -------------------------------------------------------------------
     def _observations(self):
-        sensor = self.models[0].sensor
-        obs = sensor.observations(self._readings)
+        model = self.models[0]
+        obs = model.sensor.observations(self._readings)
         if self.belief is None:
             return obs
         b = self._beliefs if self.full_state else self.position_beliefs
         b = b.astype(np.float32)
         np.clip(b, 0.0, 1.0, out=b)
-        if self.flatten:
-            return np.concatenate([sensor.encode(self._readings), b.reshape(self.num_envs, -1)], axis=1)
-        return {"observation": obs, "belief": b}
+        maps = None
+        if self.map:
+            channels = {id(m): map_channels(m) for m in self.models}
+            maps = np.stack([channels[id(m)] for m in self.models])
+        return batch_observation(model, obs, self._readings, b, flatten=self.flatten, maps=maps)
 
     def _infos(self) -> dict[str, np.ndarray]:
         t = self.template

@@ -29,26 +29,64 @@ def check_belief_option(belief: Any, allowed: Sequence[Any]) -> Any:
     return check_choice("belief", belief, allowed)
 
 
+def map_channels(model: GridModel) -> np.ndarray:
+    """The map as image channels ``(C, H, W)`` float32 in {0, 1}: the free cells, then (for maps
+    whose cells carry labels, such as colours) one channel per label."""
+    grid = model.grid
+    k = len(grid.symbols)
+    out = np.zeros((1 + (k if k > 1 else 0), *grid.shape), dtype=np.float32)
+    out[0] = grid.free
+    if k > 1:
+        for i in range(k):
+            out[1 + i] = grid.labels == i
+    return out
+
+
 def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: bool = False,
-                             full_state: bool = False, key: str = "belief") -> spaces.Space:
-    """The observation space of ``inner`` with the belief of ``model`` appended, as
-    :class:`HMMBeliefWrapper` (and the native vector env) give it."""
+                             full_state: bool = False, key: str = "belief", map: bool = False) -> spaces.Space:
+    """The observation space of ``inner`` with the belief of ``model`` appended (and the map, with
+    ``map``), as :class:`HMMBeliefWrapper` and the native vector env give it."""
     shape = model.belief_shape if full_state else model.shape
     belief_space = spaces.Box(0.0, 1.0, shape=shape, dtype=np.float32)
+    map_shape = map_channels(model).shape
     if flatten:
         if isinstance(inner, spaces.Dict):
             raise ValueError("flatten=True needs a non-Dict observation space")
         if inner != model.sensor.observation_space:
             raise ValueError(f"flatten=True encodes the sensor's {model.sensor.observation_space}, but the observations are {inner}")
-        n = model.sensor.encoded_size + int(np.prod(shape))
+        n = model.sensor.encoded_size + int(np.prod(shape)) + (int(np.prod(map_shape)) if map else 0)
         return spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
+    extra = {key: belief_space}
+    if map:
+        extra["map"] = spaces.Box(0.0, 1.0, shape=map_shape, dtype=np.float32)
     if isinstance(inner, spaces.Dict):
-        if key in inner.spaces:
-            raise ValueError(f"the observation space already has a key {key!r}; pass key=... to choose another")
-        return spaces.Dict({**inner.spaces, key: belief_space})
-    if key == "observation":
+        clash = sorted(set(extra) & set(inner.spaces))
+        if clash:
+            raise ValueError(f"the observation space already has the key(s) {clash}; pass key=... to choose another")
+        return spaces.Dict({**inner.spaces, **extra})
+    if "observation" in extra:
         raise ValueError("key='observation' would replace the sensor reading (the Dict keeps it under 'observation'); choose another key")
-    return spaces.Dict({"observation": inner, key: belief_space})
+    return spaces.Dict({"observation": inner, **extra})
+
+
+def batch_observation(model: GridModel, observations: Any, readings: np.ndarray, beliefs: np.ndarray, *,
+                      flatten: bool, key: str = "belief", maps: np.ndarray | None = None):
+    """N observations with their beliefs appended, as :func:`belief_observation_space` lays
+    them out: ``observations`` are the N sensor observations (a batch, or a dict of batches),
+    ``readings`` their reading indices, ``beliefs`` float32 ``(N, ...)``, ``maps`` ``(N, C, H, W)``
+    map channels or None."""
+    n = readings.shape[0]
+    if flatten:
+        parts = [model.sensor.encode(readings), beliefs.reshape(n, -1)]
+        if maps is not None:
+            parts.append(maps.reshape(n, -1))
+        return np.concatenate(parts, axis=1)
+    extra = {key: beliefs}
+    if maps is not None:
+        extra["map"] = maps
+    if isinstance(observations, dict):
+        return {**observations, **extra}
+    return {"observation": observations, **extra}
 
 
 class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
@@ -82,6 +120,11 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         :class:`gym_gridloc.ParticleFilter` with ``n_particles`` particles and
         ``resample_threshold``, in place of the exact belief (same shapes).  Its random generator
         is reseeded from the seed passed to ``reset``.
+    map:
+        If True, the observation also carries the map of the episode (``"map"``: channels
+        ``(C, H, W)`` of :func:`map_channels`: the free cells, and the colours as one channel each
+        on a colour grid), for policies that must read the map (random maps); with ``flatten``
+        they are appended to the vector.
     """
 
     def __init__(
@@ -96,10 +139,11 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         belief: str = "exact",
         n_particles: int = 1000,
         resample_threshold: float = 0.5,
+        map: bool = False,
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
             self, model=model, flatten=flatten, full_state=full_state, key=key, on_impossible=on_impossible,
-            belief=belief, n_particles=n_particles, resample_threshold=resample_threshold,
+            belief=belief, n_particles=n_particles, resample_threshold=resample_threshold, map=map,
         )
         gym.ObservationWrapper.__init__(self, env)
         #: No model given: follow the environment's, also when it redraws its map at reset.
@@ -118,8 +162,12 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.model = model
         self.belief = check_belief_option(belief, ("exact", "particles"))
         self.filter = self._make_filter(model)
+        for name, value in (("flatten", flatten), ("full_state", full_state), ("map", map)):
+            if not isinstance(value, (bool, np.bool_)):
+                raise TypeError(f"{name} must be True or False, got {value!r}")
         self.flatten = bool(flatten)
         self.full_state = bool(full_state)
+        self.map = bool(map)
         self.key = key
         inner = env.observation_space
         if isinstance(env.action_space, spaces.Discrete) and env.action_space.n != model.n_actions:
@@ -133,7 +181,8 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             )
         if not isinstance(key, str) or not key:
             raise TypeError(f"key must be a non-empty string, got {key!r}")
-        self.observation_space = belief_observation_space(model, inner, flatten=self.flatten, full_state=self.full_state, key=key)
+        self.observation_space = belief_observation_space(model, inner, flatten=self.flatten, full_state=self.full_state,
+                                                          key=key, map=self.map)
         self._reset_flag = False
 
     # -- filtering -------------------------------------------------------------------------------
@@ -196,10 +245,12 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         return b
 
     def observation(self, observation):
-        belief = self.belief_array()
+        sensor_obs = self._sensor_obs(observation)
+        reading = np.array([self.model.sensor.to_reading(sensor_obs)]) if self.flatten else None
+        maps = map_channels(self.model)[None] if self.map else None
+        batched = {k: [v] for k, v in observation.items()} if isinstance(observation, dict) else [observation]
+        out = batch_observation(self.model, batched, reading if reading is not None else np.zeros(1, dtype=np.int64),
+                                self.belief_array()[None], flatten=self.flatten, key=self.key, maps=maps)
         if self.flatten:
-            reading = self.model.sensor.to_reading(observation)
-            return np.concatenate([self.model.sensor.encode(np.array([reading]))[0], belief.ravel()])
-        if isinstance(observation, dict):
-            return {**observation, self.key: belief}
-        return {"observation": observation, self.key: belief}
+            return out[0]
+        return {k: (v[0] if isinstance(v, (list, np.ndarray)) else v) for k, v in out.items()}
