@@ -20,7 +20,7 @@ COLOURS = ("R", "G", "B", "Y")
 
 def parse_colour_map(layout: str | os.PathLike | Sequence[str]) -> GridMap:
     """A colour map in seed 000's format: comma-separated ``R, G, B, Y`` cells, ``.`` obstacles."""
-    rows, source = read_layout(layout)
+    rows, source = read_layout(layout, sep=",")
     return parse_rows(rows, COLOURS, (".",), sep=",", source=source)
 
 

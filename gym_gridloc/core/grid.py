@@ -91,40 +91,54 @@ class GridMap:
         return rows
 
 
-def read_layout(layout: str | os.PathLike | Sequence[str], what: str = "layout") -> tuple[list[str], str]:
-    """Return ``(rows, source)`` for a layout given as a path to a text file or a list of row
-    strings.  ``source`` names the file (or ``<layout>``) for error messages."""
+#: The largest side a map may have (rows or columns), from a file or from rows.
+MAX_SIDE = 4096
+
+
+def read_layout(layout: str | os.PathLike | Sequence[str], what: str = "layout", *, sep: str | None = None) -> tuple[list[str], str]:
+    """Return ``(rows, source)`` for a layout given as a path to a text file (UTF-8, a leading
+    byte-order mark is accepted), a list or tuple of row strings, or a 2-D array of cell
+    symbols (joined with ``sep``).  ``source`` names the file (or ``<layout>``) for error
+    messages.  Anything else, or a map larger than :data:`MAX_SIDE` either way, is refused with
+    a message that says what is accepted."""
+    accepted = "a path to a map file, a list of row strings, or a 2-D array of cell symbols"
+    if isinstance(layout, bytes):
+        raise TypeError(f"{what} must be {accepted}, got bytes (decode them: layout.decode('utf-8').splitlines())")
     if isinstance(layout, (str, os.PathLike)):
         path = Path(layout)
         if isinstance(layout, str) and not layout.strip():
-            raise MapError(f"{what}: got an empty string; pass a path to a map file or a list of row strings")
+            raise MapError(f"{what}: got an empty string; pass {accepted}")
         if isinstance(layout, str) and "\n" in layout:
-            raise MapError(
-                f"{what}: got a multi-line string; pass a path to a map file or a list of row strings"
-            )
+            raise MapError(f"{what}: got a multi-line string; pass {accepted} (e.g. text.splitlines())")
         if not path.is_file():
-            raise MapError(f"{what}: no map file at {str(path)!r} (pass a path or a list of row strings)")
+            raise MapError(f"{what}: no map file at {str(path)!r} (pass {accepted})")
+        limit = (MAX_SIDE * 2 + 2) * MAX_SIDE  # rows of up to MAX_SIDE cells with separators
         try:
-            text = path.read_text(encoding="utf-8")
+            size = path.stat().st_size
+            if size > limit:
+                raise MapError(f"{what}: {path} has {size} bytes, more than a {MAX_SIDE} x {MAX_SIDE} map can have")
+            text = path.read_text(encoding="utf-8-sig")
         except (OSError, UnicodeDecodeError) as exc:
-            raise MapError(f"{what}: cannot read map file {str(path)!r}: {exc}") from exc
+            raise MapError(f"{what}: cannot read map file {str(path)!r}: {exc}") from None
         rows = text.splitlines()
         while rows and not rows[-1].strip():
             rows.pop()
         return rows, str(path)
     if isinstance(layout, np.ndarray):
-        layout = [str(r) for r in layout.tolist()]
-    try:
-        rows = list(layout)
-    except TypeError:
-        raise TypeError(
-            f"{what} must be a path to a map file or a list of row strings, got {type(layout).__name__}"
-        ) from None
+        if layout.ndim == 2 and layout.dtype.kind in "US":
+            layout = [(sep or "").join(str(c) for c in row) for row in layout.tolist()]
+        elif layout.ndim == 1 and layout.dtype.kind in "US":
+            layout = [str(r) for r in layout.tolist()]
+        else:
+            raise TypeError(f"{what} must be {accepted}; got a {layout.ndim}-D array of {layout.dtype}")
+    if not isinstance(layout, (list, tuple)):
+        raise TypeError(f"{what} must be {accepted}, got {type(layout).__name__} (a set or other unordered collection has no row order)")
+    rows = list(layout)
     for i, row in enumerate(rows):
         if not isinstance(row, str):
-            raise TypeError(
-                f"{what}: row {i + 1} must be a string, got {type(row).__name__} ({row!r})"
-            )
+            raise TypeError(f"{what}: row {i + 1} must be a string, got {type(row).__name__} ({row!r}); pass {accepted}")
+    if len(rows) > MAX_SIDE:
+        raise MapError(f"{what}: {len(rows)} rows, more than the {MAX_SIDE} a map may have")
     return rows, "<layout>"
 
 
@@ -144,40 +158,44 @@ def parse_rows(
     """
     if len(rows) == 0:
         raise MapError(f"{source}: the map is empty (it needs at least one row)")
+    if len(rows) > MAX_SIDE:
+        raise MapError(f"{source}: {len(rows)} rows, more than the {MAX_SIDE} a map may have")
     lookup = {s: i for i, s in enumerate(symbols)}
     lookup.update({s: -1 for s in obstacles})
     allowed = ", ".join(repr(s) for s in [*symbols, *obstacles])
-    grid: list[list[int]] = []
+    grid: list[np.ndarray] = []  # one small int array per row: a large map never becomes Python lists
     width = None
     for line_no, row in enumerate(rows, start=1):
-        if sep is None:
-            cells = list(row.rstrip("\r"))
-            columns = list(range(1, len(cells) + 1))
-        else:
-            parts = row.rstrip("\r").split(sep)
-            cells = [p.strip() for p in parts]
-            columns, col = [], 1
-            for p in parts:
-                columns.append(col + (len(p) - len(p.lstrip())))
-                col += len(p) + len(sep)
+        row = row.rstrip("\r")
+        cells = list(row) if sep is None else [p.strip() for p in row.split(sep)]
         if len(cells) == 0 or (len(cells) == 1 and cells[0] == ""):
             raise MapError(f"{source}, line {line_no}: empty row")
+        if len(cells) > MAX_SIDE:
+            raise MapError(f"{source}, line {line_no}: {len(cells)} cells, more than the {MAX_SIDE} a map may have")
         if width is None:
             width = len(cells)
         elif len(cells) != width:
             raise MapError(
                 f"{source}, line {line_no}: ragged row: {len(cells)} cells where line 1 has {width}"
             )
-        out = []
-        for cell, column in zip(cells, columns):
-            if cell not in lookup:
-                raise MapError(
-                    f"{source}, line {line_no}, column {column}: unknown symbol {cell!r} "
-                    f"(allowed: {allowed})"
-                )
-            out.append(lookup[cell])
-        grid.append(out)
-    labels = np.array(grid, dtype=np.int64)
+        try:
+            grid.append(np.array([lookup[c] for c in cells], dtype=np.int8 if len(symbols) < 127 else np.int64))
+        except KeyError:
+            k = next(i for i, c in enumerate(cells) if c not in lookup)
+            raise MapError(
+                f"{source}, line {line_no}, column {_column(row, sep, k)}: unknown symbol {cells[k]!r} "
+                f"(allowed: {allowed})"
+            ) from None
+    labels = np.stack(grid).astype(np.int64)
     if not (labels >= 0).any():
         raise MapError(f"{source}: the map has no free cell: a robot needs somewhere to be")
     return GridMap(labels, tuple(symbols))
+
+
+def _column(row: str, sep: str | None, k: int) -> int:
+    """The 1-based column where cell ``k`` of ``row`` starts (its first non-blank character)."""
+    if sep is None:
+        return k + 1
+    parts = row.split(sep)
+    col = 1 + sum(len(p) + len(sep) for p in parts[:k])
+    return col + len(parts[k]) - len(parts[k].lstrip())
