@@ -52,6 +52,7 @@ TOP_KEYS = {
     "eval_freq": "steps between evaluations on held-out seeds; the best evaluated model is saved (0 = keep the last)",
     "eval_episodes": "episodes per evaluation (seeds 2_000_000 + i)",
     "pretrain": "optional behaviour-cloning warm start: expert, episodes, epochs, batch_size, learning_rate",
+    "vec_env": "dummy (SB3's DummyVecEnv of wrapped envs, default) or native (gym_gridloc's vector env)",
 }
 
 PRETRAIN_KEYS = {
@@ -62,7 +63,7 @@ PRETRAIN_KEYS = {
     "learning_rate": "Adam learning rate of the warm start",
 }
 
-WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool}
+WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool}
 
 POLICIES = {
     "ppo": ("MlpPolicy", "MultiInputPolicy"),
@@ -72,7 +73,8 @@ POLICIES = {
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "gelu")
 
 POLICY_KWARGS = {
-    "ppo": {"net_arch", "activation_fn", "ortho_init", "log_std_init", "share_features_extractor"},
+    "ppo": {"net_arch", "activation_fn", "ortho_init", "log_std_init", "share_features_extractor",
+            "features_extractor", "features_extractor_kwargs"},
     "recurrent_ppo": {
         "net_arch", "activation_fn", "ortho_init", "lstm_hidden_size", "n_lstm_layers",
         "shared_lstm", "enable_critic_lstm", "share_features_extractor",
@@ -194,11 +196,15 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     wrapper.setdefault("belief", algo == "ppo")
     wrapper.setdefault("flatten", bool(wrapper["belief"]))
     wrapper.setdefault("full_state", False)
+    wrapper.setdefault("map", False)
     for k, v in wrapper.items():
         if not isinstance(v, bool):
             raise ConfigError(f"{source}: wrapper.{k} must be true or false, got {v!r}")
-    if not wrapper["belief"] and (wrapper["flatten"] or wrapper["full_state"]):
-        raise ConfigError(f"{source}: wrapper.flatten / wrapper.full_state need wrapper.belief: true")
+    if not wrapper["belief"] and (wrapper["flatten"] or wrapper["full_state"] or wrapper["map"]):
+        raise ConfigError(f"{source}: wrapper.flatten / wrapper.full_state / wrapper.map need wrapper.belief: true")
+    cfg["vec_env"] = cfg.get("vec_env", "dummy")
+    if cfg["vec_env"] not in ("dummy", "native"):
+        raise ConfigError(f"{source}: vec_env must be dummy or native, got {cfg['vec_env']!r}")
 
     cfg["n_envs"] = _num(source, "n_envs", cfg.get("n_envs", 8), integer=True, minimum=1)
     cfg["seed"] = _num(source, "seed", cfg.get("seed", 0), integer=True, minimum=0, maximum=2**32 - 1)
@@ -227,6 +233,18 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         raise ConfigError(
             f"{source}: unknown key(s) in policy_kwargs: {', '.join(map(repr, bad))}; allowed for {algo}: {', '.join(sorted(POLICY_KWARGS[algo]))}"
         )
+    if "features_extractor" in pk:
+        from gym_gridloc_agents.features import EXTRACTORS
+
+        if pk["features_extractor"] not in EXTRACTORS:
+            raise ConfigError(f"{source}: policy_kwargs.features_extractor must be one of {', '.join(EXTRACTORS)}, got {pk['features_extractor']!r}")
+        if cfg["policy"] != POLICIES[algo][1]:
+            raise ConfigError(f"{source}: policy_kwargs.features_extractor reads Dict observations: use policy {POLICIES[algo][1]} (wrapper.flatten: false)")
+    fek = pk.get("features_extractor_kwargs", {})
+    if not isinstance(fek, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v > 0 for k, v in fek.items()):
+        raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs must map names to positive integers, got {fek!r}")
+    if fek and "features_extractor" not in pk:
+        raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs needs policy_kwargs.features_extractor")
     if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
         raise ConfigError(f"{source}: policy_kwargs.activation_fn must be one of {', '.join(ACTIVATIONS)}, got {pk['activation_fn']!r}")
     if "net_arch" in pk:

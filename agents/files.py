@@ -174,7 +174,8 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
     if env_kwargs is not None and "env_kwargs" in meta and _canonical(meta["env_kwargs"]) != _canonical(env_kwargs):
         raise ValueError(
             f"{path} was trained for {meta.get('env_id', 'its environment')} with env_kwargs {meta['env_kwargs']}, "
-            f"not {dict(env_kwargs)}: pass the same keyword arguments, or a model trained for these"
+            f"not {dict(env_kwargs)}: pass the same keyword arguments, or a model trained for these "
+            f"({', '.join(EPISODE_KWARGS)} may differ)"
         )
     Algo = algo_class(algo)
     try:
@@ -194,6 +195,12 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
     return model, meta
 
 
+#: Environment keywords that shape episodes, not the model a policy acts on: they may differ
+#: between training and use (e.g. a policy trained for 15 steps, benchmarked at 30).
+EPISODE_KWARGS = ("episode_length", "reward", "render_mode", "new_map_each_reset")
+
+
 def _canonical(kwargs: dict) -> str:
-    """Keyword arguments in one comparable form (tuples and lists alike, keys sorted)."""
-    return json.dumps(kwargs, sort_keys=True, default=str)
+    """The model-defining keyword arguments in one comparable form (tuples and lists alike, keys
+    sorted, :data:`EPISODE_KWARGS` left out)."""
+    return json.dumps({k: v for k, v in kwargs.items() if k not in EPISODE_KWARGS}, sort_keys=True, default=str)

@@ -141,10 +141,13 @@ class Greedy2Policy(GreedyPolicy):
 
 
 class PPOPolicy(Policy):
-    """A stable-baselines3 PPO model trained on ``HMMBeliefWrapper(env, flatten=True)``.
+    """A stable-baselines3 PPO model trained on ``HMMBeliefWrapper`` observations.
 
-    ``path`` defaults to the shipped model for ``env_id`` (``agents/policies/<env_id>.zip``).
-    Model zip files are pickles: load only files from a trusted source.
+    ``path`` defaults to the shipped model for ``env_id`` (``agents/policies/<env_id>.zip``).  The
+    observation is built as the wrapper the model was trained behind built it: its options
+    (``flatten``, ``full_state``, ``map``) come from the metadata beside the model (or
+    ``wrapper=``; default ``flatten=True``).  Model zip files are pickles: load only files from a
+    trusted source.
     """
 
     name = "ppo"
@@ -159,6 +162,7 @@ class PPOPolicy(Policy):
         observation_space: spaces.Space | None = None,
         path: str | Path | None = None,
         sb3_model: Any = None,
+        wrapper: dict[str, Any] | None = None,
         seed: int | None = None,
         deterministic: bool = True,
     ) -> None:
@@ -166,30 +170,56 @@ class PPOPolicy(Policy):
         self.deterministic = bool(deterministic)
         if sb3_model is not None:  # a model in memory (e.g. evaluated during training)
             self.path, self.sb3, self.meta = None, sb3_model, {}
+            self.wrapper = _wrapper_options(wrapper)
             return
-        from gym_gridloc_agents.files import load_model  # heavy imports (torch) only when needed
+        from gym_gridloc_agents.files import load_model, read_metadata  # heavy imports (torch) only when needed
 
         if path is None:
             if env_id is None:
                 raise ValueError(f"policy {self.name!r} needs env_id=... (for the shipped model) or path=...")
             path = default_model_path(env_id, self.algo)
         self.path = Path(path)
+        self.wrapper = _wrapper_options(wrapper if wrapper is not None else read_metadata(self.path).get("wrapper")
+                                        if self.path.is_file() else None)
         expected = self.expected_space(model) if observation_space is None else observation_space
         self.sb3, self.meta = load_model(self.path, algo=self.algo, env_id=env_id, env_kwargs=env_kwargs,
                                          observation_space=expected)
 
-    @staticmethod
-    def expected_space(model: GridModel) -> spaces.Space:
-        n = model.sensor.encoded_size + int(np.prod(model.shape))
-        return spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
+    def expected_space(self, model: GridModel) -> spaces.Space:
+        from gym_gridloc.wrappers import belief_observation_space
 
-    def encode(self, observation: Any, belief: np.ndarray) -> np.ndarray:
-        """The flat observation ``HMMBeliefWrapper(flatten=True)`` would give."""
-        return flat_observation(self.model, observation, self._full_belief(belief))
+        w = self.wrapper
+        return belief_observation_space(model, model.sensor.observation_space, flatten=w["flatten"],
+                                        full_state=w["full_state"], map=w["map"])
+
+    def encode(self, observation: Any, belief: np.ndarray) -> Any:
+        """The observation the model's ``HMMBeliefWrapper`` would give."""
+        return wrapped_observation(self.model, observation, self._full_belief(belief), **self.wrapper)
 
     def act(self, observation: Any, belief: np.ndarray) -> int:
         action, _ = self.sb3.predict(self.encode(observation, belief), deterministic=self.deterministic)
         return int(action)
+
+
+def _wrapper_options(wrapper: dict[str, Any] | None) -> dict[str, bool]:
+    w = dict(wrapper or {"flatten": True})
+    return {"flatten": bool(w.get("flatten", False)), "full_state": bool(w.get("full_state", False)),
+            "map": bool(w.get("map", False))}
+
+
+def wrapped_observation(model: GridModel, observation: Any, belief: np.ndarray, *, flatten: bool = True,
+                        full_state: bool = False, map: bool = False) -> Any:
+    """The observation ``HMMBeliefWrapper(flatten=..., full_state=..., map=...)`` gives for a
+    sensor observation and the hidden-state belief ``(L, H, W)``."""
+    from gym_gridloc.wrappers import batch_observation, map_channels
+
+    b = np.asarray(belief)
+    b = (b if full_state else b[0] if b.shape[0] == 1 else b.sum(axis=0)).astype(np.float32)
+    np.clip(b, 0.0, 1.0, out=b)
+    reading = np.array([model.sensor.to_reading(observation)])
+    maps = map_channels(model)[None] if map else None
+    out = batch_observation(model, [observation], reading, b[None], flatten=flatten, maps=maps)
+    return out[0] if flatten else {k: np.asarray(v[0]) for k, v in out.items()}
 
 
 class RecurrentPolicy(PPOPolicy):
@@ -207,8 +237,7 @@ class RecurrentPolicy(PPOPolicy):
         self._state = None
         self._start = np.ones((1,), dtype=bool)
 
-    @staticmethod
-    def expected_space(model: GridModel) -> spaces.Space:
+    def expected_space(self, model: GridModel) -> spaces.Space:
         return model.sensor.observation_space
 
     def reset(self, seed: int | None = None, model: GridModel | None = None) -> None:
@@ -223,16 +252,6 @@ class RecurrentPolicy(PPOPolicy):
         )
         self._start = np.zeros((1,), dtype=bool)
         return int(np.asarray(action).reshape(-1)[0])
-
-
-def flat_observation(model: GridModel, observation: Any, belief: np.ndarray) -> np.ndarray:
-    """The observation ``HMMBeliefWrapper(flatten=True)`` gives for a sensor observation and the
-    hidden-state belief ``(L, H, W)``: the encoded reading, then the position belief (float32)."""
-    b = np.asarray(belief)
-    pos = (b[0] if b.shape[0] == 1 else b.sum(axis=0)).astype(np.float32)
-    np.clip(pos, 0.0, 1.0, out=pos)
-    sensor = model.sensor
-    return np.concatenate([sensor.encode(np.array([sensor.to_reading(observation)]))[0], pos.ravel()])
 
 
 def default_model_path(env_id: str, algo: str = "ppo") -> Path:

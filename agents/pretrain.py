@@ -70,7 +70,7 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
     from tqdm.auto import tqdm
 
     from gym_gridloc_agents.envs import make_env
-    from gym_gridloc_agents.policies import flat_observation, make_policy
+    from gym_gridloc_agents.policies import make_policy, wrapped_observation
     from gym_gridloc_agents.rollout import rollout
 
     pre = cfg["pretrain"]
@@ -93,7 +93,7 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
                 g = r + gamma * g
                 rets.append(g)
             episodes.append({
-                "obs": np.asarray([flat_observation(model, o, b) for o, b in zip(ep.observations, ep.beliefs)], dtype=np.float32),
+                "obs": np.asarray([wrapped_observation(model, o, b) for o, b in zip(ep.observations, ep.beliefs)], dtype=np.float32),
                 "actions": np.asarray(ep.actions, dtype=np.int64),
                 "returns": np.asarray(rets[::-1], dtype=np.float32),
                 "length": ep.steps,

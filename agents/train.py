@@ -64,9 +64,14 @@ def versions() -> dict[str, str]:
 
 
 def _policy_kwargs(cfg: dict[str, Any]) -> dict[str, Any]:
+    """The config's policy_kwargs with names looked up in fixed tables (never evaluated)."""
     pk = dict(cfg["policy_kwargs"])
     if "activation_fn" in pk:
         pk["activation_fn"] = activation(pk["activation_fn"])
+    if "features_extractor" in pk:
+        from gym_gridloc_agents.features import EXTRACTORS
+
+        pk["features_extractor_class"] = EXTRACTORS[pk.pop("features_extractor")]
     return pk
 
 
@@ -101,18 +106,42 @@ def check_outputs(cfg: dict[str, Any], ckpt_dir: Path, *, force: bool) -> None:
 EVAL_SEED_BASE = 2_000_000
 
 
-def evaluate(model, cfg: dict[str, Any], episodes: int) -> float:
-    """Mean steps to localise of ``model`` (deterministic) on seeds ``EVAL_SEED_BASE + i``, which
-    are disjoint from the benchmark's ``0..N-1``; a truncated episode counts at the step limit."""
+def evaluation_episodes(env, cfg: dict[str, Any], episodes: int) -> list[tuple[int, dict[str, Any] | None]]:
+    """``(seed, reset options)`` of the held-out evaluation episodes: seeds ``EVAL_SEED_BASE + i``
+    (disjoint from the benchmark's ``0..N-1``); where the environment draws a new map at every
+    reset, also the validation maps of :func:`gym_gridloc.maps.validation_set` (never the test set)."""
+    from gym_gridloc import maps
+
+    unwrapped = env.unwrapped
+    if unwrapped._map_factory is not None and cfg["env_id"] in maps.families():
+        held = maps.validation_set(cfg["env_id"], unwrapped.model.shape[0], episodes)
+        return [(EVAL_SEED_BASE + m.index, {"map": m.grid, "state": m.state}) for m in held]
+    return [(EVAL_SEED_BASE + i, None) for i in range(episodes)]
+
+
+def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
+    """``model`` (deterministic) on the held-out evaluation episodes: mean steps to localise (a
+    truncated episode counts at its length), the fraction that end collapsed onto the truth
+    (``accuracy``) and the fraction whose most probable state is the truth at the end."""
     from gym_gridloc_agents.policies import PPOPolicy, RecurrentPolicy
     from gym_gridloc_agents.rollout import rollout
 
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
     cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy
-    policy = cls(env.unwrapped.model, sb3_model=model)
-    total = sum(rollout(env, policy, EVAL_SEED_BASE + i).steps for i in range(episodes))
+    kwargs = {} if cls is RecurrentPolicy else {"wrapper": cfg["wrapper"]}
+    policy = cls(env.unwrapped.model, sb3_model=model, **kwargs)
+    eps = [rollout(env, policy, seed, reset_options=opts) for seed, opts in evaluation_episodes(env, cfg, episodes)]
     env.close()
-    return total / episodes
+    n = len(eps)
+    return {"mean_steps": sum(e.steps for e in eps) / n, "accuracy": sum(e.collapsed[-1] for e in eps) / n,
+            "argmax_accuracy": sum(e.correct[-1] for e in eps) / n}
+
+
+def _score(cfg: dict[str, Any], entry: dict[str, Any]) -> float:
+    """Lower is better: mean steps, or minus the accuracy for fixed-length (protocol) episodes."""
+    if cfg["env_kwargs"].get("episode_length"):
+        return -entry["accuracy"]
+    return entry["mean_steps"]
 
 
 def _eval_callback(cfg: dict[str, Any], directory: Path, history: list, on_evaluation=None):
@@ -137,11 +166,11 @@ def _eval_callback(cfg: dict[str, Any], directory: Path, history: list, on_evalu
 def record_evaluation(model, cfg, episodes, directory: Path, history: list, on_evaluation=None) -> None:
     """Evaluate, append to ``history`` (which may hold the evaluations of an interrupted run) and
     keep the best model so far as ``best.zip``."""
-    mean = evaluate(model, cfg, episodes)
-    best = min((h["mean_steps"] for h in history), default=float("inf"))
-    entry = {"num_timesteps": int(model.num_timesteps), "mean_steps": round(mean, 4)}
+    result = evaluate(model, cfg, episodes)
+    best = min((_score(cfg, h) for h in history), default=float("inf"))
+    entry = {"num_timesteps": int(model.num_timesteps), **{k: round(v, 4) for k, v in result.items()}}
     history.append(entry)
-    if mean < best or not (directory / "best.zip").is_file():
+    if _score(cfg, entry) < best or not (directory / "best.zip").is_file():
         atomic_save_model(model, directory / "best.zip")
     if on_evaluation is not None:
         on_evaluation(dict(entry))
@@ -290,7 +319,7 @@ def train(
         # best_model: PPO's evaluation curve is noisy from one update to the next.
         if not evaluations or evaluations[-1]["num_timesteps"] != int(model.num_timesteps):
             record_evaluation(model, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
-        best = min(evaluations, key=lambda h: h["mean_steps"])
+        best = min(evaluations, key=lambda h: _score(cfg, h))
         selected = best["num_timesteps"]
         final_timesteps = int(model.num_timesteps)
         model = Algo.load(ckpt_dir / "best.zip", device="cpu")

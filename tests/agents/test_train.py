@@ -211,7 +211,7 @@ def test_held_out_evaluation_keeps_the_best_model(tmp_path):
 
     model, _ = load_model(tmp_path / "model.zip", env_id="ColourGrid-v0")
     cfg = validate_config(tiny(tmp_path))
-    assert evaluate(model, cfg, 3) == pytest.approx(best["mean_steps"], abs=1e-3)
+    assert evaluate(model, cfg, 3)["mean_steps"] == pytest.approx(best["mean_steps"], abs=1e-3)
 
 
 def test_tensorboard_logging(tmp_path):
@@ -334,7 +334,7 @@ def test_resume_keeps_the_evaluations_and_the_best_model_of_the_interrupted_run(
     from stable_baselines3.common.callbacks import BaseCallback
 
     scores = iter([3.0, 9.0, 9.0, 9.0, 9.0, 9.0])
-    monkeypatch.setattr(t, "evaluate", lambda model, cfg, episodes: next(scores))
+    monkeypatch.setattr(t, "evaluate", lambda model, cfg, episodes: {"mean_steps": next(scores), "accuracy": 0.0, "argmax_accuracy": 0.0})
 
     class CtrlC(BaseCallback):
         def _on_step(self):
