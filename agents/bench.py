@@ -31,6 +31,8 @@ from gym_gridloc_agents.policies import POLICY_DIR, POLICY_NAMES, make_policy
 from gym_gridloc_agents.rollout import rollout
 
 BUDGETS = (5, 10, 25, 50)
+#: The environments of ``gridloc bench --all`` (fixed maps, shipped policies).
+BENCH_ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0")
 
 
 def simulate(

@@ -138,15 +138,14 @@ def _fail(command: str, message: str) -> int:
 
 
 def _bench(args) -> int:
-    import gym_gridloc
-    from gym_gridloc_agents.bench import markdown_table, plot, public_row, read_rows, run_benchmark
+    from gym_gridloc_agents.bench import BENCH_ENV_IDS, markdown_table, plot, public_row, read_rows, run_benchmark
     from gym_gridloc_agents.envs import check_environment
     from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write, writable_file
     from gym_gridloc_agents.policies import POLICY_NAMES
 
     if args.all == bool(args.env):
         return _fail("bench", "give exactly one of --env ENV_ID or --all")
-    envs = list(gym_gridloc.ENV_IDS) if args.all else [args.env]
+    envs = list(BENCH_ENV_IDS) if args.all else [args.env]
     policies = [p.strip() for p in (args.policies or ",".join(POLICY_NAMES)).split(",") if p.strip()]
     episodes = args.episodes if args.episodes is not None else (1000 if args.all else 200)
     json_path = args.json or (str(RESULTS / "bench.json") if args.all else None)

@@ -22,7 +22,6 @@ import hashlib
 import os
 import platform
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable

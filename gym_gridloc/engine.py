@@ -46,7 +46,7 @@ __all__ = [
 class _Derived:
     """What the engine derives from one model, built on first use."""
 
-    __slots__ = ("transitions", "_plan", "_liks", "_lik_bytes", "layered", "hw", "_steppers", "__weakref__")
+    __slots__ = ("transitions", "_plan", "_liks", "_lik_bytes", "layered", "_steppers", "__weakref__")
 
     #: At most this many bytes of single-reading likelihoods are kept per model.
     LIK_CACHE_BYTES = 32 * 2**20
@@ -60,7 +60,6 @@ class _Derived:
         self._lik_bytes = 0
         self.layered = int(model.sensor.layered)
         self._steppers: dict[bool, Any] = {}
-        self.hw = model.shape[0] * model.shape[1]
 
     def lik(self, model: GridModel, reading: int) -> np.ndarray:
         """The flat likelihood of one reading (cached while the cache is small)."""

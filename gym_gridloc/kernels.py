@@ -135,7 +135,7 @@ class NumpyPlan:
 
     def __init__(self, transitions, n_layers: int, shape: tuple[int, int]) -> None:
         h, w = shape
-        self.hw = hw = h * w
+        self.hw = h * w
         self.n_layers = n_layers
         self.single = [self._diagonals(terms, w) for terms in transitions]
         self._transitions = transitions

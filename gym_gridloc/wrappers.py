@@ -203,8 +203,11 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options)
         env_model = getattr(self.env.unwrapped, "model", None) if self._follows_env else None
         if env_model is not None and env_model is not self.model:  # the map was redrawn at reset
+            previous = self.filter
             self.model = env_model
             self.filter = self._make_filter(env_model)
+            if self.belief == "particles":  # the particles' stream goes on (seeded or not) across maps
+                self.filter.rng = previous.rng
         self._reset_flag = False
         if seed is not None and self.belief == "particles":  # a stream of its own, fixed by the seed
             self.filter.seed(np.random.SeedSequence(seed, spawn_key=(1,)))

@@ -185,6 +185,12 @@ class GridLocEnv(gym.Env):
         return self._last_reading
 
 
+def redraw(rng: np.random.Generator, *, build: Callable[[Any], GridModel], draw: Callable[[np.random.Generator], Any]) -> GridModel:
+    """``build(draw(rng))``: the model on a newly drawn map.  Bound with ``functools.partial`` to
+    module-level ``build`` and ``draw`` functions, a map factory pickles with its environment."""
+    return build(draw(rng))
+
+
 def _int_tuple(value: Any) -> tuple[int, ...] | None:
     """``value`` as a tuple of ints if it is a sequence of whole numbers (not strings or bools)."""
     if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):

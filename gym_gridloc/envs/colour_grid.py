@@ -1,7 +1,19 @@
 from __future__ import annotations
 
-from gym_gridloc.envs.base import GridLocEnv
+import functools
+
+from gym_gridloc.envs.base import GridLocEnv, redraw
 from gym_gridloc.models import colour_grid_model
+
+
+def _build(grid, *, slip, accuracy, kidnap_prob):
+    return colour_grid_model(grid, slip=slip, accuracy=accuracy).with_kidnapping(kidnap_prob)
+
+
+def _draw(rng, *, size, obstacle_density, n_colours):
+    from gym_gridloc.generators import colour_map
+
+    return colour_map(size, obstacle_density=obstacle_density, n_colours=n_colours, seed=rng)
 
 
 class ColourGridEnv(GridLocEnv):
@@ -56,8 +68,6 @@ class ColourGridEnv(GridLocEnv):
                  render_mode: str | None = None, size=None, obstacle_density: float | None = None,
                  n_colours: int | None = None, map_seed: int | None = None,
                  new_map_each_reset: bool = False) -> None:
-        from gym_gridloc.generators import colour_map
-
         options = {"size": size, "obstacle_density": obstacle_density, "n_colours": n_colours, "map_seed": map_seed}
         generated = new_map_each_reset or any(v is not None for v in options.values())
         if generated and layout is not None:
@@ -66,14 +76,12 @@ class ColourGridEnv(GridLocEnv):
         if not isinstance(new_map_each_reset, bool):
             raise TypeError(f"new_map_each_reset must be True or False, got {new_map_each_reset!r}")
 
-        def build(grid):
-            return colour_grid_model(grid, slip=slip, accuracy=accuracy).with_kidnapping(kidnap_prob)
-
-        def draw(rng):
-            return colour_map((5, 5) if size is None else size,
-                              obstacle_density=0.2 if obstacle_density is None else obstacle_density,
-                              n_colours=4 if n_colours is None else n_colours, seed=rng)
+        # Module-level functions bound with partial: the environment pickles with them.
+        build = functools.partial(_build, slip=slip, accuracy=accuracy, kidnap_prob=kidnap_prob)
+        draw = functools.partial(_draw, size=(5, 5) if size is None else size,
+                                 obstacle_density=0.2 if obstacle_density is None else obstacle_density,
+                                 n_colours=4 if n_colours is None else n_colours)
 
         grid = draw(0 if map_seed is None else map_seed) if generated else layout
         super().__init__(build(grid), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
-                         map_factory=(lambda rng: build(draw(rng))) if new_map_each_reset else None)
+                         map_factory=functools.partial(redraw, build=build, draw=draw) if new_map_each_reset else None)

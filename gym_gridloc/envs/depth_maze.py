@@ -1,7 +1,20 @@
 from __future__ import annotations
 
-from gym_gridloc.envs.base import GridLocEnv
+import functools
+
+from gym_gridloc.envs.base import GridLocEnv, redraw
 from gym_gridloc.models import depth_maze_model
+
+
+def _build(grid, *, p_turn_fail, p_move_fail, p_depth_error, max_depth, kidnap_prob):
+    return depth_maze_model(grid, p_turn_fail=p_turn_fail, p_move_fail=p_move_fail, p_depth_error=p_depth_error,
+                            max_depth=max_depth).with_kidnapping(kidnap_prob)
+
+
+def _draw(rng, *, size):
+    from gym_gridloc.generators import perfect_maze
+
+    return perfect_maze(size, seed=rng)
 
 
 class DepthMazeEnv(GridLocEnv):
@@ -60,7 +73,6 @@ class DepthMazeEnv(GridLocEnv):
                  p_depth_error: float = 0.0, localise_threshold: float = 0.9, episode_length: int | None = None,
                  reward: str = "step", kidnap_prob: float = 0.0, render_mode: str | None = None) -> None:
         from gym_gridloc.core.validation import check_int
-        from gym_gridloc.generators import perfect_maze
 
         if new_map_each_reset is None:
             new_map_each_reset = layout is None and map_seed is None
@@ -72,13 +84,13 @@ class DepthMazeEnv(GridLocEnv):
         if n % 2 == 0:
             raise ValueError(f"size must be odd (rooms at odd coordinates, walls all round), got {size!r}")
 
-        def build(grid):
-            return depth_maze_model(grid, p_turn_fail=p_turn_fail, p_move_fail=p_move_fail,
-                                    p_depth_error=p_depth_error, max_depth=n - 2 if layout is None else None
-                                    ).with_kidnapping(kidnap_prob)
+        # Module-level functions bound with partial: the environment pickles with them.
+        build = functools.partial(_build, p_turn_fail=p_turn_fail, p_move_fail=p_move_fail, p_depth_error=p_depth_error,
+                                  max_depth=n - 2 if layout is None else None, kidnap_prob=kidnap_prob)
+        draw = functools.partial(_draw, size=n)
 
-        first = layout if layout is not None else perfect_maze(n, seed=0 if map_seed is None else map_seed)
+        first = layout if layout is not None else draw(0 if map_seed is None else map_seed)
         super().__init__(build(first), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
-                         map_factory=(lambda rng: build(perfect_maze(n, seed=rng))) if new_map_each_reset else None,
+                         map_factory=functools.partial(redraw, build=build, draw=draw) if new_map_each_reset else None,
                          referee_pose=True, episode_length=episode_length, reward=reward)
         self.size = n

@@ -1,7 +1,19 @@
 from __future__ import annotations
 
-from gym_gridloc.envs.base import GridLocEnv
+import functools
+
+from gym_gridloc.envs.base import GridLocEnv, redraw
 from gym_gridloc.models import windy_maze_model
+
+
+def _build(grid, *, drift, p_detect, p_false_alarm, kidnap_prob):
+    return windy_maze_model(grid, drift=drift, p_detect=p_detect, p_false_alarm=p_false_alarm).with_kidnapping(kidnap_prob)
+
+
+def _draw(rng, *, size):
+    from gym_gridloc.generators import maze_map
+
+    return maze_map(size, seed=rng)
 
 
 class WindyMazeEnv(GridLocEnv):
@@ -51,21 +63,17 @@ class WindyMazeEnv(GridLocEnv):
                  localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
                  render_mode: str | None = None, size=None, map_seed: int | None = None,
                  new_map_each_reset: bool = False) -> None:
-        from gym_gridloc.generators import maze_map
-
         generated = new_map_each_reset or size is not None or map_seed is not None
         if generated and layout is not None:
             raise ValueError("give either layout=... or a generated maze (size, map_seed, new_map_each_reset), not both")
         if not isinstance(new_map_each_reset, bool):
             raise TypeError(f"new_map_each_reset must be True or False, got {new_map_each_reset!r}")
 
-        def build(grid):
-            return windy_maze_model(grid, drift=drift, p_detect=p_detect,
-                                    p_false_alarm=p_false_alarm).with_kidnapping(kidnap_prob)
-
-        def draw(rng):
-            return maze_map((7, 7) if size is None else size, seed=rng)
+        # Module-level functions bound with partial: the environment pickles with them.
+        build = functools.partial(_build, drift=drift, p_detect=p_detect, p_false_alarm=p_false_alarm,
+                                  kidnap_prob=kidnap_prob)
+        draw = functools.partial(_draw, size=(7, 7) if size is None else size)
 
         grid = draw(0 if map_seed is None else map_seed) if generated else layout
         super().__init__(build(grid), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
-                         map_factory=(lambda rng: build(draw(rng))) if new_map_each_reset else None)
+                         map_factory=functools.partial(redraw, build=build, draw=draw) if new_map_each_reset else None)

@@ -18,6 +18,7 @@ from gym_gridloc_agents.policies import (
     make_policy,
 )
 from gym_gridloc.filter import ForwardFilter
+from gym_gridloc_agents.bench import BENCH_ENV_IDS
 
 
 def _entropy_bits(p: np.ndarray) -> float:
@@ -129,7 +130,7 @@ def test_random_policy_is_seeded_and_uniform():
     assert counts.min() > 60
 
 
-@pytest.mark.parametrize("env_id", gym_gridloc.ENV_IDS)
+@pytest.mark.parametrize("env_id", BENCH_ENV_IDS)
 @pytest.mark.parametrize("name", POLICY_NAMES)
 def test_every_policy_returns_valid_actions(env_id, name):
     env = gym_gridloc.HMMBeliefWrapper(gym.make(env_id))
@@ -146,7 +147,7 @@ def test_every_policy_returns_valid_actions(env_id, name):
 
 
 def test_shipped_models_have_metadata():
-    for env_id in gym_gridloc.ENV_IDS:
+    for env_id in BENCH_ENV_IDS:
         for algo in ("ppo", "recurrent_ppo"):
             path = default_model_path(env_id, algo)
             assert path.is_file(), path
