@@ -56,11 +56,14 @@ TOP_KEYS = {
 }
 
 PRETRAIN_KEYS = {
-    "expert": "greedy or greedy2: the policy to imitate",
+    "expert": "the policy to imitate (a policy name that needs no model file: greedy, greedy2, a planner)",
+    "expert_kwargs": "the expert's options (numbers, strings, booleans), e.g. {depth: 2}",
     "episodes": "expert episodes to collect (seeds 1_000_000 + i, disjoint from the benchmark's)",
-    "epochs": "passes over the collected data",
+    "epochs": "passes over the collected data (and over the data after each DAgger round)",
     "batch_size": "minibatch size",
     "learning_rate": "Adam learning rate of the warm start",
+    "dagger_rounds": "DAgger rounds after the cloning (0: none): the student plays, the expert labels",
+    "dagger_episodes": "episodes the student plays per DAgger round",
 }
 
 WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool}
@@ -285,16 +288,23 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     cfg.setdefault("description", "")
     pre = cfg.setdefault("pretrain", None)
     if pre is not None:
-        if algo != "ppo" or not wrapper["flatten"]:
-            raise ConfigError(f"{source}: pretrain needs algo: ppo with wrapper.flatten: true")
+        if algo != "ppo" or not wrapper["belief"]:
+            raise ConfigError(f"{source}: pretrain needs algo: ppo with wrapper.belief: true")
         if not isinstance(pre, dict):
             raise ConfigError(f"{source}: pretrain must be a mapping, got {pre!r}")
         bad = sorted(set(pre) - set(PRETRAIN_KEYS))
         if bad:
             raise ConfigError(f"{source}: unknown key(s) in pretrain: {', '.join(map(repr, bad))}; allowed: {', '.join(PRETRAIN_KEYS)}")
-        if pre.get("expert", "greedy2") not in ("greedy", "greedy2"):
-            raise ConfigError(f"{source}: pretrain.expert must be greedy or greedy2, got {pre.get('expert')!r}")
+        from gym_gridloc_agents.policies import EXPERT_NAMES
+
+        if pre.get("expert", "greedy2") not in EXPERT_NAMES:
+            raise ConfigError(f"{source}: pretrain.expert must be one of {', '.join(EXPERT_NAMES)}, got {pre.get('expert')!r}")
         pre.setdefault("expert", "greedy2")
+        ek = pre.setdefault("expert_kwargs", {})
+        if not isinstance(ek, dict) or not all(isinstance(k, str) and isinstance(v, (int, float, str, bool)) for k, v in ek.items()):
+            raise ConfigError(f"{source}: pretrain.expert_kwargs must map names to numbers, strings or booleans, got {ek!r}")
+        pre["dagger_rounds"] = _num(source, "pretrain.dagger_rounds", pre.get("dagger_rounds", 0), integer=True, minimum=0)
+        pre["dagger_episodes"] = _num(source, "pretrain.dagger_episodes", pre.get("dagger_episodes", 200), integer=True, minimum=1)
         pre["episodes"] = _num(source, "pretrain.episodes", pre.get("episodes", 1000), integer=True, minimum=1)
         pre["epochs"] = _num(source, "pretrain.epochs", pre.get("epochs", 10), integer=True, minimum=1)
         pre["batch_size"] = _num(source, "pretrain.batch_size", pre.get("batch_size", 256), integer=True, minimum=1)

@@ -31,6 +31,8 @@ from gym_gridloc_agents.lookahead import Lookahead
 
 #: Names accepted by :func:`make_policy`.
 POLICY_NAMES = ("random", "greedy", "greedy2", "ppo", "recurrent")
+#: Policies a warm start may imitate (no model file of their own).
+EXPERT_NAMES = ("greedy", "greedy2")
 
 #: Where the shipped models live: ``<env_id>.zip`` (PPO) and ``<env_id>-recurrent.zip``.
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
@@ -269,6 +271,7 @@ def make_policy(
     seed: int | None = None,
     path: str | Path | None = None,
     pose: bool = False,
+    **options: Any,
 ) -> Policy:
     """A policy by name (one of :data:`POLICY_NAMES`) for an environment's model.
 

@@ -1,16 +1,18 @@
-"""Behaviour-cloning warm start of a PPO policy from an expert policy.
+"""Warm start of a PPO policy from an expert: behaviour cloning, then DAgger rounds.
 
-The expert (``greedy``, ``greedy2`` or a planner) plays ``episodes`` episodes on seeds
-``1_000_000 + i`` (disjoint from the benchmark's seeds ``0..N-1``).  The actor is fitted to the
-expert's actions (cross-entropy) and the critic to the discounted returns the expert obtained
-(reward -1 per step), so that PPO starts from the expert's behaviour with a matching value
-function; PPO then improves on it with the environment's own reward.  Only the PPO policy's
-weights are changed.
+The expert (``greedy``, ``greedy2``, a planner, ...) plays ``episodes`` episodes on seeds
+``1_000_000 + i`` (disjoint from the benchmark's seeds ``0..N-1`` and the held-out maps).  The
+actor is fitted to the expert's actions (cross-entropy) and the critic to the discounted returns
+obtained (the environment's own reward), so that PPO starts from the expert's behaviour with a
+matching value function.  With ``dagger_rounds`` (DAgger, Ross et al. 2011), each round then lets
+the student play ``dagger_episodes`` episodes (seeds ``1_500_000 + ...``), asks the expert what
+it would have done in every belief the student reached, adds those labels (and the student's
+returns) to the data and fits again: the student learns to recover from its own mistakes.  PPO
+then trains on the environment's reward.  Only the PPO policy's weights are changed.
 
-Nothing is lost to Ctrl-C: the expert's episodes are kept in a cache file (``expert.npz`` in the
-checkpoint directory, saved as they come when interrupted) and the cloning epochs already done
-are counted; :class:`WarmStartInterrupted` says how far it got, and a resumed training continues
-from there.
+Nothing is lost to Ctrl-C: the expert's episodes (and each DAgger round's labels) are kept in
+cache files in the checkpoint directory, and the epochs and rounds already done are counted;
+:class:`WarmStartInterrupted` says how far it got, and a resumed training continues from there.
 """
 
 from __future__ import annotations
@@ -23,81 +25,125 @@ from typing import Any
 import numpy as np
 
 PRETRAIN_SEED_BASE = 1_000_000
+DAGGER_SEED_BASE = 1_500_000
+
+
+class _FitInterrupted(Exception):
+    def __init__(self, done: int) -> None:
+        super().__init__(f"interrupted after {done} epochs")
+        self.done = done
 
 
 class WarmStartInterrupted(Exception):
-    """Ctrl-C during the warm start: ``episodes`` expert episodes are cached, ``epochs`` cloning
-    epochs are done."""
+    """Ctrl-C during the warm start, with how far it got."""
 
-    def __init__(self, episodes: int, epochs: int) -> None:
-        super().__init__(f"warm start interrupted after {episodes} expert episodes and {epochs} cloning epochs")
-        self.episodes, self.epochs = episodes, epochs
+    def __init__(self, episodes: int, epochs: int, rounds: int = 0) -> None:
+        super().__init__(f"warm start interrupted after {episodes} expert episodes, {epochs} cloning epochs "
+                         f"and {rounds} DAgger rounds")
+        self.episodes, self.epochs, self.rounds = episodes, epochs, rounds
 
 
-def _cache_key(cfg: dict[str, Any]) -> str:
+# -- samples ---------------------------------------------------------------------------------------
+def _discounted(rewards: list[float], gamma: float, truncated: bool) -> np.ndarray:
+    g = 0.0
+    if truncated:  # the episode would go on: a rough bootstrap, as if it had as many steps left
+        n = len(rewards)
+        g = -(1 - gamma ** n) / (1 - gamma) if gamma < 1 else -float(n)
+    out = []
+    for r in reversed(rewards):
+        g = r + gamma * g
+        out.append(g)
+    return np.asarray(out[::-1], dtype=np.float32)
+
+
+def _stack(observations: list[Any]) -> Any:
+    """A list of observations as one array, or a dict of arrays for Dict observations."""
+    if observations and isinstance(observations[0], dict):
+        return {k: np.stack([o[k] for o in observations]) for k in observations[0]}
+    return np.asarray(observations, dtype=np.float32)
+
+
+def _concat(parts: list[Any]) -> Any:
+    if parts and isinstance(parts[0], dict):
+        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    return np.concatenate(parts)
+
+
+def _episode_samples(ep, actions: list[int], wrapper: dict[str, Any], gamma: float) -> dict[str, Any]:
+    """One episode's samples: the observations PPO sees, the actions to imitate, the returns."""
+    from gym_gridloc_agents.policies import wrapped_observation
+
+    obs = [wrapped_observation(ep.model, o, b, flatten=wrapper["flatten"], full_state=wrapper["full_state"],
+                               map=wrapper["map"]) for o, b in zip(ep.observations, ep.beliefs)]
+    return {"obs": _stack(obs), "actions": np.asarray(actions, dtype=np.int64),
+            "returns": _discounted(ep.rewards, gamma, ep.truncated and not ep.terminated), "length": ep.steps}
+
+
+# -- caches ----------------------------------------------------------------------------------------
+def _cache_key(cfg: dict[str, Any], what: str) -> str:
     pre = cfg["pretrain"]
-    return json.dumps({"env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"], "expert": pre["expert"],
+    return json.dumps({"what": what, "env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"], "wrapper": cfg["wrapper"],
+                       "expert": pre["expert"], "expert_kwargs": pre.get("expert_kwargs", {}),
                        "gamma": float(cfg["hyperparams"].get("gamma", 0.99))}, sort_keys=True, default=str)
 
 
-def _load_cache(cache: Path | None, key: str) -> list[dict[str, np.ndarray]]:
+def _load_cache(cache: Path | None, key: str) -> list[dict[str, Any]]:
     if cache is None or not cache.is_file():
         return []
     try:
         with np.load(cache, allow_pickle=False) as data:
             if str(data["key"]) != key:
                 return []
-            bounds = data["bounds"]
-            return [{k: data[k][a:b] for k in ("obs", "actions", "returns")} | {"length": int(n)}
-                    for a, b, n in zip(bounds[:-1], bounds[1:], data["lengths"])]
+            bounds, lengths = data["bounds"], data["lengths"]
+            obs_keys = [k[4:] for k in data.files if k.startswith("obs.")]
+            out = []
+            for a, b, n in zip(bounds[:-1], bounds[1:], lengths):
+                obs = {k: data[f"obs.{k}"][a:b] for k in obs_keys} if obs_keys else data["obs"][a:b]
+                out.append({"obs": obs, "actions": data["actions"][a:b], "returns": data["returns"][a:b], "length": int(n)})
+            return out
     except (OSError, KeyError, ValueError):
         return []  # an unreadable cache is collected again
 
 
-def _save_cache(cache: Path, key: str, episodes: list[dict[str, np.ndarray]]) -> None:
+def _save_cache(cache: Path, key: str, episodes: list[dict[str, Any]]) -> None:
     from gym_gridloc_agents.files import atomic_path
 
+    if not episodes:
+        return
     sizes = [len(e["actions"]) for e in episodes]
-    arrays = {k: np.concatenate([e[k] for e in episodes]) if episodes else np.zeros(0) for k in ("obs", "actions", "returns")}
+    obs = _concat([e["obs"] for e in episodes])
+    arrays = {f"obs.{k}": v for k, v in obs.items()} if isinstance(obs, dict) else {"obs": obs}
     with atomic_path(cache) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, key=np.array(key), bounds=np.concatenate([[0], np.cumsum(sizes)]),
-                 lengths=np.array([e["length"] for e in episodes]), **arrays)
+                 lengths=np.array([e["length"] for e in episodes]), actions=np.concatenate([e["actions"] for e in episodes]),
+                 returns=np.concatenate([e["returns"] for e in episodes]), **arrays)
 
 
-def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | None = None) -> dict[str, np.ndarray]:
-    """The expert's episodes on the config's environment: the flat observations PPO sees, the
-    expert's actions and the discounted returns (continued from ``cache`` if it holds some)."""
+def _expert(cfg: dict[str, Any], env):
+    from gym_gridloc_agents.policies import make_policy
+
+    pre = cfg["pretrain"]
+    return make_policy(pre["expert"], env.unwrapped.model, pose=env.unwrapped.referee_pose, **pre.get("expert_kwargs", {}))
+
+
+def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | None = None) -> list[dict[str, Any]]:
+    """The expert's episodes as samples (continued from ``cache`` if it holds some)."""
     from tqdm.auto import tqdm
 
     from gym_gridloc_agents.envs import make_env
-    from gym_gridloc_agents.policies import make_policy, wrapped_observation
     from gym_gridloc_agents.rollout import rollout
 
     pre = cfg["pretrain"]
     gamma = float(cfg["hyperparams"].get("gamma", 0.99))
-    key = _cache_key(cfg)
+    key = _cache_key(cfg, "expert")
     episodes = _load_cache(cache, key)[: pre["episodes"]]
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
-    expert = make_policy(pre["expert"], env.unwrapped.model, pose=env.unwrapped.referee_pose)
+    expert = _expert(cfg, env)
     try:
         for i in tqdm(range(len(episodes), pre["episodes"]), desc=f"expert {pre['expert']} episodes",
                       disable=not progress, leave=False, initial=len(episodes), total=pre["episodes"]):
             ep = rollout(env, expert, PRETRAIN_SEED_BASE + i, keep=True)
-            model = env.unwrapped.model
-            g = 0.0
-            if ep.truncated and not ep.terminated:  # the episode would go on: a rough bootstrap, as if it had as many steps left
-                n = len(ep.rewards)
-                g = -(1 - gamma ** n) / (1 - gamma) if gamma < 1 else -float(n)
-            rets = []
-            for r in reversed(ep.rewards):
-                g = r + gamma * g
-                rets.append(g)
-            episodes.append({
-                "obs": np.asarray([wrapped_observation(model, o, b) for o, b in zip(ep.observations, ep.beliefs)], dtype=np.float32),
-                "actions": np.asarray(ep.actions, dtype=np.int64),
-                "returns": np.asarray(rets[::-1], dtype=np.float32),
-                "length": ep.steps,
-            })
+            episodes.append(_episode_samples(ep, ep.actions, cfg["wrapper"], gamma))
     except KeyboardInterrupt:
         if cache is not None:
             _save_cache(cache, key, episodes)
@@ -106,61 +152,127 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
         env.close()
     if cache is not None:
         _save_cache(cache, key, episodes)
-    return {
-        "obs": np.concatenate([e["obs"] for e in episodes]),
-        "actions": np.concatenate([e["actions"] for e in episodes]),
-        "returns": np.concatenate([e["returns"] for e in episodes]),
-        "lengths": np.asarray([e["length"] for e in episodes]),
-    }
+    return episodes
 
 
-def behaviour_cloning(model, cfg: dict[str, Any], progress: bool = True, *, cache: Path | None = None,
-                      start_epoch: int = 0) -> dict[str, Any]:
-    """Fit ``model.policy`` (an sb3 ActorCriticPolicy) to the expert, from epoch ``start_epoch``
-    (a resumed warm start); returns a summary.  Ctrl-C raises :class:`WarmStartInterrupted`."""
+def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = True) -> list[dict[str, Any]]:
+    """One DAgger round: the student (``model``, sampling its actions) plays; every belief it
+    reaches is labelled with the expert's action."""
+    from tqdm.auto import tqdm
+
+    from gym_gridloc_agents.envs import make_env
+    from gym_gridloc_agents.policies import PPOPolicy
+    from gym_gridloc_agents.rollout import rollout
+
+    pre = cfg["pretrain"]
+    gamma = float(cfg["hyperparams"].get("gamma", 0.99))
+    env = make_env(cfg["env_id"], cfg["env_kwargs"])
+    expert = _expert(cfg, env)
+    student = PPOPolicy(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"], deterministic=False)
+    out = []
+    n = pre["dagger_episodes"]
+    for i in tqdm(range(n), desc=f"DAgger round {round_index + 1}", disable=not progress, leave=False):
+        seed = DAGGER_SEED_BASE + round_index * n + i
+        ep = rollout(env, student, seed, keep=True)
+        expert.reset(seed=seed, model=ep.model)
+        labels = [expert.act(o, b) for o, b in zip(ep.observations, ep.beliefs)]
+        out.append(_episode_samples(ep, labels, cfg["wrapper"], gamma))
+    env.close()
+    return out
+
+
+# -- fitting ---------------------------------------------------------------------------------------
+def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, progress: bool, label: str) -> int:
+    """Fit the actor to the actions and the critic to the returns for ``epochs`` (a range: the
+    shuffles of earlier epochs are drawn first, so a resumed fit continues the same sequence).
+    Returns the number of epochs done; Ctrl-C raises :class:`_FitInterrupted` with that number."""
     import torch
     from tqdm.auto import tqdm
 
     pre = cfg["pretrain"]
-    start = time.perf_counter()
-    data = collect_expert(cfg, progress=progress, cache=cache)
     policy = model.policy
-    device = policy.device
-    obs = torch.as_tensor(data["obs"], device=device)
-    actions = torch.as_tensor(data["actions"], device=device)
-    returns = torch.as_tensor(data["returns"], device=device)
+    obs = policy.obs_to_tensor(data["obs"])[0] if isinstance(data["obs"], dict) else torch.as_tensor(data["obs"])
+    actions = torch.as_tensor(data["actions"])
+    returns = torch.as_tensor(data["returns"])
     optimiser = torch.optim.Adam(policy.parameters(), lr=pre["learning_rate"])
     gen = torch.Generator().manual_seed(int(cfg["seed"]))
     n = len(actions)
-    for _ in range(start_epoch):  # the shuffles of the epochs already done
+    for _ in range(epochs.start):
         torch.randperm(n, generator=gen)
     policy.set_training_mode(True)
-    epoch = start_epoch
+    done = epochs.start
     try:
-        for epoch in tqdm(range(start_epoch, pre["epochs"]), desc="behaviour cloning epochs", disable=not progress,
-                          leave=False, initial=start_epoch, total=pre["epochs"]):
+        for _ in tqdm(epochs, desc=label, disable=not progress, leave=False, initial=epochs.start, total=epochs.stop):
             order = torch.randperm(n, generator=gen)
             for k in range(0, n, pre["batch_size"]):
                 idx = order[k : k + pre["batch_size"]]
-                values, log_prob, _ = policy.evaluate_actions(obs[idx], actions[idx])
+                batch = {key: v[idx] for key, v in obs.items()} if isinstance(obs, dict) else obs[idx]
+                values, log_prob, _ = policy.evaluate_actions(batch, actions[idx])
                 loss = -log_prob.mean() + 0.5 * torch.nn.functional.mse_loss(values.flatten(), returns[idx])
                 optimiser.zero_grad()
                 loss.backward()
                 optimiser.step()
-            epoch += 1
+            done += 1
     except KeyboardInterrupt:
-        raise WarmStartInterrupted(int(pre["episodes"]), epoch) from None
+        raise _FitInterrupted(done) from None
     finally:
         policy.set_training_mode(False)
+    return done
+
+
+def _agreement(model, data: dict[str, Any]) -> float:
+    import torch
+
+    policy = model.policy
+    obs = policy.obs_to_tensor(data["obs"])[0] if isinstance(data["obs"], dict) else torch.as_tensor(data["obs"])
     with torch.no_grad():
         dist = policy.get_distribution(obs)
-        agree = float((dist.distribution.probs.argmax(dim=1) == actions).float().mean())
+        return float((dist.distribution.probs.argmax(dim=1) == torch.as_tensor(data["actions"])).float().mean())
+
+
+def _merge(episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    return {"obs": _concat([e["obs"] for e in episodes]), "actions": np.concatenate([e["actions"] for e in episodes]),
+            "returns": np.concatenate([e["returns"] for e in episodes]), "lengths": np.asarray([e["length"] for e in episodes])}
+
+
+def behaviour_cloning(model, cfg: dict[str, Any], progress: bool = True, *, cache: Path | None = None,
+                      start_epoch: int = 0, start_round: int = 0) -> dict[str, Any]:
+    """Fit ``model.policy`` (an sb3 ActorCriticPolicy) to the expert, from epoch ``start_epoch``
+    and DAgger round ``start_round`` (a resumed warm start); returns a summary.  Ctrl-C raises
+    :class:`WarmStartInterrupted`."""
+    pre = cfg["pretrain"]
+    start = time.perf_counter()
+    expert_eps = collect_expert(cfg, progress=progress, cache=cache)
+    dagger_cache = None if cache is None else cache.with_name("dagger.npz")
+    dagger_key = _cache_key(cfg, "dagger")
+    dagger_eps = _load_cache(dagger_cache, dagger_key)[: start_round * pre["dagger_episodes"]]
+    rounds = start_round
+    epoch = start_epoch if start_round == 0 else pre["epochs"]
+    try:
+        if start_round == 0:
+            epoch = _fit(model, _merge(expert_eps), cfg, epochs=range(start_epoch, pre["epochs"]), progress=progress,
+                         label="behaviour cloning epochs")
+        while rounds < pre["dagger_rounds"]:
+            dagger_eps += dagger_round(model, cfg, rounds, progress=progress)
+            if dagger_cache is not None:
+                _save_cache(dagger_cache, dagger_key, dagger_eps)
+            _fit(model, _merge(expert_eps + dagger_eps), cfg, epochs=range(pre["epochs"]), progress=progress,
+                 label=f"DAgger round {rounds + 1} epochs")
+            rounds += 1
+    except (KeyboardInterrupt, _FitInterrupted) as exc:
+        if isinstance(exc, _FitInterrupted) and rounds == 0 and start_round == 0:
+            epoch = exc.done  # the initial cloning stopped here; a DAgger round is redone whole
+        raise WarmStartInterrupted(len(expert_eps), epoch, rounds) from None
+    data = _merge(expert_eps)
     return {
         "expert": pre["expert"],
         "episodes": int(pre["episodes"]),
-        "samples": int(n),
+        "samples": int(len(data["actions"])),
         "expert_mean_steps": float(data["lengths"].mean()),
-        "argmax_agreement": round(agree, 4),
+        "argmax_agreement": round(_agreement(model, data), 4),
+        "dagger_rounds": int(pre["dagger_rounds"]),
+        "dagger_samples": int(sum(len(e["actions"]) for e in dagger_eps)),
         "seconds": round(time.perf_counter() - start, 2),
         "resumed_at_epoch": start_epoch or None,
+        "resumed_at_round": start_round or None,
     }

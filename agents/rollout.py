@@ -43,6 +43,7 @@ class Episode:
     states: list[tuple[int, int, int]] = field(default_factory=list)
     frames: list[np.ndarray] = field(default_factory=list)
     final_info: dict[str, Any] = field(default_factory=dict)
+    model: Any = None  # the episode's model (its map, when maps change at reset)
 
     @property
     def localised(self) -> bool:
@@ -67,7 +68,7 @@ def rollout(env, policy, seed: int, *, keep: bool = False, frames: bool = False,
     unwrapped = env.unwrapped
     policy.reset(seed=int(seed) if policy_seed is None else policy_seed, model=getattr(unwrapped, "model", None))
     filt = getattr(env, "filter", None)
-    ep = Episode(seed=int(seed))
+    ep = Episode(seed=int(seed), model=getattr(unwrapped, "model", None))
 
     def record(obs, info) -> None:
         ep.correct.append(_right(info))

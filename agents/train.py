@@ -294,10 +294,10 @@ def train(
     if cfg.get("pretrain") and (resume is None or not warm.get("done", True)):
         try:
             state["pretrain"] = behaviour_cloning(model, cfg, progress=progress_bar, cache=ckpt_dir / "expert.npz",
-                                                  start_epoch=int(warm.get("epochs", 0)))
+                                                  start_epoch=int(warm.get("epochs", 0)), start_round=int(warm.get("rounds", 0)))
             state["warm_start"] = {"done": True}
         except WarmStartInterrupted as exc:
-            state["warm_start"] = {"done": False, "episodes": exc.episodes, "epochs": exc.epochs}
+            state["warm_start"] = {"done": False, "episodes": exc.episodes, "epochs": exc.epochs, "rounds": exc.rounds}
             raise interrupted("warm start", {}) from None
 
     cbs = list(callbacks or [])

@@ -278,7 +278,7 @@ def test_a_failed_final_write_saves_the_model_elsewhere_and_says_where(tmp_path,
 
 
 def _pretrain_cfg(tmp_path, **over):
-    return tiny(tmp_path, pretrain={"expert": "greedy", "episodes": 6, "epochs": 3, "batch_size": 32}, **over)
+    return tiny(tmp_path, **{"pretrain": {"expert": "greedy", "episodes": 6, "epochs": 3, "batch_size": 32}, **over})
 
 
 def test_ctrl_c_while_the_expert_plays_keeps_its_episodes_and_resume_goes_on(tmp_path, monkeypatch):
@@ -297,7 +297,7 @@ def test_ctrl_c_while_the_expert_plays_keeps_its_episodes_and_resume_goes_on(tmp
     with pytest.raises(TrainingInterrupted, match="warm start interrupted") as exc:
         train(cfg, progress_bar=False)
     meta = json.loads(exc.value.checkpoint.with_suffix(".json").read_text())
-    assert meta["warm_start"] == {"done": False, "episodes": 3, "epochs": 0}
+    assert meta["warm_start"] == {"done": False, "episodes": 3, "epochs": 0, "rounds": 0}
     with np.load(tmp_path / "ckpt" / "expert.npz") as data:
         assert len(data["lengths"]) == 3
     calls.clear()
@@ -396,3 +396,55 @@ def test_bad_config_values_get_one_line_and_exit_status_2(tmp_path, capsys, line
     assert main(["train", str(path), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_dagger_rounds_label_the_students_beliefs_with_the_experts_actions(tmp_path, monkeypatch):
+    import gym_gridloc_agents.pretrain as p
+
+    seen = []
+    real = p.dagger_round
+
+    def spy(model, cfg, round_index, progress=True):
+        out = real(model, cfg, round_index, progress)
+        seen.append(out)
+        return out
+
+    monkeypatch.setattr(p, "dagger_round", spy)
+    cfg = _pretrain_cfg(tmp_path, pretrain={"expert": "greedy", "episodes": 4, "epochs": 2, "batch_size": 32,
+                                            "dagger_rounds": 2, "dagger_episodes": 3})
+    info = train(cfg, progress_bar=False)
+    assert len(seen) == 2 and all(len(r) == 3 for r in seen)
+    assert info["pretrain"]["dagger_rounds"] == 2
+    assert info["pretrain"]["dagger_samples"] == sum(len(e["actions"]) for r in seen for e in r) > 0
+    # The labels are what greedy does in those beliefs (its ties broken by its own generator).
+    from gym_gridloc_agents.policies import GreedyPolicy
+
+    model = gym_gridloc.colour_grid_model()
+    for episode in seen[0]:
+        flat = episode["obs"]
+        beliefs = flat[:, model.sensor.encoded_size:].reshape(-1, *model.shape)
+        values = [GreedyPolicy(model).expected_entropies(b[None].astype(np.float64)) for b in beliefs]
+        for v, label in zip(values, episode["actions"]):
+            assert v[label] <= v.min() + 1e-6 * max(1.0, abs(v.min()))
+
+
+def test_ctrl_c_in_a_dagger_round_resumes_at_that_round(tmp_path, monkeypatch):
+    import gym_gridloc_agents.pretrain as p
+
+    real, calls = p.dagger_round, []
+
+    def interrupt_second_round(model, cfg, round_index, progress=True):
+        calls.append(round_index)
+        if round_index == 1 and len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(model, cfg, round_index, progress)
+
+    monkeypatch.setattr(p, "dagger_round", interrupt_second_round)
+    cfg = _pretrain_cfg(tmp_path, pretrain={"expert": "greedy", "episodes": 4, "epochs": 2, "batch_size": 32,
+                                            "dagger_rounds": 2, "dagger_episodes": 2})
+    with pytest.raises(TrainingInterrupted) as exc:
+        train(cfg, progress_bar=False)
+    meta = json.loads(exc.value.checkpoint.with_suffix(".json").read_text())
+    assert meta["warm_start"] == {"done": False, "episodes": 4, "epochs": 2, "rounds": 1}
+    info = train(cfg, progress_bar=False, resume=exc.value.checkpoint)
+    assert calls == [0, 1, 1] and info["pretrain"]["resumed_at_round"] == 1 and info["warm_start"] == {"done": True}
