@@ -33,6 +33,8 @@ from gym_gridloc_agents.rollout import rollout
 BUDGETS = (5, 10, 25, 50)
 #: The environments of ``gridloc bench --all`` (fixed maps, shipped policies).
 BENCH_ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0")
+#: The policies ``gridloc bench`` runs when ``--policies`` is not given.
+DEFAULT_POLICIES = ("random", "greedy", "greedy2", "ppo", "recurrent")
 
 
 def simulate(

@@ -38,7 +38,7 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--env", metavar="ENV_ID", help="environment id, e.g. WindyMaze-v0")
     b.add_argument("--all", action="store_true",
                    help="all three environments, every policy, 1000 episodes; writes results/bench.json and results/bench_<env>.png")
-    b.add_argument("--policies", default=None, help="comma-separated: random,greedy,greedy2,ppo,recurrent (default: all)")
+    b.add_argument("--policies", default=None, help="comma-separated policy names (default: random,greedy,greedy2,ppo,recurrent)")
     b.add_argument("--episodes", type=int, default=None, help="episodes per policy (default 200; 1000 with --all)")
     b.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode i uses seed+i)")
     b.add_argument("--json", metavar="PATH", help="write the rows as JSON")
@@ -138,7 +138,7 @@ def _fail(command: str, message: str) -> int:
 
 
 def _bench(args) -> int:
-    from gym_gridloc_agents.bench import BENCH_ENV_IDS, markdown_table, plot, public_row, read_rows, run_benchmark
+    from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, markdown_table, plot, public_row, read_rows, run_benchmark
     from gym_gridloc_agents.envs import check_environment
     from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write, writable_file
     from gym_gridloc_agents.policies import POLICY_NAMES
@@ -146,7 +146,7 @@ def _bench(args) -> int:
     if args.all == bool(args.env):
         return _fail("bench", "give exactly one of --env ENV_ID or --all")
     envs = list(BENCH_ENV_IDS) if args.all else [args.env]
-    policies = [p.strip() for p in (args.policies or ",".join(POLICY_NAMES)).split(",") if p.strip()]
+    policies = [p.strip() for p in (args.policies or ",".join(DEFAULT_POLICIES)).split(",") if p.strip()]
     episodes = args.episodes if args.episodes is not None else (1000 if args.all else 200)
     json_path = args.json or (str(RESULTS / "bench.json") if args.all else None)
     # Everything is checked before the first episode: a long run never ends in a traceback.

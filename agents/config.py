@@ -64,6 +64,7 @@ PRETRAIN_KEYS = {
     "learning_rate": "Adam learning rate of the warm start",
     "dagger_rounds": "DAgger rounds after the cloning (0: none): the student plays, the expert labels",
     "dagger_episodes": "episodes the student plays per DAgger round",
+    "dagger_epochs": "passes over all the data after each DAgger round (default: epochs)",
 }
 
 WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool}
@@ -305,6 +306,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             raise ConfigError(f"{source}: pretrain.expert_kwargs must map names to numbers, strings or booleans, got {ek!r}")
         pre["dagger_rounds"] = _num(source, "pretrain.dagger_rounds", pre.get("dagger_rounds", 0), integer=True, minimum=0)
         pre["dagger_episodes"] = _num(source, "pretrain.dagger_episodes", pre.get("dagger_episodes", 200), integer=True, minimum=1)
+        pre["dagger_epochs"] = _num(source, "pretrain.dagger_epochs", pre.get("dagger_epochs", pre["epochs"]), integer=True, minimum=1)
         pre["episodes"] = _num(source, "pretrain.episodes", pre.get("episodes", 1000), integer=True, minimum=1)
         pre["epochs"] = _num(source, "pretrain.epochs", pre.get("epochs", 10), integer=True, minimum=1)
         pre["batch_size"] = _num(source, "pretrain.batch_size", pre.get("batch_size", 256), integer=True, minimum=1)

@@ -27,67 +27,17 @@ import numpy as np
 from gymnasium import spaces
 
 from gym_gridloc.core.model import GridModel
+from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.lookahead import Lookahead
 
 #: Names accepted by :func:`make_policy`.
-POLICY_NAMES = ("random", "greedy", "greedy2", "ppo", "recurrent")
+POLICY_NAMES = ("random", "greedy", "greedy2", "optimal", "ppo", "recurrent")
 #: Policies a warm start may imitate (no model file of their own).
-EXPERT_NAMES = ("greedy", "greedy2")
+EXPERT_NAMES = ("greedy", "greedy2", "optimal")
 
 #: Where the shipped models live: ``<env_id>.zip`` (PPO) and ``<env_id>-recurrent.zip``.
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 
-_TIE_TOL = 1e-9
-
-
-class Policy:
-    """Base class.  ``act`` returns an ``int`` action in ``0..n_actions-1``."""
-
-    name = "policy"
-
-    def __init__(self, model: GridModel, *, seed: int | None = None) -> None:
-        if not isinstance(model, GridModel):
-            raise TypeError(f"a policy needs the environment's GridModel, got {type(model).__name__}")
-        self.model = model
-        self.n_actions = model.n_actions
-        self.rng = np.random.default_rng(seed)
-
-    def reset(self, seed: int | None = None, model: GridModel | None = None) -> None:
-        """Start an episode: reseed the policy's generator, forget any memory, and follow the
-        episode's model when one is given (e.g. a map redrawn at reset)."""
-        self.rng = np.random.default_rng(seed)
-        if model is not None and model is not self.model:
-            if not isinstance(model, GridModel):
-                raise TypeError(f"model must be a GridModel, got {type(model).__name__}")
-            self.set_model(model)
-
-    def set_model(self, model: GridModel) -> None:
-        """Plan on ``model`` from now on (subclasses rebuild what they derived from the model)."""
-        self.model = model
-        self.n_actions = model.n_actions
-
-    def act(self, observation: Any, belief: np.ndarray) -> int:  # pragma: no cover - abstract
-        raise NotImplementedError
-
-    def _full_belief(self, belief: np.ndarray) -> np.ndarray:
-        b = np.asarray(belief, dtype=np.float64)
-        shape = self.model.belief_shape
-        if b.shape == shape:
-            return b
-        if b.shape == shape[1:] and shape[0] == 1:
-            return b[None]
-        raise ValueError(
-            f"belief must be the hidden-state belief of shape {shape}"
-            + (f" or the position belief {shape[1:]}" if shape[0] == 1 else "")
-            + f", got shape {b.shape} (use HMMBeliefWrapper(..., full_state=True) or wrapper.filter.full_belief)"
-        )
-
-    def _break_ties(self, values: np.ndarray) -> int:
-        best = values.min()
-        candidates = np.flatnonzero(values <= best + _TIE_TOL * max(1.0, abs(best)))
-        if len(candidates) == 1:
-            return int(candidates[0])
-        return int(self.rng.choice(candidates))
 
 
 class RandomPolicy(Policy):
@@ -278,6 +228,8 @@ def make_policy(
     ``path`` gives the model file for ``ppo`` / ``recurrent`` (default: the shipped one for
     ``env_id``; a model trained with other ``env_kwargs`` is refused).  ``pose``: the referee
     tests poses (the entropy policies then minimise the entropy of the full hidden state).
+    ``optimal`` (noiseless models only, :mod:`gym_gridloc_agents.optimal`) plans for the
+    environment's ``episode_length`` (or ``horizon=``, default 30).
     """
     if name == "random":
         return RandomPolicy(model, seed=seed)
@@ -285,6 +237,11 @@ def make_policy(
         return GreedyPolicy(model, seed=seed, pose=pose)
     if name == "greedy2":
         return Greedy2Policy(model, seed=seed, pose=pose)
+    if name == "optimal":
+        from gym_gridloc_agents.optimal import OptimalPolicy
+
+        horizon = options.get("horizon") or (env_kwargs or {}).get("episode_length") or 30
+        return OptimalPolicy(model, seed=seed, horizon=horizon)
     if name == "ppo":
         return PPOPolicy(model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
     if name == "recurrent":

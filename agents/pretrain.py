@@ -123,7 +123,8 @@ def _expert(cfg: dict[str, Any], env):
     from gym_gridloc_agents.policies import make_policy
 
     pre = cfg["pretrain"]
-    return make_policy(pre["expert"], env.unwrapped.model, pose=env.unwrapped.referee_pose, **pre.get("expert_kwargs", {}))
+    return make_policy(pre["expert"], env.unwrapped.model, pose=env.unwrapped.referee_pose, env_kwargs=cfg["env_kwargs"],
+                       **pre.get("expert_kwargs", {}))
 
 
 def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | None = None) -> list[dict[str, Any]]:
@@ -256,7 +257,7 @@ def behaviour_cloning(model, cfg: dict[str, Any], progress: bool = True, *, cach
             dagger_eps += dagger_round(model, cfg, rounds, progress=progress)
             if dagger_cache is not None:
                 _save_cache(dagger_cache, dagger_key, dagger_eps)
-            _fit(model, _merge(expert_eps + dagger_eps), cfg, epochs=range(pre["epochs"]), progress=progress,
+            _fit(model, _merge(expert_eps + dagger_eps), cfg, epochs=range(pre["dagger_epochs"]), progress=progress,
                  label=f"DAgger round {rounds + 1} epochs")
             rounds += 1
     except (KeyboardInterrupt, _FitInterrupted) as exc:

@@ -300,6 +300,9 @@ def train(
             state["warm_start"] = {"done": False, "episodes": exc.episodes, "epochs": exc.epochs, "rounds": exc.rounds}
             raise interrupted("warm start", {}) from None
 
+    if cfg["eval_freq"] > 0 and cfg.get("pretrain") and int(model.num_timesteps) == 0 and not evaluations:
+        # The warm-started policy itself competes for "best" (PPO may not improve on it).
+        record_evaluation(model, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
     cbs = list(callbacks or [])
     if cfg["checkpoint_freq"] > 0:
         cbs.append(_checkpoint_callback(cfg["checkpoint_freq"], ckpt_dir, meta))

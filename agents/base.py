@@ -1,0 +1,63 @@
+"""The policy interface every agent implements: ``reset(seed, model)`` then
+``act(observation, belief) -> action`` (see :mod:`gym_gridloc_agents.policies`)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from gym_gridloc.core.model import GridModel
+
+#: Values within this relative tolerance of the best are ties.
+TIE_TOL = 1e-9
+
+
+class Policy:
+    """Base class.  ``act`` returns an ``int`` action in ``0..n_actions-1``."""
+
+    name = "policy"
+
+    def __init__(self, model: GridModel, *, seed: int | None = None) -> None:
+        if not isinstance(model, GridModel):
+            raise TypeError(f"a policy needs the environment's GridModel, got {type(model).__name__}")
+        self.model = model
+        self.n_actions = model.n_actions
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self, seed: int | None = None, model: GridModel | None = None) -> None:
+        """Start an episode: reseed the policy's generator, forget any memory, and follow the
+        episode's model when one is given (e.g. a map redrawn at reset)."""
+        self.rng = np.random.default_rng(seed)
+        if model is not None and model is not self.model:
+            if not isinstance(model, GridModel):
+                raise TypeError(f"model must be a GridModel, got {type(model).__name__}")
+            self.set_model(model)
+
+    def set_model(self, model: GridModel) -> None:
+        """Plan on ``model`` from now on (subclasses rebuild what they derived from the model)."""
+        self.model = model
+        self.n_actions = model.n_actions
+
+    def act(self, observation: Any, belief: np.ndarray) -> int:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _full_belief(self, belief: np.ndarray) -> np.ndarray:
+        b = np.asarray(belief, dtype=np.float64)
+        shape = self.model.belief_shape
+        if b.shape == shape:
+            return b
+        if b.shape == shape[1:] and shape[0] == 1:
+            return b[None]
+        raise ValueError(
+            f"belief must be the hidden-state belief of shape {shape}"
+            + (f" or the position belief {shape[1:]}" if shape[0] == 1 else "")
+            + f", got shape {b.shape} (use HMMBeliefWrapper(..., full_state=True) or wrapper.filter.full_belief)"
+        )
+
+    def _break_ties(self, values: np.ndarray) -> int:
+        best = values.min()
+        candidates = np.flatnonzero(values <= best + TIE_TOL * max(1.0, abs(best)))
+        if len(candidates) == 1:
+            return int(candidates[0])
+        return int(self.rng.choice(candidates))
