@@ -6,6 +6,8 @@ reading and action), whoever holds them: an environment, a recorded episode, the
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -20,6 +22,8 @@ OBSTACLE_RGB = (40, 40, 40)
 BELIEF_RGB = np.array([20, 30, 120], dtype=np.float64)
 TRUTH_RGB = (255, 140, 0)
 READING_RGB = (0, 200, 220)
+ESTIMATE_RGB = (150, 150, 150)
+PATH_RGB = (200, 0, 200)
 
 
 def belief_table(belief: np.ndarray, free: np.ndarray, mark: tuple[int, int] | None = None) -> str:
@@ -41,13 +45,27 @@ def belief_table(belief: np.ndarray, free: np.ndarray, mark: tuple[int, int] | N
 
 
 class Frame(NamedTuple):
-    """What one picture shows."""
+    """What one picture shows.
+
+    The fields after ``action`` are optional overlays (the viewer's, ``gridloc view``); left at
+    their defaults, the picture is what it always was.
+    """
 
     model: GridModel
     belief: np.ndarray  # (H, W) position belief
     state: tuple[int, int, int] | None  # the true (layer, row, col), or None (not drawn)
     reading: int | None = None
     action: int | None = None
+    #: A position (row, col) outlined in grey inside its cell: e.g. the most probable position.
+    estimate: tuple[int, int] | None = None
+    #: Positions (row, col) joined by a line through the cell centres, the last one ringed: e.g.
+    #: the Viterbi path up to now.
+    path: Sequence[tuple[int, int]] | None = None
+    #: Draw the true state as an arrow pointing along its heading (its layer: 0 = N, 1 = E,
+    #: 2 = S, 3 = W) rather than as a dot, for models whose hidden state has a heading.
+    heading: bool = False
+    #: Pixels per cell (None: the default, at most 32 and 512 pixels along the longer side).
+    tile: int | None = None
 
 
 def ansi(frame: Frame) -> str:
@@ -86,7 +104,7 @@ def rgb_frame(frame: Frame) -> np.ndarray:
     peak = max(float(belief.max()), 1e-12)
     alpha = np.sqrt(np.clip(belief / peak, 0.0, 1.0))[..., None] * 0.85
     img = np.where(model.grid.free[..., None], (1 - alpha) * img + alpha * BELIEF_RGB, img)
-    t = _tile_size(model.shape)
+    t = _tile_size(model.shape) if frame.tile is None else max(1, int(frame.tile))
     image = np.kron(img, np.ones((t, t, 1))).astype(np.uint8)
     if t >= 4:  # grid lines
         image[::t, :, :] = 90
@@ -96,8 +114,16 @@ def rgb_frame(frame: Frame) -> np.ndarray:
     if isinstance(sensor, RingSensor) and reading is not None and reading != sensor.nothing:
         rr, cc = divmod(reading, model.shape[1])
         _outline(image, rr, cc, t, READING_RGB, max(1, t // 6))
+    if frame.path is not None and len(frame.path) > 0:
+        _path(image, frame.path, t, PATH_RGB)
+    if frame.estimate is not None:
+        w = max(1, t // 10)
+        _outline(image, int(frame.estimate[0]), int(frame.estimate[1]), t, ESTIMATE_RGB, w, inset=max(1, t // 6) + 1)
     if frame.state is not None:
-        _dot(image, frame.state[1], frame.state[2], t, TRUTH_RGB)
+        if frame.heading:
+            _arrow(image, frame.state[1], frame.state[2], frame.state[0], t, TRUTH_RGB)
+        else:
+            _dot(image, frame.state[1], frame.state[2], t, TRUTH_RGB)
     # A strip along the bottom shows the last reading.
     strip = np.full((max(6, t), image.shape[1], 3), 255, dtype=np.uint8)
     if isinstance(sensor, ColourSensor) and reading is not None:
@@ -121,12 +147,49 @@ def _dot(frame: np.ndarray, r: int, c: int, t: int, rgb) -> None:
     frame[r * t : (r + 1) * t, c * t : (c + 1) * t][mask] = rgb
 
 
-def _outline(frame: np.ndarray, r: int, c: int, t: int, rgb, width: int) -> None:
+def _outline(frame: np.ndarray, r: int, c: int, t: int, rgb, width: int, inset: int = 0) -> None:
     tile = frame[r * t : (r + 1) * t, c * t : (c + 1) * t]
+    if inset and t - 2 * inset > 2 * width:
+        tile = tile[inset:-inset, inset:-inset]
     tile[:width] = rgb
     tile[-width:] = rgb
     tile[:, :width] = rgb
     tile[:, -width:] = rgb
+
+
+def _arrow(frame: np.ndarray, r: int, c: int, heading: int, t: int, rgb) -> None:
+    """A triangle in cell (r, c) pointing along ``heading`` (0 = N, 1 = E, 2 = S, 3 = W); it
+    covers the cell's centre, like the dot it replaces."""
+    if t < 5:
+        _dot(frame, r, c, t, rgb)
+        return
+    yy, xx = np.mgrid[0:t, 0:t] + 0.5
+    u = (xx - t / 2) / (t * 0.4)  # -1..1 across the cell, 0.8 of it
+    v = (yy - t / 2) / (t * 0.4)
+    # along: +1 at the tip; across: the distance from the axis
+    along, across = {0: (-v, u), 1: (u, v), 2: (v, u), 3: (-u, v)}[int(heading) % 4]
+    mask = (along <= 1.0) & (along >= -0.7) & (np.abs(across) <= (1.0 - along) * 0.45)
+    frame[r * t : (r + 1) * t, c * t : (c + 1) * t][mask] = rgb
+
+
+def _path(frame: np.ndarray, cells: Sequence[tuple[int, int]], t: int, rgb) -> None:
+    """Line segments through the centres of ``cells`` and a ring round the last one."""
+    width = max(1.0, t / 12)
+    h, w = frame.shape[:2]
+    pts = [((int(r) + 0.5) * t, (int(c) + 0.5) * t) for r, c in cells]
+    for (y0, x0), (y1, x1) in itertools.pairwise(pts):
+        n = int(max(abs(y1 - y0), abs(x1 - x0))) + 1
+        for s in np.linspace(0.0, 1.0, n):
+            y, x = y0 + s * (y1 - y0), x0 + s * (x1 - x0)
+            frame[max(0, int(y - width / 2)) : min(h, int(y + width / 2) + 1),
+                  max(0, int(x - width / 2)) : min(w, int(x + width / 2) + 1)] = rgb
+    r, c = int(cells[-1][0]), int(cells[-1][1])
+    yy, xx = np.mgrid[r * t : (r + 1) * t, c * t : (c + 1) * t] + 0.5
+    d = np.hypot(yy - (r + 0.5) * t, xx - (c + 0.5) * t)
+    ring = (d <= t * 0.42) & (d >= t * 0.42 - width)
+    if t < 6:
+        ring[:] = True
+    frame[r * t : (r + 1) * t, c * t : (c + 1) * t][ring] = rgb
 
 
 class Window:

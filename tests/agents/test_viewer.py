@@ -1,0 +1,267 @@
+"""``gridloc play`` / ``gridloc view`` (agents/viewer.py), without a display (SDL's dummy video
+driver): scripted key and mouse events drive the apps and the tests read the drawn surface."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+import gym_gridloc
+from gym_gridloc import rendering
+from gym_gridloc.filter import ForwardFilter
+
+viewer = pytest.importorskip("gym_gridloc_agents.viewer")
+
+
+@pytest.fixture
+def pg(monkeypatch):
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")
+    monkeypatch.setenv("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+    pygame = pytest.importorskip("pygame")
+    yield pygame
+    pygame.display.quit()
+
+
+def post_keys(pg, loop, *keys):
+    """Post key presses into pygame's queue and let the loop take them."""
+    for k in keys:
+        pg.event.post(pg.event.Event(pg.KEYDOWN, key=k, mod=0, unicode="", scancode=0))
+        pg.event.post(pg.event.Event(pg.KEYUP, key=k, mod=0, unicode="", scancode=0))
+    loop.pump()
+
+
+def click(pg, loop, app, r, c, button=1):
+    x, y, t, _ = app.cell_rect(r, c)
+    pg.event.post(pg.event.Event(pg.MOUSEBUTTONDOWN, pos=(x + t // 2, y + t // 2), button=button))
+    loop.pump()
+
+
+def pixel(surface, x, y):
+    return tuple(surface.get_at((int(x), int(y)))[:3])
+
+
+def centre(app, r, c):
+    x, y, t, _ = app.cell_rect(r, c)
+    return x + t // 2, y + t // 2
+
+
+def assert_belief_drawn(app, surface, belief):
+    """Every free cell's shade (4 pixels in from its corner) is the belief's, relative to the peak."""
+    model = app.shown().model
+    base = rendering.base_image(model)
+    peak = belief.max()
+    for r, c in zip(*np.nonzero(model.grid.free)):
+        x, y, _, _ = app.cell_rect(r, c)
+        alpha = np.sqrt(belief[r, c] / peak) * 0.85
+        want = (1 - alpha) * base[r, c] + alpha * rendering.BELIEF_RGB
+        assert np.allclose(pixel(surface, x + 4, y + 4), want, atol=1.01), (r, c)
+
+
+def test_play_arrow_keys_step_the_robot_and_the_screen_shows_truth_and_filter(pg):
+    app, _ = viewer.play_app(["WindyMaze-v0", "--seed", "3"])
+    loop = viewer.Loop(app, window=True)  # the dummy driver's "window"
+    loop.show()
+    post_keys(pg, loop, pg.K_UP, pg.K_RIGHT, pg.K_DOWN, pg.K_LEFT, pg.K_UP)
+    assert app.actions == [0, 1, 2, 3, 0][: app.steps] and app.steps >= 1
+    model = app.shown().model
+    # The belief shown is the exact filter of the observations and actions taken.
+    f = ForwardFilter(model)
+    f.reset(app.observations[0])
+    for a, o in zip(app.actions, app.observations[1:]):
+        f.step(a, o)
+    shown = app.shown()
+    np.testing.assert_allclose(shown.belief, f.position_belief, atol=1e-12)
+    surface = pg.display.get_surface()
+    assert pixel(surface, *centre(app, *shown.state[1:])) == rendering.TRUTH_RGB
+    assert_belief_drawn(app, surface, f.position_belief)
+    # a more probable cell is drawn darker than a less probable one
+    free = list(zip(*np.nonzero(model.grid.free)))
+    hi = max(free, key=lambda rc: f.position_belief[rc])
+    lo = min(free, key=lambda rc: f.position_belief[rc])
+    assert f.position_belief[hi] > f.position_belief[lo]
+    xh, yh, _, _ = app.cell_rect(*hi)
+    xl, yl, _, _ = app.cell_rect(*lo)
+    assert sum(pixel(surface, xh + 4, yh + 4)) < sum(pixel(surface, xl + 4, yl + 4))
+    info = app.info
+    assert any(f"entropy {info['entropy']:.2f} bits" in t for t in app.texts)
+    assert any(f"error {info['error']} (Manhattan)" in t for t in app.texts)
+    assert any(t.startswith("referee: ") for t in app.texts)
+
+
+def test_play_r_resets_and_esc_quits(pg):
+    app, _ = viewer.play_app(["ColourGrid-v0", "--seed", "5"])
+    loop = viewer.Loop(app, window=True)
+    loop.show()
+    post_keys(pg, loop, pg.K_RIGHT, pg.K_RIGHT)
+    assert app.steps >= 1
+    post_keys(pg, loop, pg.K_r)
+    assert app.steps == 0 and app.episode == 1 and app.actions == []
+    fresh = gym_gridloc.ColourGridEnv()
+    fresh.reset(seed=6)  # the second episode's seed
+    assert app.shown().state == fresh.state
+    np.testing.assert_allclose(app.shown().belief, fresh.posterior)
+    assert pixel(pg.display.get_surface(), *centre(app, *fresh.state[1:])) == rendering.TRUTH_RGB
+    assert app.running
+    post_keys(pg, loop, pg.K_ESCAPE)
+    assert not app.running
+
+
+def test_play_depth_maze_turns_and_moves_and_draws_a_heading_arrow(pg):
+    app, _ = viewer.play_app(["DepthMaze-v0", "--seed", "1"])
+    for name in ("left", "right", "up", "down"):
+        app.key(name)
+    assert app.actions == [0, 1, 2][: app.steps]
+    surf = app.draw()
+    layer, r, c = app.shown().state
+    x, y, t, _ = app.cell_rect(r, c)
+    assert pixel(surf, x + t // 2, y + t // 2) == rendering.TRUTH_RGB
+    # the arrow's tip: orange a little way along the heading, not as far the other way
+    dr, dc = gym_gridloc.DIRECTIONS[layer]
+    ahead = (x + t // 2 + dc * 0.36 * t, y + t // 2 + dr * 0.36 * t)
+    behind = (x + t // 2 - dc * 0.36 * t, y + t // 2 - dr * 0.36 * t)
+    assert pixel(surf, *ahead) == rendering.TRUTH_RGB and pixel(surf, *behind) != rendering.TRUTH_RGB
+
+
+@pytest.mark.parametrize("env_id", ["ColourGrid-v0", "WindyMaze-v0", "RingSensor8x8-v0", "DepthMaze-v0"])
+def test_inspector_shows_the_models_numbers_for_a_clicked_cell(pg, env_id):
+    app, _ = viewer.play_app([env_id, "--seed", "2"])
+    loop = viewer.Loop(app, window=True)
+    loop.show()
+    model = app.shown().model
+    free = list(zip(*np.nonzero(model.grid.free)))
+    r, c = (int(v) for v in free[len(free) // 2])
+    click(pg, loop, app, r, c)
+    assert app.pinned == (r, c)
+    layer = app.inspected()[0]
+    full = app.shown().full
+    if model.n_layers > 1 and full[:, r, c].max() > 0:  # the most probable heading there
+        assert layer == int(np.argmax(full[:, r, c]))
+    data = app.inspector()
+    assert data["state"] == (layer, r, c)
+    texts = set(app.texts)
+    for a in range(model.n_actions):
+        want: dict = {}
+        for s2, p in model.outcomes((layer, r, c), a):
+            key = tuple(int(v) for v in s2)
+            want[key] = want.get(key, 0.0) + p
+        assert data["transitions"][a] == pytest.approx(want)
+        for p in want.values():
+            assert viewer._fmt(p) in texts
+    zs, ps = model.sensor.distribution(r, c, layer)
+    assert data["readings"] == pytest.approx({int(z): float(p) for z, p in zip(zs, ps)})
+    assert sum(data["readings"].values()) == pytest.approx(1.0)
+    shown = " ".join(app.texts)
+    for p in data["readings"].values():
+        if p > 0:
+            assert viewer._fmt(p) in shown
+    # the clicked cell is framed, a right click goes back to following the robot
+    click(pg, loop, app, r, c, button=3)
+    assert app.pinned is None and app.inspected() == app.shown().state
+    if model.n_layers == 4:  # h cycles the inspected heading
+        app.key("h")
+        assert app.inspected()[0] == (app.shown().state[0] + 1) % 4
+
+
+def test_view_steps_back_and_forth_with_smoothing_and_viterbi_toggles(pg):
+    app, _ = viewer.view_app(["WindyMaze-v0", "--policy", "random", "--seed", "4", "--steps", "6"])
+    loop = viewer.Loop(app, window=True)
+    loop.show()
+    ep = app.ep
+    assert ep.steps == app.last >= 1
+    model = app.model
+    post_keys(pg, loop, pg.K_RIGHT, pg.K_RIGHT, pg.K_LEFT)
+    assert app.k == 1
+    filtered = gym_gridloc.forward_backward(model, ep.actions, ep.observations).filtered_positions
+    np.testing.assert_allclose(app.shown().belief, filtered[1], atol=1e-12)
+    surface = pg.display.get_surface()
+    assert pixel(surface, *centre(app, *ep.states[1][1:])) == rendering.TRUTH_RGB
+    assert_belief_drawn(app, surface, filtered[1])
+    post_keys(pg, loop, pg.K_s)
+    smoothed = gym_gridloc.smooth(model, ep.actions, ep.observations)
+    np.testing.assert_allclose(app.shown().belief, smoothed[1], atol=1e-12)
+    assert_belief_drawn(app, pg.display.get_surface(), smoothed[1])
+
+    def magenta():
+        arr = viewer.surface_array(pg, pg.display.get_surface())
+        return int(np.all(arr == rendering.PATH_RGB, axis=-1).sum())
+
+    assert magenta() == 0
+    post_keys(pg, loop, pg.K_v, pg.K_END)
+    path, _ = gym_gridloc.viterbi(model, ep.actions, ep.observations)
+    assert app.k == app.last and app.shown().path == [tuple(p) for p in path]
+    assert magenta() > 0
+    post_keys(pg, loop, pg.K_v, pg.K_s, pg.K_HOME)
+    assert app.k == 0 and magenta() == 0
+    # space plays: one step per delay
+    post_keys(pg, loop, pg.K_SPACE)
+    assert app.playing
+    app.tick(app._last_advance + app.delay + 0.01)
+    assert app.k == 1
+    post_keys(pg, loop, pg.K_ESCAPE)
+    assert not app.running
+
+
+def test_view_no_window_records_a_gif_of_every_step(tmp_path, pg, capsys):
+    from PIL import Image
+
+    out = tmp_path / "view.gif"
+    assert viewer.view_main(["ColourGrid-v0", "--policy", "greedy", "--seed", "1", "--steps", "3",
+                             "--no-window", "--record", str(out), "--viterbi"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    with Image.open(out) as im:
+        assert im.format == "GIF" and im.n_frames >= 2
+        im.seek(im.n_frames - 1)
+        assert im.convert("RGB").size[0] > 400
+
+
+def test_play_scripted_keys_stop_at_escape(tmp_path, pg):
+    from PIL import Image
+
+    out = tmp_path / "play.gif"
+    assert viewer.play_main(["WindyMaze-v0", "--keys", "up,escape,up,up", "--no-window", "--record", str(out),
+                             "--kw", "drift=0.0"]) == 0
+    with Image.open(out) as im:
+        assert im.n_frames == 2  # the start and one step; nothing after esc
+
+
+def test_parse_kw_values():
+    assert viewer.parse_kw(["slip=0.2", "size=16,16", "new_map_each_reset=true", "dynamics=passive", "n=3"]) == {
+        "slip": 0.2, "size": (16, 16), "new_map_each_reset": True, "dynamics": "passive", "n": 3}
+    with pytest.raises(viewer.UsageError):
+        viewer.parse_kw(["slip"])
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["Nope-v0"], "not a registered environment"),
+    (["ColourGrid-v0", "--kw", "nonsense"], "KEY=VALUE"),
+    (["ColourGrid-v0", "--kw", "bogus=1"], "does not build"),
+    (["ColourGrid-v0", "--record", "x.avi"], ".gif or .mp4"),
+    (["ColourGrid-v0", "--steps", "0"], "--steps"),
+    (["ColourGrid-v0", "--layout", "/no/such/map.txt"], "not a file"),
+    (["ColourGrid-v0", "--inspect", "9,9"], "outside"),
+    (["ColourGrid-v0", "--policy", "dance"], "invalid choice"),
+])
+def test_bad_arguments_exit_2_with_one_line(pg, capsys, argv, says):
+    assert viewer.view_main(argv + ["--no-window"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("gridloc view: error:") and says in err and "\n" not in err
+
+
+def test_mp4_without_imageio_names_what_to_install(pg, monkeypatch, capsys, tmp_path):
+    monkeypatch.setitem(sys.modules, "imageio", None)
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name.startswith("imageio") else real(name, *a))
+    assert viewer.play_main(["ColourGrid-v0", "--no-window", "--steps", "1", "--record", str(tmp_path / "a.mp4")]) == 2
+    assert "imageio-ffmpeg" in capsys.readouterr().err
+
+
+def test_missing_pygame_names_the_render_extra(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "pygame", None)
+    assert viewer.play_main(["ColourGrid-v0", "--no-window", "--steps", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "pip install 'gym_gridloc[render]'" in err and err.count("\n") == 1
