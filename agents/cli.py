@@ -7,6 +7,10 @@
     gridloc reproduce [--quiet]    # the seed documents' numbers (needs only the core install)
     gridloc render [--env ...] [--out results/episode.png] [--gif EP.gif]
     gridloc plot [results/bench.json]
+    gridloc view WindyMaze-v0 --policy ppo       # step through an episode (the render extra: pygame-ce)
+    gridloc play DepthMaze-v0                    # drive the robot with the arrow keys
+    gridloc sweep configs/ppo_colourgrid.yml --seeds 5 --grid hyperparams.learning_rate=1e-4,3e-4 \
+                  [--search optuna --trials N] [--address HEAD:PORT] [--cpus N] [--output DIR] [--resume]
 
 Each subcommand lives in its module; this one parses and dispatches.
 """
@@ -43,15 +47,20 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode i uses seed+i)")
     b.add_argument("--json", metavar="PATH", help="write the rows as JSON")
     b.add_argument("--plot", metavar="PATH.png", help="write the plot (one environment)")
-    b.add_argument("--ppo-model", metavar="PATH", help="benchmark this PPO model instead of the shipped one")
+    b.add_argument("--ppo-model", metavar="PATH", nargs="+",
+                   help="benchmark this PPO model instead of the shipped one; several files, a directory (its *.zip) or a "
+                        "glob: one model per seed, the ppo row is then the aggregate across seeds (e.g. a sweep's "
+                        "models/<configuration>)")
     b.add_argument("--recurrent-model", metavar="PATH", help="benchmark this RecurrentPPO model instead of the shipped one")
     b.add_argument("--jobs", type=int, default=1, help="parallel processes, each running chunks of episodes (default 1)")
     b.add_argument("--update", action="store_true",
                    help="merge the new rows into the existing JSON file (same env and policy: replaced) and plot the merged rows")
     b.add_argument("--no-progress", action="store_true", help="no progress bars")
 
-    # Its options are gym_gridloc.reproduce's own (main() hands them over unparsed).
+    # Their options are their modules' own (main() hands them over unparsed).
     sub.add_parser("reproduce", help="reproduce the seed documents' numbers (PASS/FAIL per check; --help for options)")
+    sub.add_parser("view", help="step through an episode under a policy in a window, with the model inspector (--help)")
+    sub.add_parser("play", help="drive the robot with the arrow keys in a window (--help)")
 
     d = sub.add_parser("render", help="draw one episode per environment as belief heatmaps (and a GIF)")
     d.add_argument("--env", nargs="+", default=None, help="environment ids (default: the three registered ones)")
@@ -59,6 +68,18 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--frames", type=int, default=6, help="frames per environment")
     d.add_argument("--out", default=str(RESULTS / "episode.png"), help="PNG to write")
     d.add_argument("--gif", default=None, help="also write the first environment's whole episode as a GIF")
+
+    w = sub.add_parser("sweep", help="train seeds and hyperparameter grids of a config on Ray Tune (the 'sweep' extra)")
+    w.add_argument("config", help="a YAML config, e.g. configs/ppo_colourgrid.yml")
+    w.add_argument("--seeds", type=int, default=1, metavar="N", help="seeds per configuration: the config's seed + 0..N-1 (default 1)")
+    w.add_argument("--grid", nargs="+", action="extend", metavar="KEY=V1,V2",
+                   help="config keys as dotted paths and their values, e.g. hyperparams.learning_rate=1e-4,3e-4 (YAML scalars)")
+    w.add_argument("--search", choices=("optuna",), help="let Optuna choose among the --grid values (with --trials), ASHA pruning")
+    w.add_argument("--trials", type=int, metavar="N", help="configurations Optuna tries (each with every seed)")
+    w.add_argument("--address", metavar="ADDRESS", help="join this running Ray cluster (default: start Ray on this machine)")
+    w.add_argument("--cpus", type=int, metavar="N", help="CPUs of the Ray started on this machine (default: all); 1 per trial")
+    w.add_argument("--output", metavar="DIR", help="where everything goes (default runs/sweeps/<config stem>)")
+    w.add_argument("--resume", action="store_true", help="continue the interrupted sweep in --output (same arguments)")
 
     q = sub.add_parser("plot", help="redraw the benchmark figures from a results JSON")
     q.add_argument("json", nargs="?", default=str(RESULTS / "bench.json"), help="a bench JSON (default results/bench.json)")
@@ -132,6 +153,30 @@ def _train(args) -> int:
     return 0
 
 
+def _sweep(args) -> int:
+    from gym_gridloc_agents.config import ConfigError
+    from gym_gridloc_agents.sweep import SweepError, prepare, run
+
+    try:
+        spec = prepare(args.config, seeds=args.seeds, grid=args.grid, search=args.search, trials=args.trials,
+                       output=args.output, address=args.address, cpus=args.cpus)
+        summary = run(spec, address=args.address, cpus=args.cpus, resume=args.resume)
+    except (SweepError, ConfigError) as exc:
+        return _fail("sweep", " ".join(str(exc).split()))
+    except ConnectionError as exc:
+        return _fail("sweep", f"cannot join the Ray cluster at {args.address}: {' '.join(str(exc).split())}")
+    from gym_gridloc_agents.sweep import summary_table
+
+    print(summary_table(summary))
+    print(f"\nwrote {summary['output']}/summary.md, summary.json and results/", file=sys.stderr)
+    left = {k: v for k, v in summary["statuses"].items() if k in ("unfinished", "error")}
+    if left:
+        print(f"gridloc sweep: {', '.join(f'{v} {k}' for k, v in left.items())} trial(s); continue with: "
+              f"{spec['command']} --resume", file=sys.stderr)
+        return 1
+    return 0 if summary["best"] else 1
+
+
 def _fail(command: str, message: str) -> int:
     print(f"gridloc {command}: error: {message}", file=sys.stderr)
     return 2
@@ -139,6 +184,7 @@ def _fail(command: str, message: str) -> int:
 
 def _bench(args) -> int:
     from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, markdown_table, plot, public_row, read_rows, run_benchmark
+    from gym_gridloc_agents.bench import expand_models
     from gym_gridloc_agents.envs import check_environment
     from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write, writable_file
     from gym_gridloc_agents.policies import POLICY_NAMES
@@ -174,8 +220,16 @@ def _bench(args) -> int:
     except (ValueError, OutputError) as exc:
         return _fail("bench", str(exc))
     try:
+        ppo_model = expand_models(args.ppo_model) if args.ppo_model else None
+        if ppo_model is not None and len(ppo_model) > 1 and len(envs) > 1:
+            raise ValueError("several --ppo-model files (one per seed) are models of one environment: give --env ENV_ID, not --all")
+        if ppo_model is not None and len(ppo_model) == 1:
+            ppo_model = ppo_model[0]
+    except ValueError as exc:
+        return _fail("bench", str(exc))
+    try:
         rows = run_benchmark(
-            envs, policies, episodes, seed_start=args.seed, ppo_model=args.ppo_model,
+            envs, policies, episodes, seed_start=args.seed, ppo_model=ppo_model,
             recurrent_model=args.recurrent_model, progress=not args.no_progress, jobs=args.jobs,
         )
     except (ValueError, FileNotFoundError) as exc:
@@ -223,7 +277,9 @@ def merge_rows(old: list[dict], new: list[dict]) -> list[dict]:
 RL_MODULES = ("tqdm", "yaml", "matplotlib", "torch", "stable_baselines3", "sb3_contrib")
 #: The modules each subcommand needs beyond the core install.
 NEEDS = {"train": RL_MODULES, "bench": RL_MODULES, "render": ("matplotlib",), "plot": ("matplotlib",), "reproduce": ()}
+NEEDS["sweep"] = (*RL_MODULES, "ray", "optuna")
 COMMANDS = {"train": "_train", "bench": "_bench", "render": "_render", "plot": "_plot"}
+COMMANDS["sweep"] = "_sweep"
 
 
 def missing_modules(command: str) -> list[str]:
@@ -238,8 +294,19 @@ def main(argv: list[str] | None = None) -> int:
         from gym_gridloc import reproduce
 
         return reproduce.main(argv[1:])
+    if argv[:1] in (["view"], ["play"]):
+        from gym_gridloc_agents import viewer
+
+        return (viewer.view_main if argv[0] == "view" else viewer.play_main)(argv[1:])
     args = _parser().parse_args(argv)
     missing = missing_modules(args.command)
+    if missing and args.command == "sweep":
+        print(
+            f"gridloc sweep needs the 'rl' and 'sweep' extras (missing: {', '.join(missing)}). Install them with\n"
+            "  pip install torch==2.13.0 && pip install 'gym_gridloc[rl,sweep]'",
+            file=sys.stderr,
+        )
+        return 2
     if missing:
         print(
             f"gridloc {args.command} needs the 'rl' extra (missing: {', '.join(missing)}). Install it with\n"
