@@ -31,7 +31,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-ALGOS = ("ppo", "recurrent_ppo")
+from gym_gridloc_agents.files import ALGOS, algo_class  # the algorithms table lives with model loading
 
 TOP_KEYS = {
     "algo": "ppo or recurrent_ppo",
@@ -93,18 +93,6 @@ _RESERVED = {"policy", "env", "seed", "policy_kwargs", "tensorboard_log", "verbo
 
 class ConfigError(ValueError):
     """A training config is malformed; the message names the file and the key."""
-
-
-def algo_class(algo: str):
-    if algo == "ppo":
-        from stable_baselines3 import PPO
-
-        return PPO
-    if algo == "recurrent_ppo":
-        from sb3_contrib import RecurrentPPO
-
-        return RecurrentPPO
-    raise ConfigError(f"algo must be one of {ALGOS}, got {algo!r}")
 
 
 def allowed_hyperparams(algo: str) -> set[str]:

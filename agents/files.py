@@ -74,6 +74,23 @@ def rescue_write(write, path: Path, what: str, *, places: tuple[Path, ...] = (),
     raise OutputError(f"{problem}; writing it elsewhere failed too")
 
 
+#: The algorithms a model file may hold.
+ALGOS = ("ppo", "recurrent_ppo")
+
+
+def algo_class(algo: str):
+    """The stable-baselines3 (or sb3-contrib) class of ``algo``."""
+    if algo == "ppo":
+        from stable_baselines3 import PPO
+
+        return PPO
+    if algo == "recurrent_ppo":
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO
+    raise ValueError(f"algo must be one of {', '.join(ALGOS)}, got {algo!r}")
+
+
 def _umask_mode() -> int:
     old = os.umask(0)
     os.umask(old)
@@ -158,8 +175,6 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
     """Load an sb3 model, refusing one trained for another algorithm, environment (id or keyword
     arguments) or observation space.  Returns ``(model, metadata)``.  Zip files are pickles:
     trusted sources only."""
-    from gym_gridloc_agents.config import algo_class
-
     path = Path(path)
     if not path.is_file():
         hint = ""

@@ -26,10 +26,11 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from gym_gridloc_agents.config import ConfigError, activation, algo_class, validate_config
+from gym_gridloc_agents.config import ConfigError, activation, validate_config
 from gym_gridloc_agents.envs import make_env, make_training_env
 from gym_gridloc_agents.files import (
     OutputError,
+    algo_class,
     atomic_save_model,
     atomic_write_json,
     load_model,
