@@ -170,6 +170,9 @@ def record_evaluation(model, cfg, episodes, directory: Path, history: list, on_e
     best = min((_score(cfg, h) for h in history), default=float("inf"))
     entry = {"num_timesteps": int(model.num_timesteps), **{k: round(v, 4) for k, v in result.items()}}
     history.append(entry)
+    print(f"evaluation at {entry['num_timesteps']} steps on {episodes} held-out episodes: mean steps {entry['mean_steps']:.3f}, "
+          f"accuracy {entry['accuracy']:.3f}, argmax accuracy {entry['argmax_accuracy']:.3f}"
+          + ("  (best so far)" if _score(cfg, entry) < best else ""), file=sys.stderr, flush=True)
     if _score(cfg, entry) < best or not (directory / "best.zip").is_file():
         atomic_save_model(model, directory / "best.zip")
     if on_evaluation is not None:
