@@ -103,6 +103,9 @@ def checksum(maps: list[HeldOutMap]) -> str:
 
 
 def _checked(env_id: str, size: int, n: int, purpose: str) -> list[HeldOutMap]:
+    from gym_gridloc.core.validation import check_int
+
+    n = check_int("n", n, 1, 100_000)  # before drawing: a stored set is drawn 1000 long
     full = max(n, 1000) if (env_id, purpose, size) in CHECKSUMS else n
     maps = _draw(env_id, size, full, purpose)
     expected = CHECKSUMS.get((env_id, purpose, size))

@@ -8,7 +8,13 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import gym_gridloc
-from gym_gridloc.generators import COLOUR_SYMBOLS, colour_map, is_connected, maze_map
+from gym_gridloc.generators import (
+    COLOUR_SYMBOLS,
+    colour_map,
+    is_connected,
+    maze_map,
+    perfect_maze,
+)
 
 
 @pytest.mark.parametrize("size", [(1, 1), (1, 7), (5, 5), (17, 9), (64, 48)])
@@ -46,6 +52,22 @@ def test_mazes_are_reproducible_and_connected_with_walls(size):
         assert not np.any(f[:-1, :-1] & f[1:, :-1] & f[:-1, 1:] & f[1:, 1:])
 
 
+@pytest.mark.parametrize("size", [5, 7, 15, 21])
+def test_perfect_mazes_are_reproducible_spanning_trees(size):
+    a = perfect_maze(size, seed=3)
+    assert np.array_equal(a.labels, perfect_maze(size, seed=3).labels)
+    assert a.shape == (size, size) and is_connected(a.free)
+    f = a.free
+    assert not f[0].any() and not f[-1].any() and not f[:, 0].any() and not f[:, -1].any()  # walls all round
+    assert f[1::2, 1::2].all()  # every room is free
+    k = (size - 1) // 2
+    assert a.n_free == k * k + (k * k - 1)  # the rooms and the walls opened between them
+    # One path between any two cells: the free cells and their adjacencies form a tree.
+    edges = int((f[:-1, :] & f[1:, :]).sum() + (f[:, :-1] & f[:, 1:]).sum())
+    assert edges == a.n_free - 1
+    assert not np.array_equal(a.labels, perfect_maze(size, seed=4).labels)
+
+
 def test_maze_seeds_differ():
     assert not np.array_equal(maze_map((21, 21), seed=1).labels, maze_map((21, 21), seed=2).labels)
 
@@ -59,8 +81,14 @@ def test_generator_arguments_are_checked():
         colour_map((5, 5), n_colours=27)
     with pytest.raises(ValueError, match="size"):
         maze_map((0, 5))
-    with pytest.raises(TypeError, match="map_seed"):
+    with pytest.raises(ValueError, match=r"^map_seed must be a non-negative integer, got -1"):
         maze_map((5, 5), seed=-1)
+    with pytest.raises(TypeError, match=r"^map_seed must be a non-negative integer, a numpy Generator or None, got 1\.5"):
+        maze_map((5, 5), seed=1.5)
+    with pytest.raises(ValueError, match=r"size must be odd"):
+        perfect_maze(6)
+    with pytest.raises(ValueError, match=r"size must be at least 5"):
+        perfect_maze(3)
 
 
 def test_registered_ids_take_generated_maps():

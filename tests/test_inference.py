@@ -1,5 +1,6 @@
-"""Smoothing, fixed-lag smoothing and Viterbi: against brute-force enumeration, hmmlearn, the
-forward filter, and on long episodes."""
+"""Smoothing, fixed-lag smoothing and Viterbi (gym_gridloc/inference.py): against brute-force
+enumeration, hmmlearn, the forward filter, and on long episodes.  (The backward pass is the
+engine's: tests/test_engine.py.)"""
 
 from __future__ import annotations
 
@@ -23,22 +24,7 @@ from gym_gridloc import (
     viterbi,
     windy_maze_model,
 )
-
-
-def simulate(model, n_steps, seed, actions=None):
-    """(actions, observations, states) of an episode sampled from ``model``."""
-    rng = np.random.default_rng(seed)
-    state = model.sample_initial_state(rng)
-    states = [state]
-    obs = [model.sensor.to_observation(model.sample_reading(state, rng))]
-    acts = []
-    for k in range(n_steps):
-        a = int(rng.integers(model.n_actions)) if actions is None else actions[k]
-        state = model.sample_next_state(state, a, rng)
-        acts.append(a)
-        states.append(state)
-        obs.append(model.sensor.to_observation(model.sample_reading(state, rng)))
-    return acts, obs, states
+from tests.helpers import simulate
 
 
 def brute_force(model, actions, observations):
@@ -59,7 +45,7 @@ TINY = {
     "colour2x2": lambda: colour_grid_model(["R,G", "B,R"], slip=0.3, accuracy=0.7),
     "colour2x2-kidnap": lambda: colour_grid_model(["R,G", "B,R"], slip=0.3, accuracy=0.7).with_kidnapping(0.1),
     "maze3x3": lambda: windy_maze_model(["OOO", "O#O", "OO#"], drift=0.15, p_detect=0.8, p_false_alarm=0.2),
-    "ring2x2-seed": lambda: ring_sensor_model((2, 2), dynamics="seed"),
+    "ring2x2-seed": lambda: ring_sensor_model((2, 2), dynamics="passive"),
     "ring3x1-commanded": lambda: ring_sensor_model((3, 1)),
 }
 
@@ -106,16 +92,6 @@ def test_unknown_actions_average_the_transitions():
     assert log_prob == pytest.approx(np.log(joint.max()), abs=1e-10)
 
 
-@pytest.mark.parametrize("kidnap", [0.0, 0.05])
-def test_backward_is_the_transpose_of_predict(kidnap):
-    model = ring_sensor_model((3, 4), dynamics="seed").with_kidnapping(kidnap)
-    rng = np.random.default_rng(0)
-    msg = model.from_vector(rng.random(model.n_states))
-    T = model.transition_matrix(None).toarray()
-    np.testing.assert_allclose(model.to_vector(model.backward(msg, None)), T @ model.to_vector(msg), atol=1e-14)
-    np.testing.assert_allclose(model.to_vector(model.predict(msg, None)), T.T @ model.to_vector(msg), atol=1e-14)
-
-
 def joint_log_prob(model, actions, observations, states):
     """log P(x_0:t, e_0:t) of one state sequence, from the dense matrices."""
     readings = [model.sensor.to_reading(o) for o in observations]
@@ -137,7 +113,7 @@ TIED = [((3, 3), 0), ((4, 4), 2), ((5, 5), 0)]
 @pytest.mark.parametrize("size,seed", UNIQUE + TIED)
 def test_plain_hmm_equals_hmmlearn(size, seed):
     hmm = pytest.importorskip("hmmlearn.hmm")
-    model = ring_sensor_model(size, dynamics="seed")  # the action plays no part: a plain HMM
+    model = ring_sensor_model(size, dynamics="passive")  # the action plays no part: a plain HMM
     actions, obs, _ = simulate(model, 40, seed, actions=[0] * 40)
     S = model.n_states
     ref = hmm.CategoricalHMM(n_components=S, init_params="", params="")
@@ -186,7 +162,7 @@ def test_last_smoothed_equals_filtered_and_the_referee(env_id):
     env.close()
 
 
-@pytest.mark.parametrize("model_fn", [windy_maze_model, lambda: ring_sensor_model((5, 5), dynamics="seed")])
+@pytest.mark.parametrize("model_fn", [windy_maze_model, lambda: ring_sensor_model((5, 5), dynamics="passive")])
 def test_fixed_lag(model_fn):
     model = model_fn()
     actions, obs, _ = simulate(model, 12, 7)
@@ -217,7 +193,7 @@ def fb_k(model, actions, obs, k, d):
     return smooth(model, actions[: k + d], obs[: k + d + 1])[k]
 
 
-@pytest.mark.parametrize("model_fn", [colour_grid_model, lambda: ring_sensor_model((4, 4), dynamics="seed").with_kidnapping(0.01)])
+@pytest.mark.parametrize("model_fn", [colour_grid_model, lambda: ring_sensor_model((4, 4), dynamics="passive").with_kidnapping(0.01)])
 def test_ten_thousand_steps_are_stable(model_fn):
     model = model_fn()
     actions, obs, states = simulate(model, 10_000, 11)
@@ -270,23 +246,3 @@ def test_impossible_observation_raises():
     # with kidnapping the same episode is possible
     post = smooth(model.with_kidnapping(0.1), [1], [0, 2])
     assert post[1][1, 0] == pytest.approx(1.0)
-
-
-def test_record_trajectory():
-    env = RecordTrajectory(gym.make("RingSensor8x8-v0", size=(4, 4), dynamics="seed"), max_episodes=2)
-    with pytest.raises(RuntimeError, match="reset"):
-        env.step(0)
-    for seed in range(3):
-        env.reset(seed=seed)
-        for _ in range(4 + seed):
-            env.step(0)
-    tr = env.trajectory
-    assert len(tr) == 6 and len(tr.observations) == 7 and len(tr.infos) == 7 and len(tr.rewards) == 6
-    assert [len(e) for e in env.episodes] == [4, 5]  # the last two finished episodes
-    assert tr.states[-1] == env.unwrapped.state  # heading included
-    assert tr.positions[-1] == env.unwrapped.state[1:]
-    # the recorded episode is exactly what the environment's referee filtered
-    post = smooth(env.unwrapped.model, tr.actions, tr.observations)
-    np.testing.assert_allclose(post[-1], env.unwrapped.posterior, atol=1e-12)
-    with pytest.raises(ValueError, match="max_episodes"):
-        RecordTrajectory(gym.make("WindyMaze-v0"), max_episodes=-1)

@@ -1,4 +1,5 @@
-"""The particle filter: its sampler, resampling, convergence to the exact belief, the wrapper option."""
+"""The particle filter (gym_gridloc/particles.py): moves by the engine's sampler, resampling, convergence
+to the exact belief, depletion, kidnapping, the wrapper option."""
 
 from __future__ import annotations
 
@@ -14,62 +15,34 @@ from gym_gridloc import (
     ImpossibleObservationError,
     ParticleFilter,
     colour_grid_model,
+    engine,
     ring_sensor_model,
     windy_maze_model,
 )
-from gym_gridloc.particles import _Sampler, systematic_resample
-
-
-def simulate(model, n_steps, seed):
-    rng = np.random.default_rng(seed)
-    state = model.sample_initial_state(rng)
-    obs = [model.sensor.to_observation(model.sample_reading(state, rng))]
-    acts = []
-    for _ in range(n_steps):
-        a = int(rng.integers(model.n_actions))
-        state = model.sample_next_state(state, a, rng)
-        acts.append(a)
-        obs.append(model.sensor.to_observation(model.sample_reading(state, rng)))
-    return acts, obs
-
+from gym_gridloc.particles import systematic_resample
+from tests.helpers import simulate
 
 MODELS = {
     "colour": colour_grid_model,
     "maze": windy_maze_model,
     "ring-commanded": lambda: ring_sensor_model((5, 5)),
-    "ring-seed": lambda: ring_sensor_model((4, 4), dynamics="seed"),
+    "ring-seed": lambda: ring_sensor_model((4, 4), dynamics="passive"),
     "maze-kidnap": lambda: windy_maze_model().with_kidnapping(0.05),
 }
 
 
 @pytest.mark.parametrize("name", sorted(MODELS))
-def test_vectorised_sampler_matches_the_transition(name):
+def test_predict_moves_the_particles_by_the_engine_sampler(name):
+    """The particles move by :func:`gym_gridloc.engine.sample_next` (whose draws are checked
+    against the transition in tests/test_engine.py): the same generator, the same next states."""
     model = MODELS[name]()
-    rng = np.random.default_rng(0)
-    n = 40_000
     for action in (0, model.n_actions - 1, None):
-        state = model.state_of_index(int(rng.integers(model.n_states)))
-        pf = ParticleFilter(model, n, rng=1).reset()
-        pf._layer[:], pf._row[:], pf._col[:] = state
-        pf.predict(action)
-        counts = np.bincount([model.state_index(tuple(s)) for s in pf.particles], minlength=model.n_states)
-        expected = model.transition_matrix(action).toarray()[model.state_index(state)]
-        # within 5 standard deviations of a binomial count
-        assert np.all(np.abs(counts - n * expected) <= 5 * np.sqrt(n * expected * (1 - expected)) + 1)
-
-
-def test_sampler_never_picks_a_zero_weight_term():
-    model = windy_maze_model()
-    sampler = _Sampler(model, 2)
-    rng = np.random.default_rng(3)
-    states = [model.state_of_index(s) for s in range(model.n_states)] * 200
-    layer, row, col = (np.array(v) for v in zip(*states))
-    nl, nr, nc = sampler(layer, row, col, rng)
-    assert model.grid.free[nr, nc].all()
-    T = model.transition_matrix(2).toarray()
-    src = [model.state_index(s) for s in states]
-    dst = [model.state_index((int(a), int(b), int(c))) for a, b, c in zip(nl, nr, nc)]
-    assert np.all(T[src, dst] > 0)
+        pf = ParticleFilter(model, 500, rng=1).reset()
+        before = pf.particles
+        pf.seed(7).predict(action)
+        expected = engine.sample_next(model, before, action, np.random.default_rng(7))
+        np.testing.assert_array_equal(pf.particles, expected)
+        assert not np.array_equal(pf.particles, before)
 
 
 def test_systematic_resampling_copies_floor_or_ceil():
@@ -84,7 +57,7 @@ def test_systematic_resampling_copies_floor_or_ceil():
 
 def test_resampling_only_below_the_threshold():
     model = windy_maze_model()
-    acts, obs = simulate(model, 20, 1)
+    acts, obs, _ = simulate(model, 20, 1)
     never = ParticleFilter(model, 300, resample_threshold=0.0, rng=0).reset(obs[0])
     always = ParticleFilter(model, 300, resample_threshold=1.0, rng=0).reset(obs[0])
     half = ParticleFilter(model, 300, resample_threshold=0.5, rng=0).reset(obs[0])
@@ -107,7 +80,7 @@ def test_particle_belief_converges_to_the_exact_belief(name):
     """Mean total-variation distance to the exact belief over an episode, averaged over seeds,
     shrinks as N grows (about as 1/sqrt(N)) and is small for N = 20,000."""
     model = MODELS[name]()
-    acts, obs = simulate(model, 15, 2)
+    acts, obs, _ = simulate(model, 15, 2)
     exact = ForwardFilter(model).reset(obs[0])
     beliefs = [exact.position_belief]
     for a, o in zip(acts, obs[1:]):
@@ -131,7 +104,7 @@ def test_log_likelihood_estimate_is_close():
     """The particle estimate of P(e_0:t) is unbiased; its log has a spread (one unlikely reading
     explained by a rare state dominates it), so compare the mean over seeds."""
     model = windy_maze_model()
-    acts, obs = simulate(model, 20, 4)
+    acts, obs, _ = simulate(model, 20, 4)
     exact = ForwardFilter(model).reset(obs[0])
     for a, o in zip(acts, obs[1:]):
         exact.step(a, o)

@@ -1,26 +1,31 @@
-"""The numbers printed in the seed documents (SPEC section 6), reproduced by the model and filter."""
+"""The numbers printed in the seed documents (SPEC section 6; transcribed in gym_gridloc/seeds.py),
+reproduced by the model and filter."""
 
 from __future__ import annotations
-
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from gym_gridloc import ForwardFilter, colour_grid_model, ring_sensor_model, windy_maze_model
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from seed_data import (  # noqa: E402
+from gym_gridloc import (
+    ForwardFilter,
+    colour_grid_model,
+    engine,
+    ring_sensor_model,
+    windy_maze_model,
+)
+from gym_gridloc.seeds import (
     COLOUR_GRID_LAYOUT,
     SEED000_MOVES,
+    SEED000_READINGS,
+    SEED000_SKIPPED,
+    SEED001_NOTHING,
+    SEED003_ERROR_RANGE,
+    SEED003_HIT_RANGE,
     SEED004_INITIAL,
     SEED004_TABLES,
     WINDY_MAZE_LAYOUT,
 )
 
-ROOT = Path(__file__).resolve().parent.parent
 COLOURS = "RGBY"
 #: Moves 1-8, then the move the printout skips (read Y), then moves 9-11.
 READINGS_WITH_SKIPPED_STEP = list("RRRYRRRY") + ["Y"] + list("YGB")
@@ -45,6 +50,7 @@ def test_seed_data_layouts_are_the_default_maps():
 def test_seed000_printed_readings_are_the_ones_we_replay():
     printed = [c for i, c in enumerate(READINGS_WITH_SKIPPED_STEP) if i != 8]
     assert printed == [c for c, _ in SEED000_MOVES]
+    assert list(SEED000_READINGS) == READINGS_WITH_SKIPPED_STEP and SEED000_SKIPPED == 8
 
 
 @pytest.mark.parametrize("move", range(1, 12))
@@ -97,8 +103,9 @@ def test_seed004_all_seven_tables():
 NOTHING_8X8 = {(0, 0): 0.625, (0, 1): 0.5, (0, 2): 0.425, (1, 1): 0.325, (1, 2): 0.225, (2, 2): 0.1}
 
 
-@pytest.mark.parametrize("dynamics", ["commanded", "seed"])
+@pytest.mark.parametrize("dynamics", ["commanded", "passive"])
 def test_seed001_nothing_probabilities(dynamics):
+    assert SEED001_NOTHING == NOTHING_8X8
     model = ring_sensor_model((8, 8), dynamics=dynamics)
     nothing = model.likelihood(model.sensor.nothing)
     assert nothing.shape == (8, 8)
@@ -117,7 +124,7 @@ def test_seed001_nothing_probabilities(dynamics):
 
 # -- seed 003 ----------------------------------------------------------------------------------------
 @pytest.mark.parametrize("size", [(5, 5), (8, 8)])
-@pytest.mark.parametrize("dynamics", ["seed", "commanded"])
+@pytest.mark.parametrize("dynamics", ["passive", "commanded"])
 def test_seed003_rows_and_reading_distributions_sum_to_one(size, dynamics):
     model = ring_sensor_model(size, dynamics=dynamics)
     for a in [*range(model.n_actions), None]:
@@ -131,51 +138,20 @@ def test_seed003_rows_and_reading_distributions_sum_to_one(size, dynamics):
 
 
 def test_seed003_tracking_figures():
-    """5x5, seed dynamics, 20 runs of 1000 steps: exactly right 28-33%, mean Manhattan error 1.2-2."""
-    model = ring_sensor_model((5, 5), dynamics="seed")
+    """5x5, passive dynamics, 20 runs of 1000 steps: exactly right 28-33%, mean Manhattan error 1.2-2."""
+    assert SEED003_HIT_RANGE == (0.28, 0.33) and SEED003_ERROR_RANGE == (1.2, 2.0)
+    model = ring_sensor_model((5, 5), dynamics="passive")
     rng = np.random.default_rng(2026)
     hits = errors = 0
     for _ in range(20):
-        state = model.sample_initial_state(rng)
+        states = engine.sample_initial(model, 1, rng)
         f = ForwardFilter(model).reset()
         for _ in range(1000):
-            state = model.sample_next_state(state, 0, rng)
-            f.step(0, model.sample_reading(state, rng))
+            states = engine.sample_next(model, states, 0, rng)
+            f.step(0, int(engine.sample_readings(model, states, rng)[0]))
             er, ec = divmod(int(np.argmax(f.position_belief)), 5)
-            d = abs(er - state[1]) + abs(ec - state[2])
+            d = abs(er - int(states[0, 1])) + abs(ec - int(states[0, 2]))
             hits += d == 0
             errors += d
     assert 0.28 <= hits / 20000 <= 0.33
     assert 1.2 <= errors / 20000 <= 2.0
-
-
-# -- the script --------------------------------------------------------------------------------------
-def test_reproduce_seeds_script_passes():
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "scripts" / "reproduce_seeds.py"), "--quiet", "--runs", "2", "--steps", "200"],
-        capture_output=True, text=True, timeout=120,
-    )
-    out = proc.stdout
-    assert "seed 000, 11 moves with the skipped step" in out
-    assert "seed 000, literal readings do NOT match moves 9-11" in out
-    assert "seed 004, seven tables" in out and "seed 001, P(nothing) on 8x8" in out
-    # With only 2 x 200 tracking steps the seed 003 figures may fall outside their ranges; every
-    # exactness check must pass.
-    exact = [line for line in out.splitlines() if line.startswith(("PASS", "FAIL")) and "seed 003, fraction" not in line
-             and "seed 003, mean" not in line and not line.startswith(("PASS:", "FAIL:"))]
-    assert len(exact) == 9, out
-    assert all(line.startswith("PASS") for line in exact), out
-
-
-def test_reproduce_seeds_script_fails_loudly_on_a_wrong_number(monkeypatch, capsys):
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        import reproduce_seeds
-    finally:
-        sys.path.remove(str(ROOT / "scripts"))
-    monkeypatch.setattr(reproduce_seeds, "SEED001_NOTHING", {**reproduce_seeds.SEED001_NOTHING, (0, 0): 0.6})
-    monkeypatch.setattr(reproduce_seeds, "track", lambda model, runs, steps, seed: (0.3, 1.5))
-    assert reproduce_seeds.main(["--quiet"]) == 1
-    out = capsys.readouterr().out
-    assert "FAIL  seed 001, P(nothing) on 8x8" in out
-    assert "FAIL: 1 of 11 checks failed" in out

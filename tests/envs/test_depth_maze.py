@@ -1,0 +1,111 @@
+"""DepthMaze-v0 (gym_gridloc/envs/depth_maze.py): any size and keyword arguments either build a
+working environment or raise an error naming what is wrong (hypothesis); the documented robot and
+depth sensor; a new perfect maze at every reset, following the reset seed; the pose referee and
+the research protocol's fixed episode length and belief reward."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from gym_gridloc import DepthMazeEnv, depth_maze_model
+from gym_gridloc.core.grid import DIRECTIONS
+from gym_gridloc.generators import perfect_maze
+from tests.helpers import PROPERTY_SETTINGS, bad_keywords, exercise, kwargs_for
+
+
+@PROPERTY_SETTINGS
+@given(size=st.one_of(st.sampled_from([5, 7, 9]), st.sampled_from([4, 6, 3, 0, -5])), kwargs=kwargs_for(DepthMazeEnv))
+def test_depth_maze_any_input(size, kwargs):
+    bad = bad_keywords(kwargs)
+    if size < 5 or size % 2 == 0:
+        bad.add("size")
+    exercise(lambda: gym.make("DepthMaze-v0", size=size, **kwargs), bad, True)
+
+
+def brute_depth(grid, layer: int, r: int, c: int) -> int:
+    """1 + the free cells ahead of (r, c) facing ``layer``, walking cell by cell."""
+    dr, dc = (int(v) for v in DIRECTIONS[layer])
+    n = 0
+    while grid.is_free(r + dr * (n + 1), c + dc * (n + 1)):
+        n += 1
+    return n + 1
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_robot_and_its_sensor_are_as_documented(seed):
+    grid = perfect_maze(9, seed=seed)
+    model = depth_maze_model(grid, p_turn_fail=0.2, p_move_fail=0.3, p_depth_error=0.4)
+    assert model.n_layers == 4 and model.action_names == ("left", "right", "forward")
+    assert model.sensor.max_depth == 7 and model.sensor.n_readings == 8
+    for s in range(model.n_states):
+        layer, r, c = model.state_of_index(s)
+        assert dict(model.outcomes((layer, r, c), 0)) == pytest.approx({((layer - 1) % 4, r, c): 0.8, (layer, r, c): 0.2})
+        assert dict(model.outcomes((layer, r, c), 1)) == pytest.approx({((layer + 1) % 4, r, c): 0.8, (layer, r, c): 0.2})
+        dr, dc = (int(v) for v in DIRECTIONS[layer])
+        ahead = dict(model.outcomes((layer, r, c), 2))
+        if grid.is_free(r + dr, c + dc):
+            assert ahead == pytest.approx({(layer, r + dr, c + dc): 0.7, (layer, r, c): 0.3})
+        else:
+            assert ahead == pytest.approx({(layer, r, c): 1.0})
+        d = brute_depth(grid, layer, r, c)
+        assert model.sensor.depth[layer, r, c] == d
+        readings, probs = model.sensor.distribution(r, c, layer)
+        dist = dict(zip(readings.tolist(), probs.tolist()))
+        expected = {d: 0.6}
+        near = [z for z in (d - 1, d + 1) if 1 <= z <= 7]
+        for z in near:
+            expected[z] = expected.get(z, 0.0) + 0.4 / len(near)
+        assert {z: p for z, p in dist.items() if p > 0} == pytest.approx(expected)
+        assert dist.get(0, 0.0) == 0.0  # depth 0 is never read
+
+
+def test_a_new_maze_at_every_reset_follows_the_seed():
+    env = gym.make("DepthMaze-v0").unwrapped
+    assert env.observation_space == gym.spaces.Discrete(6) and env.action_space == gym.spaces.Discrete(3)
+    mazes = []
+    for seed in (1, 1, 2):
+        env.reset(seed=seed)
+        mazes.append(env.model.grid.labels.copy())
+        assert env._referee.model is env.model
+    assert np.array_equal(mazes[0], mazes[1]) and not np.array_equal(mazes[0], mazes[2])
+    fixed = gym.make("DepthMaze-v0", map_seed=3).unwrapped
+    labels = fixed.model.grid.labels.copy()
+    assert np.array_equal(labels, perfect_maze(7, seed=3).labels)
+    for seed in range(3):
+        fixed.reset(seed=seed)
+        assert np.array_equal(fixed.model.grid.labels, labels)
+    rows = ["#######", "#OOOOO#", "#O###O#", "#OOOOO#", "#######"]
+    given_ = gym.make("DepthMaze-v0", layout=rows).unwrapped
+    given_.reset(seed=0)
+    assert given_.model.grid.to_text() == rows
+
+
+def test_arguments_are_checked():
+    with pytest.raises(ValueError, match=r"^size must be odd \(rooms at odd coordinates, walls all round\), got 8"):
+        gym.make("DepthMaze-v0", size=8)
+    with pytest.raises(ValueError, match=r"^size must be at least 5 and at most 4095, got 3"):
+        gym.make("DepthMaze-v0", size=3)
+    with pytest.raises(ValueError, match=r"give either layout=\.\.\. \(a fixed maze\) or a generated one"):
+        gym.make("DepthMaze-v0", layout=["#####", "#OOO#", "#####"], map_seed=1)
+    with pytest.raises(TypeError, match=r"new_map_each_reset must be True or False, got 'yes'"):
+        gym.make("DepthMaze-v0", new_map_each_reset="yes")
+    env = gym.make("DepthMaze-v0")
+    with pytest.raises(ValueError, match=r"max_depth=5 is below the map's largest depth 7"):
+        env.reset(options={"map": perfect_maze(9, seed=1)})  # a 9 x 9 maze in a 7 x 7 environment
+
+
+def test_the_pose_referee_and_the_research_protocol():
+    env = gym.make("DepthMaze-v0", episode_length=12, reward="belief").unwrapped
+    assert env.referee_pose
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        for t in range(1, 13):
+            _, reward, terminated, truncated, info = env.step(t % 3)
+            full = env._referee.full_belief
+            assert info["confidence"] == full.max() and reward == info["confidence"]
+            assert info["success"] == (info["localised"] and (info["estimate_heading"], *info["estimate"]) == env.state)
+            assert terminated is False and truncated is (t == 12)

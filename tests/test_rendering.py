@@ -1,0 +1,110 @@
+"""Rendering (gym_gridloc/rendering.py): the ANSI table and the RGB frame of a rendering.Frame, drawn
+from the model, a position belief, the true state, the last reading and action (the environments'
+render modes: tests/envs/test_registry.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gym_gridloc import (
+    colour_grid_model,
+    rendering,
+    ring_sensor_model,
+    windy_maze_model,
+)
+
+
+def random_position_belief(model, seed: int = 0) -> np.ndarray:
+    b = np.where(model.grid.free, np.random.default_rng(seed).random(model.shape), 0.0)
+    return b / b.sum()
+
+
+def tile(model) -> int:
+    return int(max(1, min(32, 512 // max(model.shape))))
+
+
+def test_ansi_is_the_belief_in_percent_with_the_truth_marked():
+    model = windy_maze_model()
+    belief = random_position_belief(model)
+    frame = rendering.Frame(model, belief, (0, 2, 3), reading=9, action=1)
+    text = rendering.ansi(frame)
+    lines = text.rstrip("\n").splitlines()
+    assert lines[0] == f"WindyMaze 6x7  action: E  reading: {model.sensor.describe(9)}"
+    assert lines[1] == "position belief (%), * = true position"
+    table = lines[2:]
+    assert len(table) == 6
+    for r, line in enumerate(table):
+        cells = line.split()
+        assert len(cells) == 7
+        for c, cell in enumerate(cells):
+            if not model.grid.free[r, c]:
+                assert cell == "####"
+            else:
+                assert cell.endswith("*") == ((r, c) == (2, 3))
+                assert float(cell.rstrip("*")) == pytest.approx(100 * belief[r, c], abs=0.005)
+    # Without a state, reading or action: no mark, a bare header.
+    bare = rendering.ansi(rendering.Frame(model, belief, None))
+    assert "*" not in bare.splitlines()[2] and bare.splitlines()[0] == "WindyMaze 6x7"
+
+
+def test_belief_table_formats_like_the_seed_tables():
+    free = np.array([[True, False], [True, True]])
+    text = rendering.belief_table(np.array([[0.25, 0.0], [0.5, 0.25]]), free, mark=(1, 0))
+    assert text.splitlines() == ["  25.00    ####", " 50.00*   25.00"]
+
+
+@pytest.mark.parametrize("make", [colour_grid_model, windy_maze_model, lambda: ring_sensor_model((6, 9))],
+                         ids=["colour", "windy", "ring"])
+def test_rgb_frame_draws_cells_belief_truth_and_reading(make):
+    model = make()
+    belief = random_position_belief(model, 3)
+    state = model.state_of_index(model.n_states // 2)
+    img = rendering.rgb_frame(rendering.Frame(model, belief, state, reading=1, action=0))
+    t = tile(model)
+    h, w = model.shape
+    assert img.dtype == np.uint8 and img.flags.c_contiguous
+    assert img.shape == (h * t + max(6, t), w * t, 3)
+    # The true position: the dot's colour at the centre of its tile.
+    _, r, c = state
+    assert tuple(img[r * t + t // 2, c * t + t // 2]) == rendering.TRUTH_RGB
+    # An obstacle tile is the obstacle colour (away from the grid lines).
+    blocked = np.argwhere(~model.grid.free)
+    for r, c in blocked[:3]:
+        assert tuple(img[r * t + t // 2, c * t + t // 2]) == rendering.OBSTACLE_RGB
+    # The most probable free cell is drawn darker (more belief colour) than the least probable one.
+    probs = np.where(model.grid.free, belief, np.nan)
+    hi = np.unravel_index(np.nanargmax(probs), probs.shape)
+    lo = np.unravel_index(np.nanargmin(probs), probs.shape)
+    if hi != (state[1], state[2]) and lo != (state[1], state[2]):
+        def shade(rc):
+            return int(img[rc[0] * t + 2, rc[1] * t + 2].astype(int).sum())
+
+        assert shade(hi) < shade(lo)
+
+
+def test_rgb_frame_strip_shows_the_reading():
+    colour = colour_grid_model()
+    img = rendering.rgb_frame(rendering.Frame(colour, colour.prior()[0], None, reading=3))
+    t = tile(colour)
+    assert tuple(img[-1, 0]) == rendering.COLOUR_RGB["Y"]  # reading 3 = Y
+    assert img.shape[0] == 5 * t + max(6, t)
+    maze = windy_maze_model()
+    img = rendering.rgb_frame(rendering.Frame(maze, maze.prior()[0], None, reading=0b1010))  # W and E sensed
+    q = img.shape[1] // 4
+    bits = [tuple(img[-1, i * q + q // 2]) for i in range(4)]
+    assert bits == [rendering.OBSTACLE_RGB, rendering.FREE_RGB, rendering.OBSTACLE_RGB, rendering.FREE_RGB]
+    ring = ring_sensor_model((6, 9))
+    t = tile(ring)
+    cell = rendering.rgb_frame(rendering.Frame(ring, ring.prior()[0], None, reading=2 * 9 + 4))
+    nothing = rendering.rgb_frame(rendering.Frame(ring, ring.prior()[0], None, reading=ring.sensor.nothing))
+    assert tuple(cell[-1, 0]) == rendering.READING_RGB and tuple(nothing[-1, 0]) == rendering.FREE_RGB
+    # The reported cell (2, 4) is outlined.
+    assert tuple(cell[2 * t + 1, 4 * t + t // 2]) == rendering.READING_RGB
+    assert tuple(nothing[2 * t + 1, 4 * t + t // 2]) != rendering.READING_RGB
+
+
+def test_large_maps_get_small_tiles():
+    model = ring_sensor_model((512, 300))
+    img = rendering.rgb_frame(rendering.Frame(model, model.prior()[0], (0, 5, 7)))
+    assert tile(model) == 1 and img.shape == (512 + 6, 300, 3)
