@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 import weakref
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -38,7 +38,7 @@ from gym_gridloc.core.errors import ImpossibleObservationError
 from gym_gridloc.core.model import GridModel, Term, mean_transition
 
 __all__ = [
-    "predict", "update", "step", "backward", "likelihoods", "impossible", "plan",
+    "predict", "update", "step", "backward", "likelihood", "likelihoods", "impossible", "plan",
     "sample_initial", "sample_next", "sample_readings", "states_of", "simulate", "action_indices", "path", "terms",
 ]
 
@@ -66,6 +66,7 @@ class _Derived:
         lik = self._liks.get(reading)
         if lik is None:
             lik = np.ascontiguousarray(model.sensor.likelihood(reading), dtype=np.float64).reshape(-1)
+            lik.setflags(write=False)
             if self._lik_bytes + lik.nbytes <= self.LIK_CACHE_BYTES:
                 self._liks[reading] = lik
                 self._lik_bytes += lik.nbytes
@@ -100,7 +101,7 @@ def _derived(model: GridModel) -> _Derived:
     return d
 
 
-def plan(model: GridModel):
+def plan(model: GridModel) -> kernels.NumbaPlan | kernels.NumpyPlan:
     """The kernel plan of ``model`` (:mod:`gym_gridloc.kernels`), built once per model."""
     return _derived(model).plan(model)
 
@@ -121,6 +122,7 @@ def terms(model: GridModel, action: int | None) -> tuple[Term, ...]:
 def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
     """``actions`` as ``n`` plan indices (int64): each an action in ``0..A-1``, or ``A`` for an
     unknown action (``None``, alone or as an element).  A scalar applies to all ``n``."""
+    _checked_model(model)
     A = model.n_actions
     if actions is None:
         return np.full(n, A, dtype=np.int64)
@@ -142,9 +144,15 @@ def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
     return out
 
 
+def _checked_model(model: Any) -> GridModel:
+    if not isinstance(model, GridModel):
+        raise TypeError(f"expected a GridModel, got {type(model).__name__}")
+    return model
+
+
 def _flat(model: GridModel, beliefs: np.ndarray, name: str = "belief") -> tuple[np.ndarray, bool]:
     """``(beliefs as (N, L*H*W) float64 C-contiguous, single)``."""
-    shape = model.belief_shape
+    shape = _checked_model(model).belief_shape
     b = np.asarray(beliefs)
     if b.shape == shape:
         return np.ascontiguousarray(b, dtype=np.float64).reshape(1, -1), True
@@ -195,6 +203,7 @@ def backward(model: GridModel, messages: np.ndarray, action: int | None) -> np.n
     """The transpose of :func:`predict` for one ``(L, H, W)`` message:
     ``out[s] = sum_s' T[s, s'] * message[s']`` (the backward pass of smoothing; kidnapping
     included)."""
+    _checked_model(model)
     msg = np.asarray(messages, dtype=np.float64)
     out = np.zeros_like(msg)
     for t in terms(model, action):
@@ -207,9 +216,18 @@ def backward(model: GridModel, messages: np.ndarray, action: int | None) -> np.n
     return out
 
 
+def likelihood(model: GridModel, reading: int) -> np.ndarray:
+    """P(reading | state) of one reading as ``(H, W)`` (position sensors) or ``(L, H, W)``
+    (layered), cached per model while the cache is small (read-only: do not write into it)."""
+    d = _derived(model)
+    lik = d.lik(model, int(reading))
+    return lik.reshape(model.belief_shape if d.layered else model.shape)
+
+
 def likelihoods(model: GridModel, readings: Any, out: np.ndarray | None = None) -> np.ndarray:
     """P(reading_i | state) for N readings as ``(N, H*W)`` (position sensors) or ``(N, L*H*W)``
     (sensors whose reading depends on the layer), zero on obstacles."""
+    _checked_model(model)
     return model.sensor.likelihoods(np.asarray(readings, dtype=np.int64).reshape(-1), out=out)
 
 
@@ -247,7 +265,7 @@ def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
     rs = np.asarray(readings, dtype=np.int64).reshape(-1)
     if rs.size != n:
         raise ValueError(f"update() needs one reading per belief: {n} beliefs, {rs.size} readings")
-    lik = likelihoods(model, rs)
+    lik = _derived(model).lik(model, int(rs[0]))[None] if n == 1 else likelihoods(model, rs)
     if lik.shape[1] == flat.shape[1]:
         post = flat * lik
     else:
@@ -312,7 +330,7 @@ def _mixed_step(model: GridModel, d: _Derived, flat: np.ndarray, acts: np.ndarra
     return z
 
 
-def stepper(model: GridModel, *, normalise: bool = True):
+def stepper(model: GridModel, *, normalise: bool = True) -> Callable[[np.ndarray, Any, int, np.ndarray], float]:
     """:func:`step` for one belief as a bound function ``(belief, action, reading, out) -> z``,
     for hot loops (the single filter): ``belief`` and ``out`` C-contiguous float64 ``(L, H, W)``
     arrays (not checked), ``action`` an int or None, ``reading`` an int."""
@@ -378,6 +396,7 @@ def states_of(model: GridModel, indices: np.ndarray) -> np.ndarray:
 
 def sample_initial(model: GridModel, n: int, rng: np.random.Generator) -> np.ndarray:
     """``n`` hidden states drawn uniformly over the free states, ``(n, 3)`` (layer, row, col)."""
+    _checked_model(model)
     return states_of(model, rng.integers(model.n_states, size=n))
 
 
@@ -390,6 +409,7 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     state, which picks the next state by the cumulative probabilities of the action's terms in
     their order.
     """
+    _checked_model(model)
     st = np.asarray(states, dtype=np.int64).reshape(-1, 3)
     n = st.shape[0]
     transitions = _derived(model).all_transitions(model)
@@ -455,6 +475,7 @@ def _next_one(ts: tuple[Term, ...], layer: int, r: int, c: int, rng: np.random.G
 
 def sample_readings(model: GridModel, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """One reading per state ``(N, 3)``, drawn from the sensor (N,) int64."""
+    _checked_model(model)
     return model.sensor.sample(np.asarray(states, dtype=np.int64).reshape(-1, 3), rng)
 
 
@@ -463,6 +484,7 @@ def simulate(model: GridModel, steps: int, rng: np.random.Generator, actions: An
     ``T = steps``.  ``actions`` (T of them) are taken as given; by default each is drawn uniformly
     just before its move (the same generator draws, in this order: start, first reading, then per
     step: action, move, reading)."""
+    _checked_model(model)
     states = np.empty((steps + 1, 3), dtype=np.int64)
     readings = np.empty(steps + 1, dtype=np.int64)
     acts = np.empty(steps, dtype=np.int64)

@@ -131,7 +131,7 @@ def forward_backward(model: GridModel, actions: Sequence[Any] | None, observatio
     b = mask / float(mask.sum())
     smoothed[n - 1] = f[n - 1]
     for k in range(n - 2, -1, -1):
-        b = engine.backward(model, model.likelihood(readings[k + 1]) * b, acts[k])
+        b = engine.backward(model, engine.likelihood(model, readings[k + 1]) * b, acts[k])
         b /= b.sum()  # positive: observation k+1 is possible (the forward pass checked it)
         g = f[k] * b
         smoothed[k] = g / g.sum()
@@ -199,7 +199,7 @@ class FixedLagSmoother:
         b = mask / float(mask.sum())
         for j in range(self.t, k, -1):  # backward from t to k + 1
             action, reading = self._links[j - first_link]
-            b = engine.backward(self.model, self.model.likelihood(reading) * b, action)
+            b = engine.backward(self.model, engine.likelihood(self.model, reading) * b, action)
             b /= b.sum()
         g = self._f[k - first_f] * b
         return self._out(g / g.sum())
@@ -291,7 +291,7 @@ def viterbi(
 
     def loglik(reading: int) -> np.ndarray:
         with np.errstate(divide="ignore"):
-            return np.log(model.likelihood(reading))
+            return np.log(engine.likelihood(model, reading))
 
     with np.errstate(divide="ignore"):
         delta = np.where(mask, -np.log(n_states), -np.inf) + loglik(readings[0])

@@ -127,7 +127,7 @@ class ParticleFilter:
         w = self._w * lik
         z = float(w.sum())
         if not z > 0.0 or not np.isfinite(z):
-            possible = float(self.model.likelihood(reading).sum()) > 0.0
+            possible = float(engine.likelihood(self.model, reading).sum()) > 0.0
             if not possible or self.on_depletion == "raise":
                 what = "in every state" if not possible else "at every particle (particle deprivation)"
                 raise ImpossibleObservationError(
@@ -211,7 +211,7 @@ class ParticleFilter:
 
     def _likelihood(self, reading: int) -> np.ndarray:
         """P(reading | particle) for every particle."""
-        lik = np.asarray(self.model.likelihood(reading))
+        lik = engine.likelihood(self.model, reading)
         st = self._states
         return lik[st[:, 0], st[:, 1], st[:, 2]] if lik.ndim == 3 else lik[st[:, 1], st[:, 2]]
 

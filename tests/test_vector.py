@@ -437,29 +437,3 @@ def test_native_vector_env_on_a_256x256_ring_grid():
         obs, rewards, terminated, truncated, info = env.step(np.array([0, 1, 2, 3]))
     assert obs["belief"].shape == (4, 256, 256)
     np.testing.assert_allclose(obs["belief"].sum(axis=(1, 2)), 1.0, atol=1e-4)
-
-
-def test_stable_baselines3_trains_on_the_adapter():
-    """The native vector env behind SB3 (the adapter lives in gym_gridloc_agents.envs)."""
-    sb3 = pytest.importorskip("stable_baselines3")
-    from stable_baselines3.common.vec_env import VecMonitor
-
-    envs = pytest.importorskip("gym_gridloc_agents.envs")
-    venv = envs.SB3VecEnv.make("WindyMaze-v0", 8)
-    venv.seed(4)
-    obs = venv.reset()
-    assert obs["belief"].shape == (8, 6, 7)
-    # SB3's same-step autoreset: the finished episode's last observation is in the info.
-    seen = False
-    for _ in range(300):
-        obs, rewards, dones, infos = venv.step(np.zeros(8, dtype=np.int64))
-        assert rewards.dtype == np.float32
-        for i in np.flatnonzero(dones):
-            seen = True
-            assert set(infos[i]["terminal_observation"]) == {"observation", "belief"}
-            assert "TimeLimit.truncated" in infos[i]
-    assert seen
-    model = sb3.PPO("MultiInputPolicy", VecMonitor(envs.SB3VecEnv.make("ColourGrid-v0", 4)), n_steps=64,
-                    batch_size=64, n_epochs=1, seed=0, device="cpu")
-    model.learn(512)
-    assert model.num_timesteps >= 512

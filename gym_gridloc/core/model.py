@@ -217,26 +217,33 @@ class GridModel:
 
     # -- checks --------------------------------------------------------------------------------
     def _check(self) -> None:
-        h, w = self.shape
         free = self.grid.free
         if self.sensor.grid is not self.grid and not np.array_equal(self.sensor.grid.labels, self.grid.labels):
             raise ValueError("the sensor is built on another map than the model")
+        allowed: dict[tuple[int, int], np.ndarray] = {}  # per shift: the cells a term may have weight on
+        checked: set[int] = set()
         for a, terms in enumerate(self.transitions):
             out = np.zeros(self.belief_shape)
             for t in terms:
                 if not (0 <= t.src < self.n_layers and 0 <= t.dst < self.n_layers):
                     raise ValueError(f"action {a}: a term names layer {t.src}->{t.dst}, outside 0..{self.n_layers - 1}")
-                if np.any(t.weight < 0) or not np.all(np.isfinite(t.weight)):
-                    raise ValueError(f"action {a}: a transition probability is negative or not finite")
-                src, dst = t.slices
-                inside = np.zeros((h, w), dtype=bool)
-                inside[src] = free[dst]
-                if np.any(t.weight[~(inside & free)] != 0):
-                    raise ValueError(f"action {a}: a transition leaves the free cells (shift {t.dr},{t.dc})")
                 out[t.src] += t.weight
-            bad = np.abs(out[:, free] - 1.0) > _TOL
-            if np.any(bad):
-                raise ValueError(f"action {a}: transition rows do not sum to 1 (largest error {np.abs(out[:, free] - 1).max():.3g})")
+                if id(t.weight) in checked:  # a weight array shared by several terms is checked once
+                    continue
+                key = (t.dr, t.dc)
+                if key not in allowed:
+                    src, dst = t.slices
+                    inside = np.zeros(free.shape, dtype=bool)
+                    inside[src] = free[dst]
+                    allowed[key] = inside & free
+                if not (t.weight >= 0).all() or (t.weight[~allowed[key]] != 0).any():
+                    if not np.isfinite(t.weight).all() or (t.weight < 0).any():
+                        raise ValueError(f"action {a}: a transition probability is negative or not finite")
+                    raise ValueError(f"action {a}: a transition leaves the free cells (shift {t.dr},{t.dc})")
+                checked.add(id(t.weight))
+            err = np.abs(out[:, free] - 1.0)
+            if not (err <= _TOL).all():  # also catches infinities and NaN
+                raise ValueError(f"action {a}: transition rows do not sum to 1 (largest error {np.nanmax(err):.3g})")
 
     # -- state vectors ---------------------------------------------------------------------------
     def to_vector(self, belief: np.ndarray) -> np.ndarray:

@@ -61,7 +61,12 @@ class RingSensor(Sensor):
     def likelihood(self, reading: int) -> np.ndarray:
         if reading == self.nothing:
             return self._nothing
-        return self.likelihoods(np.array([reading]))[0].reshape(self.grid.shape)
+        h, w = self.grid.shape
+        r0, c0 = divmod(int(reading), w)
+        out = np.zeros((h, w))
+        r1, r2, c1, c2 = max(0, r0 - 2), min(h, r0 + 3), max(0, c0 - 2), min(w, c0 + 3)
+        out[r1:r2, c1:c2] = self.kernel[r1 - r0 + 2 : r2 - r0 + 2, c1 - c0 + 2 : c2 - c0 + 2] * self.grid.free[r1:r2, c1:c2]
+        return out
 
     def likelihoods(self, readings: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Cell readings write the 5x5 kernel round the cell (25 scatters over the batch),

@@ -311,14 +311,18 @@ class DepthSensor(TableSensor):
         free = grid.free
         depth = np.zeros((4, h, w), dtype=np.int64)
         for d, (dr, dc) in enumerate(DIRECTIONS):
-            run = np.zeros((h, w), dtype=np.int64)  # free cells ahead
-            rows = range(h) if dr < 0 else range(h - 1, -1, -1) if dr > 0 else range(h)
-            cols = range(w) if dc < 0 else range(w - 1, -1, -1) if dc > 0 else range(w)
-            for r in rows:
+            # Free cells ahead, by a scan against the heading: one vector step per row (column).
+            run = np.zeros((h, w), dtype=np.int64)
+            if dr:
+                rows = range(h - 1, -1, -1) if dr > 0 else range(h)
+                for r in rows:
+                    if 0 <= r + dr < h:
+                        run[r] = np.where(free[r + dr], run[r + dr] + 1, 0)
+            else:
+                cols = range(w - 1, -1, -1) if dc > 0 else range(w)
                 for c in cols:
-                    rr, cc = r + dr, c + dc
-                    if 0 <= rr < h and 0 <= cc < w and free[rr, cc]:
-                        run[r, c] = run[rr, cc] + 1
+                    if 0 <= c + dc < w:
+                        run[:, c] = np.where(free[:, c + dc], run[:, c + dc] + 1, 0)
             depth[d] = np.where(free, run + 1, 0)
         if int(depth.max()) > max_depth:
             raise ValueError(f"max_depth={max_depth} is below the map's largest depth {int(depth.max())}")

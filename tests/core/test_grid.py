@@ -184,7 +184,7 @@ def test_layout_forms_and_limits(tmp_path):
         parse_maze({"OO#", "OOO"})
     with pytest.raises(TypeError, match=r"got a 2-D array of int64"):
         parse_maze(np.zeros((2, 2), dtype=np.int64))
-    with pytest.raises(MapError, match=r"^layout: 4097 rows, more than the 4096 a map may have"):
+    with pytest.raises(MapError, match=r"^<layout>: 4097 rows, more than the 4096 a map may have"):
         parse_maze(["O"] * 4097)
     with pytest.raises(MapError, match=r"<layout>, line 1: 4097 cells, more than the 4096 a map may have"):
         parse_maze(["O" * 4097])
