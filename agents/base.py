@@ -42,6 +42,14 @@ class Policy:
     def act(self, observation: Any, belief: np.ndarray) -> int:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def probabilities(self, observation: Any, belief: np.ndarray) -> np.ndarray:
+        """The policy's action distribution here, ``(n_actions,)`` (a step, like :meth:`act`):
+        by default all mass on the action :meth:`act` takes; planners spread it evenly over
+        their tied best actions (soft labels for imitation)."""
+        out = np.zeros(self.n_actions)
+        out[self.act(observation, belief)] = 1.0
+        return out
+
     def _full_belief(self, belief: np.ndarray) -> np.ndarray:
         b = np.asarray(belief, dtype=np.float64)
         shape = self.model.belief_shape
@@ -55,9 +63,22 @@ class Policy:
             + f", got shape {b.shape} (use HMMBeliefWrapper(..., full_state=True) or wrapper.filter.full_belief)"
         )
 
+    def choose(self, probabilities: np.ndarray) -> int:
+        """An action from an even distribution over tied best actions: the only one without a
+        draw, else one uniform choice with the policy's generator (as :meth:`_break_ties`)."""
+        support = np.flatnonzero(probabilities > 0)
+        if len(support) == 1:
+            return int(support[0])
+        return int(self.rng.choice(support))
+
+    @staticmethod
+    def best(values: np.ndarray) -> np.ndarray:
+        """The actions whose value is the lowest within :data:`TIE_TOL` (relative)."""
+        low = values.min()
+        return np.flatnonzero(values <= low + TIE_TOL * max(1.0, abs(low)))
+
     def _break_ties(self, values: np.ndarray) -> int:
-        best = values.min()
-        candidates = np.flatnonzero(values <= best + TIE_TOL * max(1.0, abs(best)))
+        candidates = self.best(values)
         if len(candidates) == 1:
             return int(candidates[0])
         return int(self.rng.choice(candidates))

@@ -15,10 +15,18 @@ Every policy runs behind :class:`gym_gridloc.HMMBeliefWrapper` on the same episo
 - ``localised_correct_rate``: among episodes that ended by localising, the fraction whose estimate
   was right (the threshold promises at least ``localise_threshold``);
 - ``seconds``: wall time of the row.
+
+Several PPO models (one per training seed, e.g. a sweep's ``models/<configuration>/``) give one
+``ppo`` row across seeds: every model plays the same episodes; ``mean_steps`` is the mean of the
+per-seed mean steps, ``mean_steps_iqm`` their interquartile mean and ``mean_steps_ci95`` a
+bootstrap 95% interval across seeds (:mod:`gym_gridloc_agents.stats`; so are ``success_rate_ci95``
+and ``accuracy_at_ci95``); rates, curves and ``median_steps`` pool the episodes of all seeds;
+``per_seed`` holds each model's own numbers.
 """
 
 from __future__ import annotations
 
+import glob
 import math
 import time
 from pathlib import Path
@@ -162,6 +170,60 @@ def run_episodes(
     return summarise(env_id, policy_name, [part], seed_start=seed_start, budgets=budgets)
 
 
+def expand_models(items: Sequence[str | Path]) -> list[Path]:
+    """The model files of ``--ppo-model``: a file as given, a directory's ``*.zip`` (not its
+    subdirectories), a glob pattern's matches, each sorted by name; ``ValueError`` for a directory
+    or pattern without a model, or a file given twice."""
+    models: list[Path] = []
+    for item in items:
+        path = Path(item)
+        if path.is_dir():
+            found = sorted(path.glob("*.zip"))
+            if not found:
+                raise ValueError(f"--ppo-model {item}: the directory holds no .zip model")
+        elif glob.has_magic(str(item)):
+            found = sorted(Path(p) for p in glob.glob(str(item)) if Path(p).is_file())
+            if not found:
+                raise ValueError(f"--ppo-model {item}: no file matches")
+        else:
+            found = [path]
+        models += found
+    seen = set()
+    for m in models:
+        key = m.resolve()
+        if key in seen:
+            raise ValueError(f"--ppo-model: {m} is given twice (each model is one seed)")
+        seen.add(key)
+    return models
+
+
+def seed_aggregate(env_id: str, policy_name: str, runs: Sequence[Sequence[dict[str, Any]]], *, seed_start: int,
+                   budgets: Sequence[int] = BUDGETS) -> dict[str, Any]:
+    """One row across seeds from the :func:`simulate` parts of several models (``runs[i]``: model
+    ``i``'s parts, every model on the same episodes); see the module docstring."""
+    from gym_gridloc_agents import stats
+
+    per = [summarise(env_id, policy_name, parts, seed_start=seed_start, budgets=budgets) for parts in runs]
+    row = summarise(env_id, policy_name, [p for parts in runs for p in parts], seed_start=seed_start, budgets=budgets)
+    means = [r["mean_steps"] for r in per]
+    agg = stats.aggregate(means)
+    row.update({
+        "episodes": per[0]["episodes"],
+        "episodes_total": row["episodes"],
+        "seeds": len(per),
+        "mean_steps": agg["mean"],
+        "mean_steps_iqm": agg["iqm"],
+        "mean_steps_ci95": agg["ci95"],
+        "ci95": "bootstrap 95% interval across seeds (mean_steps, success_rate, accuracy_at)",
+        "success_rate_ci95": stats.bootstrap_ci([r["success_rate"] for r in per]),
+        "accuracy_at_ci95": {k: stats.bootstrap_ci([r["accuracy_at"][k] for r in per]) for k in row["accuracy_at"]},
+        "model": [r["model"] for r in per],
+        "per_seed": [{k: r[k] for k in ("model", "mean_steps", "median_steps", "mean_steps_ci95", "success_rate",
+                                        "truncated_rate", "localised_correct_rate", "accuracy_at", "seconds")} for r in per],
+    })
+    return row
+
+
 def _chunk_job(args: tuple) -> dict[str, Any]:
     env_id, name, seeds, model_path = args
     return simulate(env_id, name, seeds, model_path=model_path, progress=False)
@@ -173,13 +235,21 @@ def run_benchmark(
     episodes: int,
     *,
     seed_start: int = 0,
-    ppo_model: str | Path | None = None,
+    ppo_model: str | Path | Sequence[str | Path] | None = None,
     recurrent_model: str | Path | None = None,
     progress: bool = True,
     jobs: int = 1,
 ) -> list[dict[str, Any]]:
     """Rows for every environment x policy, in that order.  With ``jobs > 1`` the episodes are
-    split into chunks run in parallel processes (the same seeds, so the same numbers)."""
+    split into chunks run in parallel processes (the same seeds, so the same numbers).  Several
+    ``ppo_model`` files (one per seed) make the ``ppo`` row the aggregate across seeds
+    (:func:`seed_aggregate`)."""
+    several = None
+    if isinstance(ppo_model, (list, tuple)):
+        if not ppo_model:
+            raise ValueError("ppo_model: an empty list of models")
+        several = list(ppo_model) if len(ppo_model) > 1 else None
+        ppo_model = ppo_model[0]
     for name in policies:
         if name not in POLICY_NAMES:
             raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")
@@ -191,11 +261,16 @@ def run_benchmark(
     for env_id in env_ids:
         for name in policies:
             path = ppo_model if name == "ppo" else recurrent_model if name == "recurrent" else None
-            pairs.append((env_id, name, path))
+            if name == "ppo" and several:
+                pairs += [(env_id, name, m) for m in several]
+            else:
+                pairs.append((env_id, name, path))
     # Fail before any long run if a model is missing or does not fit.
     for env_id, name, path in pairs:
         if name in ("ppo", "recurrent"):
             make_policy(name, make_env(env_id).unwrapped.model, env_id=env_id, env_kwargs={}, path=path)
+    if several:
+        return _several_models(pairs, episodes, seed_start=seed_start, progress=progress, jobs=jobs)
     if jobs <= 1:
         return [run_episodes(e, n, episodes, seed_start=seed_start, model_path=p, progress=progress) for e, n, p in pairs]
     import multiprocessing as mp
@@ -216,6 +291,40 @@ def run_benchmark(
     for e, n, _ in pairs:
         mine = [part for task, part in zip(tasks, parts) if task[0] == e and task[1] == n]
         rows.append(summarise(e, n, mine, seed_start=seed_start))
+    return rows
+
+
+def _several_models(pairs: list[tuple], episodes: int, *, seed_start: int, progress: bool, jobs: int) -> list[dict[str, Any]]:
+    """:func:`run_benchmark` when the ``ppo`` policy has one model per seed: the same episodes for
+    every pair, then one row per (environment, policy), the ``ppo`` ones across seeds."""
+    seeds = range(seed_start, seed_start + int(episodes))
+    if jobs <= 1:
+        parts = [[simulate(e, n, seeds, model_path=p, progress=progress)] for e, n, p in pairs]
+    else:
+        import multiprocessing as mp
+
+        from tqdm.auto import tqdm
+
+        chunk = max(1, math.ceil(episodes / (4 * jobs)))
+        tasks = [(i, (e, n, seeds[lo: lo + chunk], p)) for i, (e, n, p) in enumerate(pairs) for lo in range(0, episodes, chunk)]
+        with mp.get_context("spawn").Pool(jobs) as pool:
+            done = list(tqdm(pool.imap(_chunk_job, [t for _, t in tasks]), total=len(tasks), desc="benchmark chunks",
+                             disable=not progress))
+            pool.close()
+            pool.join()
+        parts = [[part for (j, _), part in zip(tasks, done) if j == i] for i in range(len(pairs))]
+    rows: list[dict[str, Any]] = []
+    i = 0
+    while i < len(pairs):
+        e, n, _ = pairs[i]
+        k = i
+        while k < len(pairs) and pairs[k][:2] == (e, n):
+            k += 1
+        if n == "ppo":
+            rows.append(seed_aggregate(e, n, parts[i:k], seed_start=seed_start))
+        else:
+            rows += [summarise(e, n, parts[j], seed_start=seed_start) for j in range(i, k)]
+        i = k
     return rows
 
 
@@ -249,8 +358,9 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     for r in rows:
         lo, hi = r["mean_steps_ci95"]
         lc = r["localised_correct_rate"]
+        policy = r["policy"] if "seeds" not in r else f"{r['policy']} ({r['seeds']} seeds, IQM {r['mean_steps_iqm']:.2f})"
         cells = [
-            r["env"], r["policy"], str(r["episodes"]),
+            r["env"], policy, str(r["episodes"]),
             f"{r['mean_steps']:.2f} ({lo:.2f}-{hi:.2f})", f"{r['median_steps']:g}",
             f"{r['success_rate']:.3f}", f"{r['truncated_rate']:.3f}",
             "-" if lc is None else f"{lc:.3f}",

@@ -163,15 +163,13 @@ def _sweep(args) -> int:
         summary = run(spec, address=args.address, cpus=args.cpus, resume=args.resume)
     except (SweepError, ConfigError) as exc:
         return _fail("sweep", " ".join(str(exc).split()))
-    except ConnectionError as exc:
-        return _fail("sweep", f"cannot join the Ray cluster at {args.address}: {' '.join(str(exc).split())}")
     from gym_gridloc_agents.sweep import summary_table
 
     print(summary_table(summary))
     print(f"\nwrote {summary['output']}/summary.md, summary.json and results/", file=sys.stderr)
-    left = {k: v for k, v in summary["statuses"].items() if k in ("unfinished", "error")}
-    if left:
-        print(f"gridloc sweep: {', '.join(f'{v} {k}' for k, v in left.items())} trial(s); continue with: "
+    failed = summary["statuses"].get("error", 0)
+    if summary["pending"] or failed:
+        print(f"gridloc sweep: {summary['pending']} trial(s) unfinished, {failed} failed; continue with: "
               f"{spec['command']} --resume", file=sys.stderr)
         return 1
     return 0 if summary["best"] else 1

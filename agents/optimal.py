@@ -127,9 +127,12 @@ class OptimalPolicy(Policy):
         super().reset(seed, model)
         self.t = 0
 
-    def act(self, observation: Any, belief: np.ndarray) -> int:
+    def probabilities(self, observation: Any, belief: np.ndarray) -> np.ndarray:
+        """Even over the optimal actions of this step (a step: the horizon counts down)."""
         b = self.model.to_vector(self._full_belief(belief))
-        B = np.flatnonzero(b > 0)
-        ok = self.search.best_actions(B, max(self.horizon - self.t, 1))
+        ok = self.search.best_actions(np.flatnonzero(b > 0), max(self.horizon - self.t, 1))
         self.t += 1
-        return int(self.rng.choice(np.flatnonzero(ok)))
+        return ok / ok.sum()
+
+    def act(self, observation: Any, belief: np.ndarray) -> int:
+        return self.choose(self.probabilities(observation, belief))

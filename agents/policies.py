@@ -76,6 +76,12 @@ class GreedyPolicy(Policy):
     def act(self, observation: Any, belief: np.ndarray) -> int:
         return self._break_ties(self.expected_entropies(belief))
 
+    def probabilities(self, observation: Any, belief: np.ndarray) -> np.ndarray:
+        out = np.zeros(self.n_actions)
+        ties = self.best(self.expected_entropies(belief))
+        out[ties] = 1.0 / len(ties)
+        return out
+
 
 class Greedy2Policy(GreedyPolicy):
     """Two-step expectimax on the expected position entropy.

@@ -69,14 +69,31 @@ def _concat(parts: list[Any]) -> Any:
     return np.concatenate(parts)
 
 
-def _episode_samples(ep, actions: list[int], wrapper: dict[str, Any], gamma: float) -> dict[str, Any]:
-    """One episode's samples: the observations PPO sees, the actions to imitate, the returns."""
+def _episode_samples(ep, targets: list[np.ndarray], wrapper: dict[str, Any], gamma: float) -> dict[str, Any]:
+    """One episode's samples: the observations PPO sees, the expert's action distributions to
+    imitate (one-hot, or even over a planner's tied best actions), the returns."""
     from gym_gridloc_agents.policies import wrapped_observation
 
     obs = [wrapped_observation(ep.model, o, b, flatten=wrapper["flatten"], full_state=wrapper["full_state"],
                                map=wrapper["map"]) for o, b in zip(ep.observations, ep.beliefs)]
-    return {"obs": _stack(obs), "actions": np.asarray(actions, dtype=np.int64),
+    return {"obs": _stack(obs), "targets": np.asarray(targets, dtype=np.float32),
             "returns": _discounted(ep.rewards, gamma, ep.truncated and not ep.terminated), "length": ep.steps}
+
+
+class _Recorded:
+    """An expert that plays and records its action distribution at every step."""
+
+    def __init__(self, expert) -> None:
+        self.expert, self.targets = expert, []
+
+    def reset(self, seed=None, model=None) -> None:
+        self.expert.reset(seed=seed, model=model)
+        self.targets = []
+
+    def act(self, observation, belief) -> int:
+        p = self.expert.probabilities(observation, belief)
+        self.targets.append(p)
+        return self.expert.choose(p)
 
 
 # -- caches ----------------------------------------------------------------------------------------
@@ -99,7 +116,7 @@ def _load_cache(cache: Path | None, key: str) -> list[dict[str, Any]]:
             out = []
             for a, b, n in zip(bounds[:-1], bounds[1:], lengths):
                 obs = {k: data[f"obs.{k}"][a:b] for k in obs_keys} if obs_keys else data["obs"][a:b]
-                out.append({"obs": obs, "actions": data["actions"][a:b], "returns": data["returns"][a:b], "length": int(n)})
+                out.append({"obs": obs, "targets": data["targets"][a:b], "returns": data["returns"][a:b], "length": int(n)})
             return out
     except (OSError, KeyError, ValueError):
         return []  # an unreadable cache is collected again
@@ -110,12 +127,12 @@ def _save_cache(cache: Path, key: str, episodes: list[dict[str, Any]]) -> None:
 
     if not episodes:
         return
-    sizes = [len(e["actions"]) for e in episodes]
+    sizes = [len(e["targets"]) for e in episodes]
     obs = _concat([e["obs"] for e in episodes])
     arrays = {f"obs.{k}": v for k, v in obs.items()} if isinstance(obs, dict) else {"obs": obs}
     with atomic_path(cache) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, key=np.array(key), bounds=np.concatenate([[0], np.cumsum(sizes)]),
-                 lengths=np.array([e["length"] for e in episodes]), actions=np.concatenate([e["actions"] for e in episodes]),
+                 lengths=np.array([e["length"] for e in episodes]), targets=np.concatenate([e["targets"] for e in episodes]),
                  returns=np.concatenate([e["returns"] for e in episodes]), **arrays)
 
 
@@ -139,12 +156,12 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
     key = _cache_key(cfg, "expert")
     episodes = _load_cache(cache, key)[: pre["episodes"]]
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
-    expert = _expert(cfg, env)
+    expert = _Recorded(_expert(cfg, env))
     try:
         for i in tqdm(range(len(episodes), pre["episodes"]), desc=f"expert {pre['expert']} episodes",
                       disable=not progress, leave=False, initial=len(episodes), total=pre["episodes"]):
             ep = rollout(env, expert, PRETRAIN_SEED_BASE + i, keep=True)
-            episodes.append(_episode_samples(ep, ep.actions, cfg["wrapper"], gamma))
+            episodes.append(_episode_samples(ep, expert.targets, cfg["wrapper"], gamma))
     except KeyboardInterrupt:
         if cache is not None:
             _save_cache(cache, key, episodes)
@@ -176,7 +193,7 @@ def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = 
         seed = DAGGER_SEED_BASE + round_index * n + i
         ep = rollout(env, student, seed, keep=True)
         expert.reset(seed=seed, model=ep.model)
-        labels = [expert.act(o, b) for o, b in zip(ep.observations, ep.beliefs)]
+        labels = [expert.probabilities(o, b) for o, b in zip(ep.observations, ep.beliefs)]
         out.append(_episode_samples(ep, labels, cfg["wrapper"], gamma))
     env.close()
     return out
@@ -184,7 +201,8 @@ def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = 
 
 # -- fitting ---------------------------------------------------------------------------------------
 def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, progress: bool, label: str) -> int:
-    """Fit the actor to the actions and the critic to the returns for ``epochs`` (a range: the
+    """Fit the actor to the expert's action distributions (cross-entropy) and the critic to the
+    returns for ``epochs`` (a range: the
     shuffles of earlier epochs are drawn first, so a resumed fit continues the same sequence).
     Returns the number of epochs done; Ctrl-C raises :class:`_FitInterrupted` with that number."""
     import torch
@@ -193,11 +211,11 @@ def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, pro
     pre = cfg["pretrain"]
     policy = model.policy
     obs = policy.obs_to_tensor(data["obs"])[0] if isinstance(data["obs"], dict) else torch.as_tensor(data["obs"])
-    actions = torch.as_tensor(data["actions"])
+    targets = torch.as_tensor(data["targets"])
     returns = torch.as_tensor(data["returns"])
     optimiser = torch.optim.Adam(policy.parameters(), lr=pre["learning_rate"])
     gen = torch.Generator().manual_seed(int(cfg["seed"]))
-    n = len(actions)
+    n = len(targets)
     for _ in range(epochs.start):
         torch.randperm(n, generator=gen)
     policy.set_training_mode(True)
@@ -208,8 +226,10 @@ def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, pro
             for k in range(0, n, pre["batch_size"]):
                 idx = order[k : k + pre["batch_size"]]
                 batch = {key: v[idx] for key, v in obs.items()} if isinstance(obs, dict) else obs[idx]
-                values, log_prob, _ = policy.evaluate_actions(batch, actions[idx])
-                loss = -log_prob.mean() + 0.5 * torch.nn.functional.mse_loss(values.flatten(), returns[idx])
+                logits = policy.get_distribution(batch).distribution.logits
+                values = policy.predict_values(batch)
+                cross_entropy = -(targets[idx] * torch.log_softmax(logits, dim=-1)).sum(dim=-1).mean()
+                loss = cross_entropy + 0.5 * torch.nn.functional.mse_loss(values.flatten(), returns[idx])
                 optimiser.zero_grad()
                 loss.backward()
                 optimiser.step()
@@ -222,17 +242,18 @@ def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, pro
 
 
 def _agreement(model, data: dict[str, Any]) -> float:
+    """How often the policy's most probable action is one of the expert's."""
     import torch
 
     policy = model.policy
     obs = policy.obs_to_tensor(data["obs"])[0] if isinstance(data["obs"], dict) else torch.as_tensor(data["obs"])
     with torch.no_grad():
-        dist = policy.get_distribution(obs)
-        return float((dist.distribution.probs.argmax(dim=1) == torch.as_tensor(data["actions"])).float().mean())
+        best = policy.get_distribution(obs).distribution.probs.argmax(dim=1).numpy()
+    return float((data["targets"][np.arange(len(best)), best] > 0).mean())
 
 
 def _merge(episodes: list[dict[str, Any]]) -> dict[str, Any]:
-    return {"obs": _concat([e["obs"] for e in episodes]), "actions": np.concatenate([e["actions"] for e in episodes]),
+    return {"obs": _concat([e["obs"] for e in episodes]), "targets": np.concatenate([e["targets"] for e in episodes]),
             "returns": np.concatenate([e["returns"] for e in episodes]), "lengths": np.asarray([e["length"] for e in episodes])}
 
 
@@ -268,11 +289,11 @@ def behaviour_cloning(model, cfg: dict[str, Any], progress: bool = True, *, cach
     return {
         "expert": pre["expert"],
         "episodes": int(pre["episodes"]),
-        "samples": int(len(data["actions"])),
+        "samples": int(len(data["targets"])),
         "expert_mean_steps": float(data["lengths"].mean()),
         "argmax_agreement": round(_agreement(model, data), 4),
         "dagger_rounds": int(pre["dagger_rounds"]),
-        "dagger_samples": int(sum(len(e["actions"]) for e in dagger_eps)),
+        "dagger_samples": int(sum(len(e["targets"]) for e in dagger_eps)),
         "seconds": round(time.perf_counter() - start, 2),
         "resumed_at_epoch": start_epoch or None,
         "resumed_at_round": start_round or None,

@@ -1,0 +1,75 @@
+"""Aggregates across seeds: mean, interquartile mean, bootstrap interval of the mean.
+
+A handful of training seeds is a small sample; following Agarwal et al. (2021), "Deep
+Reinforcement Learning at the Edge of the Statistical Precipice", a result across seeds is given
+as the mean, the interquartile mean (IQM: robust to one outlying seed, less noisy than the median)
+and a percentile-bootstrap 95% interval of the mean (resampling the seeds with replacement; the
+resampling generator has a fixed seed, so the same values always give the same interval).
+
+Used by ``gridloc sweep`` (per configuration) and ``gridloc bench`` with several ``--ppo-model``
+files (one row across seeds).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+#: Seed of the bootstrap's generator: the interval is a function of the values alone.
+BOOTSTRAP_SEED = 0
+#: Bootstrap resamples.
+BOOTSTRAP_RESAMPLES = 10_000
+
+
+def _values(values: Sequence[float]) -> np.ndarray:
+    x = np.asarray(values, dtype=float).ravel()
+    if x.size == 0:
+        raise ValueError("no values to aggregate")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"values must be finite numbers, got {list(values)!r}")
+    return x
+
+
+def mean(values: Sequence[float]) -> float:
+    return float(_values(values).mean())
+
+
+def iqm(values: Sequence[float]) -> float:
+    """Interquartile mean: the mean after dropping ``floor(n / 4)`` values at each end of the
+    sorted values (rliable's ``aggregate_iqm``, i.e. ``scipy.stats.trim_mean(x, 0.25)``).  With
+    fewer than 4 values nothing is dropped: it is the mean."""
+    x = np.sort(_values(values))
+    k = int(0.25 * x.size)
+    return float(x[k: x.size - k].mean())
+
+
+def bootstrap_ci(values: Sequence[float], *, confidence: float = 0.95, resamples: int = BOOTSTRAP_RESAMPLES,
+                 seed: int = BOOTSTRAP_SEED) -> list[float]:
+    """Percentile-bootstrap interval of the mean: ``resamples`` resamples of the values with
+    replacement (generator ``numpy.random.default_rng(seed)``), the ``(1 - confidence) / 2`` and
+    ``(1 + confidence) / 2`` quantiles of their means.  One value: ``[value, value]``."""
+    x = _values(values)
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    if x.size == 1:
+        return [float(x[0]), float(x[0])]
+    rng = np.random.default_rng(seed)
+    means = x[rng.integers(0, x.size, size=(int(resamples), x.size))].mean(axis=1)
+    lo, hi = np.quantile(means, [(1 - confidence) / 2, (1 + confidence) / 2])
+    return [float(lo), float(hi)]
+
+
+def aggregate(values: Sequence[float]) -> dict[str, Any]:
+    """``{"n", "mean", "iqm", "ci95", "values"}`` of the values (one per seed)."""
+    x = _values(values)
+    return {"n": int(x.size), "mean": mean(x), "iqm": iqm(x), "ci95": bootstrap_ci(x),
+            "values": [float(v) for v in x]}
+
+
+def median_index(scores: Sequence[float]) -> int:
+    """The position of the median of ``scores`` (lower median for an even count: the
+    ``(n - 1) // 2``-th smallest; ties keep the earlier position)."""
+    x = _values(scores)
+    order = sorted(range(x.size), key=lambda i: (x[i], i))
+    return order[(x.size - 1) // 2]
