@@ -58,8 +58,9 @@ import json
 import os
 import re
 import shutil
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any
 
 from gym_gridloc_agents.config import ConfigError, load_config, validate_config
 

@@ -33,6 +33,10 @@ needs_ray = pytest.mark.skipif(
     importlib.util.find_spec("ray") is None or importlib.util.find_spec("optuna") is None,
     reason="needs the sweep extra (ray[tune], optuna)",
 )
+if importlib.util.find_spec("ray") is not None:
+    # Imported here, not first inside a test that captures output: Ray's log handler keeps the
+    # stderr it sees at import, and a test's capture is closed after the test.
+    import ray  # noqa: F401
 
 
 def tiny_config(tmp_path: Path, name: str = "tiny.yml", **over) -> Path:
@@ -152,8 +156,7 @@ def test_ray_is_imported_only_by_the_sweep():
             "gym_gridloc_agents.sweep, gym_gridloc_agents.stats; "
             "bad = [m for m in ('ray', 'optuna') if m in sys.modules]; assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
-    import tomllib
-
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     assert any(d.startswith("ray[tune]") for d in project["optional-dependencies"]["sweep"])
     assert any(d.startswith("optuna") for d in project["optional-dependencies"]["sweep"])
@@ -368,7 +371,7 @@ def test_sweep_on_a_running_ray_cluster(tmp_path):
         out = tmp_path / "out"
         run = subprocess.run([sys.executable, "-m", "gym_gridloc_agents.cli", "sweep", str(cfg), "--seeds", "2",
                               "--address", f"127.0.0.1:{port}", "--output", str(out)],
-                             capture_output=True, text=True, cwd=tmp_path, env=env, timeout=150)
+                             check=False, capture_output=True, text=True, cwd=tmp_path, env=env, timeout=150)
         swept = time.monotonic()
         assert run.returncode == 0, run.stderr[-3000:]
         s = _results(out)
