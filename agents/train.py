@@ -163,18 +163,32 @@ def _eval_callback(cfg: dict[str, Any], directory: Path, history: list, on_evalu
     return Eval()
 
 
+def best_entry(directory: Path) -> dict[str, Any] | None:
+    """The evaluation of the model in ``best.zip`` (its ``best.json``), if there is one: it may
+    be newer than the checkpoint a run resumes from."""
+    if not (directory / "best.zip").is_file():
+        return None
+    try:
+        entry = read_metadata(directory / "best.zip")
+    except ValueError:
+        return None
+    return entry if "num_timesteps" in entry else None
+
+
 def record_evaluation(model, cfg, episodes, directory: Path, history: list, on_evaluation=None) -> None:
     """Evaluate, append to ``history`` (which may hold the evaluations of an interrupted run) and
-    keep the best model so far as ``best.zip``."""
+    keep the best model so far as ``best.zip`` with its evaluation in ``best.json``."""
     result = evaluate(model, cfg, episodes)
-    best = min((_score(cfg, h) for h in history), default=float("inf"))
+    kept = best_entry(directory)
+    best = min((_score(cfg, h) for h in [*history, *([kept] if kept else [])]), default=float("inf"))
     entry = {"num_timesteps": int(model.num_timesteps), **{k: round(v, 4) for k, v in result.items()}}
     history.append(entry)
     print(f"evaluation at {entry['num_timesteps']} steps on {episodes} held-out episodes: mean steps {entry['mean_steps']:.3f}, "
           f"accuracy {entry['accuracy']:.3f}, argmax accuracy {entry['argmax_accuracy']:.3f}"
           + ("  (best so far)" if _score(cfg, entry) < best else ""), file=sys.stderr, flush=True)
-    if _score(cfg, entry) < best or not (directory / "best.zip").is_file():
+    if _score(cfg, entry) < best:
         atomic_save_model(model, directory / "best.zip")
+        atomic_write_json(metadata_path(directory / "best.zip"), entry)
     if on_evaluation is not None:
         on_evaluation(dict(entry))
 
@@ -252,6 +266,11 @@ def train(
                 f"but the config asks for {cfg['algo']} on {cfg['env_id']}"
             )
     check_outputs(cfg, ckpt_dir, force=force)
+    if resume is None and (ckpt_dir / "best.zip").exists():  # an earlier run's best: kept aside, not mixed in
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        for name in ("best.zip", "best.json"):
+            if (ckpt_dir / name).exists():
+                os.replace(ckpt_dir / name, ckpt_dir / name.replace("best", f"best-before-{stamp}"))
 
     import torch
 
@@ -325,7 +344,9 @@ def train(
         # best_model: PPO's evaluation curve is noisy from one update to the next.
         if not evaluations or evaluations[-1]["num_timesteps"] != int(model.num_timesteps):
             record_evaluation(model, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
-        best = min(evaluations, key=lambda h: _score(cfg, h))
+        best = best_entry(ckpt_dir) or min(evaluations, key=lambda h: _score(cfg, h))
+        if best not in evaluations:  # evaluated before the checkpoint this run resumed from was written
+            evaluations.append({**best, "note": "evaluated before an interruption; kept as best.zip"})
         selected = best["num_timesteps"]
         final_timesteps = int(model.num_timesteps)
         model = Algo.load(ckpt_dir / "best.zip", device="cpu")

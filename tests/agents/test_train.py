@@ -449,3 +449,39 @@ def test_ctrl_c_in_a_dagger_round_resumes_at_that_round(tmp_path, monkeypatch):
     assert meta["warm_start"] == {"done": False, "episodes": 4, "epochs": 2, "rounds": 1}
     info = train(cfg, progress_bar=False, resume=exc.value.checkpoint)
     assert calls == [0, 1, 1] and info["pretrain"]["resumed_at_round"] == 1 and info["warm_start"] == {"done": True}
+
+
+def test_a_best_model_newer_than_the_resumed_checkpoint_stays_the_selection(tmp_path, monkeypatch):
+    import gym_gridloc_agents.train as t
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    # Evaluations at 128, 256, 384 score 5, 2, 9; the run dies after 384 but resumes from the
+    # checkpoint at 256 (before the evaluation at 384 and... after the best one at 256).
+    scores = iter([5.0, 2.0, 9.0, 8.0, 8.0, 8.0, 8.0])
+    monkeypatch.setattr(t, "evaluate", lambda model, cfg, episodes: {"mean_steps": next(scores), "accuracy": 0.0, "argmax_accuracy": 0.0})
+
+    class Crash(BaseCallback):
+        def _on_step(self):
+            if self.num_timesteps >= 400:
+                raise KeyboardInterrupt
+            return True
+
+    cfg = tiny(tmp_path, total_timesteps=640, eval_freq=128, eval_episodes=2, checkpoint_freq=128)
+    with pytest.raises(TrainingInterrupted):
+        train(cfg, progress_bar=False, callbacks=[Crash()])
+    best = json.loads((tmp_path / "ckpt" / "best.json").read_text())
+    assert best["mean_steps"] == 2.0
+    early = sorted((tmp_path / "ckpt").glob("step_*.zip"))[0]  # an older checkpoint than the best model
+    assert json.loads(early.with_suffix(".json").read_text())["num_timesteps"] < best["num_timesteps"]
+    info = train(cfg, progress_bar=False, resume=early)
+    assert info["selected_timesteps"] == best["num_timesteps"]
+    assert json.loads((tmp_path / "ckpt" / "best.json").read_text())["mean_steps"] == 2.0
+
+
+def test_a_fresh_run_sets_an_old_best_model_aside(tmp_path):
+    ckpt = tmp_path / "ckpt"
+    ckpt.mkdir()
+    (ckpt / "best.zip").write_bytes(b"old best")
+    train(tiny(tmp_path, total_timesteps=256, eval_freq=128, eval_episodes=2), progress_bar=False)
+    kept = list(ckpt.glob("best-before-*.zip"))
+    assert len(kept) == 1 and kept[0].read_bytes() == b"old best"
