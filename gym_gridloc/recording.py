@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -80,14 +80,14 @@ class RecordTrajectory(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.episodes: deque[Trajectory] = deque(maxlen=self.max_episodes)
         self.trajectory: Trajectory | None = None
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
         if self.trajectory is not None and self.max_episodes > 0:
             self.episodes.append(self.trajectory)
         self.trajectory = Trajectory(observations=[_copy(obs)], infos=[dict(info)])
         return obs, info
 
-    def step(self, action):
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         if self.trajectory is None:
             raise RuntimeError("call reset() before step()")
         obs, reward, terminated, truncated, info = self.env.step(action)

@@ -207,7 +207,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         return referee.summarise(self._beliefs, self._states, t.localise_threshold, pose=t.referee_pose)
 
     # -- Gymnasium API ----------------------------------------------------------------------------
-    def reset(self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None):
+    def reset(self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         """Reset every environment (or those of ``options["reset_mask"]``).  ``seed``: an int
         seeds the batch's generator; a list of ints seeds it from all of them."""
         n = self.num_envs
@@ -244,7 +244,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             return rng, words[0]
         raise ValueError(f"seed must be a non-negative integer, a list of them, or None; got {seed!r}")
 
-    def step(self, actions):
+    def step(self, actions: Any) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         if not self._started:
             raise RuntimeError("call reset() before step()")
         n = self.num_envs

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import warnings
-from typing import Any, Sequence
+from typing import Any, Sequence, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -199,7 +199,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             return observation["observation"]
         return observation
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
         env_model = getattr(self.env.unwrapped, "model", None) if self._follows_env else None
         if env_model is not None and env_model is not self.model:  # the map was redrawn at reset
@@ -222,7 +222,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             info = {**info, "belief_reset": self._reset_flag}
         return self.observation(obs), info
 
-    def step(self, action):
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._reset_flag = False
         try:
@@ -247,7 +247,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         np.clip(b, 0.0, 1.0, out=b)
         return b
 
-    def observation(self, observation):
+    def observation(self, observation: Any) -> dict[str, Any] | np.ndarray:
         sensor_obs = self._sensor_obs(observation)
         reading = np.array([self.model.sensor.to_reading(sensor_obs)]) if self.flatten else None
         maps = map_channels(self.model)[None] if self.map else None

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Set up .venv with the package, its RL extra and the test tools.
+# Set up .venv with the package, its RL extra, the test tools and the documentation tools.
 # torch is installed first and pinned: an unpinned torch resolves to a multi-GB CUDA build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -7,4 +7,6 @@ PY=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ".[rl,render,dev,fast]"
+.venv/bin/python -m pip install -q -e ".[rl,render,dev,fast,docs]"
+# tests/test_release.py builds the wheel and sdist with `python -m build`.
+.venv/bin/python -m pip install -q build
