@@ -31,9 +31,9 @@ from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.lookahead import Lookahead
 
 #: Names accepted by :func:`make_policy`.
-POLICY_NAMES = ("random", "greedy", "greedy2", "optimal", "ppo", "recurrent")
+POLICY_NAMES = ("random", "greedy", "greedy2", "central", "expectimax", "mcts", "optimal", "ppo", "recurrent")
 #: Policies a warm start may imitate (no model file of their own).
-EXPERT_NAMES = ("greedy", "greedy2", "optimal")
+EXPERT_NAMES = ("greedy", "greedy2", "central", "expectimax", "mcts", "optimal")
 
 #: Where the shipped models live: ``<env_id>.zip`` (PPO) and ``<env_id>-recurrent.zip``.
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
@@ -243,6 +243,10 @@ def make_policy(
         return GreedyPolicy(model, seed=seed, pose=pose)
     if name == "greedy2":
         return Greedy2Policy(model, seed=seed, pose=pose)
+    if name in ("central", "expectimax", "mcts"):
+        from gym_gridloc_agents.planners import make_planner
+
+        return make_planner(name, model, env_id=env_id, seed=seed, **options)
     if name == "optimal":
         from gym_gridloc_agents.optimal import OptimalPolicy
 
