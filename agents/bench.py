@@ -1,27 +1,34 @@
-"""The localisation-speed benchmark.
+"""The localisation-speed benchmark: every policy on the same episodes, one row per (environment,
+policy).
 
-Every policy runs behind :class:`gym_gridloc.HMMBeliefWrapper` on the same episode seeds (episode
-``i`` uses ``seed_start + i`` for the environment and for the policy's own generator).  Per
-(environment, policy) row:
+Every policy runs behind :class:`gym_gridloc.HMMBeliefWrapper` on the same episodes: episode ``i``
+resets the environment with ``seed_start + i`` and the policy with the same seed (common random
+numbers); with ``test_set=True`` it also takes map ``i`` of :func:`gym_gridloc.maps.test_set` and
+its start state.  A row holds:
 
-- ``success_rate``: episodes that ended by localising on the right cell;
-- ``truncated_rate``: episodes that hit ``max_episode_steps`` without localising;
-- ``mean_steps``, ``median_steps``, ``mean_steps_ci95`` (normal approximation,
-  mean +- 1.96 sd / sqrt(n)): steps to localise, counted from reset, a truncated episode counted at
-  the step limit;
+- ``mean_steps``, ``median_steps``, ``mean_steps_ci95`` (mean +- 1.96 sd / sqrt(n)): steps to
+  localise, counted from reset, a truncated episode counted at the step limit; with fixed-length
+  episodes (``episode_length`` L, the research protocol) the first step at which the referee
+  declared the pose localised, L if never;
+- ``success_rate`` (ended by localising on the truth), ``truncated_rate``, ``localised_rate``,
+  ``localised_correct_rate``, with Wilson 95% intervals for the rates;
 - ``accuracy_at``: for budgets k (5, 10, 25, 50), the fraction of episodes whose most probable
-  position is right after k steps.  An episode that ended before k steps (localised, or truncated
-  by a shorter limit) keeps its estimate at its end;
-- ``localised_correct_rate``: among episodes that ended by localising, the fraction whose estimate
-  was right (the threshold promises at least ``localise_threshold``);
-- ``seconds``: wall time of the row.
+  position (pose, where the referee tests poses) is right after k steps (an episode that ended
+  earlier keeps its estimate);
+- with ``episode_length`` L: ``accuracy_at_L`` (the belief at step L has collapsed onto the true
+  pose: largest probability >= the threshold, on the truth) and ``argmax_accuracy_at_L`` (the most
+  probable pose is the truth), with Wilson intervals;
+- ``ms_per_decision``: the mean time a policy took to choose an action; ``gap_to_best_planner``:
+  ``mean_steps`` over the best planner's (``central``, ``expectimax``, ``mcts``, ``pomcp``,
+  ``optimal``) on the same environment;
+- ``seconds``: wall time of the row; the curves of the fraction localised and of the accuracy.
 
 Several PPO models (one per training seed, e.g. a sweep's ``models/<configuration>/``) give one
 ``ppo`` row across seeds: every model plays the same episodes; ``mean_steps`` is the mean of the
 per-seed mean steps, ``mean_steps_iqm`` their interquartile mean and ``mean_steps_ci95`` a
 bootstrap 95% interval across seeds (:mod:`gym_gridloc_agents.stats`; so are ``success_rate_ci95``
 and ``accuracy_at_ci95``); rates, curves and ``median_steps`` pool the episodes of all seeds;
-``per_seed`` holds each model's own numbers.
+``per_seed`` holds each model's own numbers.  Tables and figures: :mod:`gym_gridloc_agents.report`.
 """
 
 from __future__ import annotations
@@ -29,63 +36,121 @@ from __future__ import annotations
 import glob
 import math
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
 from gym_gridloc_agents.envs import make_env
-from gym_gridloc_agents.policies import POLICY_DIR, POLICY_NAMES, make_policy
+from gym_gridloc_agents.policies import POLICY_DIR, POLICY_NAMES, default_model_path, make_policy
 from gym_gridloc_agents.rollout import rollout
+from gym_gridloc_agents.stats import wilson_ci95
 
 BUDGETS = (5, 10, 25, 50)
 #: The environments of ``gridloc bench --all`` (fixed maps, shipped policies).
 BENCH_ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0")
 #: The policies ``gridloc bench`` runs when ``--policies`` is not given.
 DEFAULT_POLICIES = ("random", "greedy", "greedy2", "ppo", "recurrent")
+#: Policies that plan on the exact belief (the "best planner" of ``gap_to_best_planner``).
+PLANNERS = ("central", "expectimax", "mcts", "pomcp", "optimal")
+#: Policies that load a model file.
+LEARNED = ("ppo", "recurrent")
 
 
-def simulate(
-    env_id: str,
-    policy_name: str,
-    seeds: Sequence[int],
-    *,
-    env_kwargs: dict[str, Any] | None = None,
-    model_path: str | Path | None = None,
-    budgets: Sequence[int] = BUDGETS,
-    progress: bool = True,
-) -> dict[str, Any]:
-    """Run one policy on the given episode seeds; returns per-episode arrays."""
+@dataclass(frozen=True)
+class Task:
+    """One row's policy on one environment: ``env_kwargs`` for ``gym.make``, ``model_path`` for a
+    learned policy (None: the shipped one), ``options`` for the policy (e.g. a planner's depth)."""
+
+    env_id: str
+    policy: str
+    env_kwargs: dict = field(default_factory=dict)
+    model_path: str | Path | None = None
+    options: dict = field(default_factory=dict)
+
+
+def episode_specs(env_id: str, env_kwargs: dict, episodes: int, seed_start: int, test_set: bool) -> list[tuple[int, Any]]:
+    """``(seed, reset options)`` of the benchmark's episodes: seeds ``seed_start + i``; with
+    ``test_set``, the held-out map ``i`` and its start state as reset options."""
+    if not test_set:
+        return [(seed_start + i, None) for i in range(episodes)]
+    from gym_gridloc import maps
+
+    size = env_kwargs.get("size")
+    if size is None:
+        raise ValueError(f"--test-set needs --size: the held-out maps of {env_id} are drawn per size")
+    side = size if isinstance(size, int) else size[0]
+    return [(seed_start + m.index, {"map": m.grid, "state": m.state}) for m in maps.test_set(env_id, side, episodes)]
+
+
+class _Timed:
+    """A policy whose decisions are timed (the rest of its interface passes through)."""
+
+    def __init__(self, policy) -> None:
+        self.policy, self.seconds, self.decisions = policy, 0.0, 0
+
+    def reset(self, seed=None, model=None) -> None:
+        self.policy.reset(seed=seed, model=model)
+
+    def act(self, observation, belief) -> int:
+        t = time.perf_counter()
+        action = self.policy.act(observation, belief)
+        self.seconds += time.perf_counter() - t
+        self.decisions += 1
+        return action
+
+
+def make_task_policy(task: Task, env):
+    """The task's policy for ``env`` (planners take the referee's threshold, ``optimal`` the
+    episode length)."""
+    options = dict(task.options)
+    if task.policy in PLANNERS and task.policy != "optimal":
+        options.setdefault("threshold", env.unwrapped.localise_threshold)
+    return make_policy(task.policy, env.unwrapped.model, env_id=task.env_id, env_kwargs=dict(task.env_kwargs),
+                       path=task.model_path, pose=env.unwrapped.referee_pose, **options)
+
+
+def simulate(task: Task, specs: Sequence[tuple[int, Any]], *, budgets: Sequence[int] = BUDGETS,
+             progress: bool = True) -> dict[str, Any]:
+    """Run one task on the given episodes; returns per-episode arrays."""
     from tqdm.auto import tqdm
 
-    env = make_env(env_id, env_kwargs)
+    env = make_env(task.env_id, task.env_kwargs)
     max_steps = env.spec.max_episode_steps if env.spec is not None else None
     if not max_steps:
-        raise ValueError(f"{env_id} has no max_episode_steps; the benchmark needs a step limit")
-    policy = make_policy(policy_name, env.unwrapped.model, env_id=env_id, env_kwargs=dict(env_kwargs or {}),
-                         path=model_path, pose=env.unwrapped.referee_pose)
-    n = len(seeds)
+        raise ValueError(f"{task.env_id} has no max_episode_steps; the benchmark needs a step limit")
+    length = env.unwrapped.episode_length
+    limit = min(max_steps, length) if length else max_steps
+    policy = _Timed(make_task_policy(task, env))
+    n = len(specs)
     steps = np.zeros(n, dtype=np.int64)
-    localised = np.zeros(n, dtype=bool)
-    success = np.zeros(n, dtype=bool)
-    truncated_flags = np.zeros(n, dtype=bool)
-    horizon = max(max_steps, max(budgets))
+    localised, success, truncated = (np.zeros(n, dtype=bool) for _ in range(3))
+    horizon = max(limit, max(budgets))
     correct_at = np.zeros((n, horizon + 1), dtype=bool)
+    collapsed_end = np.zeros(n, dtype=bool)
     start = time.perf_counter()
-    bar = tqdm(seeds, desc=f"{env_id} {policy_name}", unit="ep", disable=not progress, leave=False)
-    for i, seed in enumerate(bar):
-        ep = rollout(env, policy, int(seed))
-        localised[i] = ep.terminated
-        success[i] = ep.success
-        truncated_flags[i] = ep.truncated and not ep.terminated
-        steps[i] = ep.steps if ep.terminated else max_steps
+    for i, (seed, options) in enumerate(tqdm(specs, desc=f"{task.env_id} {task.policy}", unit="ep", disable=not progress, leave=False)):
+        ep = rollout(env, policy, int(seed), reset_options=options)
+        if length:  # fixed length: the first step the referee declared localised
+            first = next((k for k, flag in enumerate(ep.localised_at) if flag and k > 0), None)
+            localised[i] = first is not None
+            steps[i] = first if first is not None else limit
+            success[i] = ep.collapsed[-1]
+        else:
+            localised[i] = ep.terminated
+            steps[i] = ep.steps if ep.terminated else max_steps
+            success[i] = ep.success
+        truncated[i] = ep.truncated and not ep.terminated and not localised[i]
         correct_at[i, : len(ep.correct)] = ep.correct
         correct_at[i, len(ep.correct):] = ep.correct[-1]
+        collapsed_end[i] = ep.collapsed[-1]
     env.close()
     return {
-        "steps": steps, "localised": localised, "success": success, "truncated": truncated_flags,
-        "correct_at": correct_at, "max_steps": int(max_steps), "seconds": time.perf_counter() - start,
-        "model": _model_name(getattr(policy, "path", None)),
+        "steps": steps, "localised": localised, "success": success, "truncated": truncated, "correct_at": correct_at,
+        "collapsed_end": collapsed_end, "max_steps": int(limit), "episode_length": length,
+        "seconds": time.perf_counter() - start, "decision_seconds": policy.seconds, "decisions": policy.decisions,
+        "model": _model_name(getattr(policy.policy, "path", None)),
     }
 
 
@@ -100,38 +165,26 @@ def _model_name(path) -> str | None:
     return str(path)
 
 
-def wilson_ci95(successes: int, n: int) -> list[float]:
-    """The Wilson score 95% interval of a proportion ``successes / n``."""
-    if n <= 0:
-        return [0.0, 1.0]
-    z = 1.959963984540054
-    p = successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    lo = 0.0 if successes == 0 else max(0.0, centre - half)  # exact ends, no rounding residue
-    hi = 1.0 if successes == n else min(1.0, centre + half)
-    return [lo, hi]
-
-
-def summarise(env_id: str, policy_name: str, parts: Sequence[dict[str, Any]], *, seed_start: int,
-              budgets: Sequence[int] = BUDGETS) -> dict[str, Any]:
-    """One benchmark row from the per-episode arrays of one or more :func:`simulate` runs."""
-    steps = np.concatenate([p["steps"] for p in parts])
-    localised = np.concatenate([p["localised"] for p in parts])
-    success = np.concatenate([p["success"] for p in parts])
-    truncated = np.concatenate([p["truncated"] for p in parts])
-    correct_at = np.concatenate([p["correct_at"] for p in parts])
-    max_steps = parts[0]["max_steps"]
+def summarise(task: Task | str, policy_name: str | None = None, parts: Sequence[dict[str, Any]] = (), *,
+              seed_start: int, budgets: Sequence[int] = BUDGETS, test_set: bool = False) -> dict[str, Any]:
+    """One benchmark row from the per-episode arrays of one or more :func:`simulate` runs
+    (``summarise(task, parts=...)``, or ``summarise(env_id, policy_name, parts)``)."""
+    if not isinstance(task, Task):
+        task = Task(task, policy_name)
+    cat = {k: np.concatenate([p[k] for p in parts]) for k in ("steps", "localised", "success", "truncated", "correct_at", "collapsed_end")}
+    steps, localised, success, correct_at = cat["steps"], cat["localised"], cat["success"], cat["correct_at"]
+    max_steps, length = parts[0]["max_steps"], parts[0].get("episode_length")
     n = len(steps)
     mean = float(steps.mean())
     sd = float(steps.std(ddof=1)) if n > 1 else 0.0
     half = 1.96 * sd / math.sqrt(n)
-    return {
-        "env": env_id,
-        "policy": policy_name,
+    decisions = sum(p["decisions"] for p in parts)
+    row = {
+        "env": task.env_id,
+        "policy": task.policy,
         "episodes": int(n),
         "success_rate": float(success.mean()),
-        "truncated_rate": float(truncated.mean()),
+        "truncated_rate": float(cat["truncated"].mean()),
         "localised_rate": float(localised.mean()),
         "localised_correct_rate": float(success.sum() / localised.sum()) if localised.any() else None,
         "mean_steps": mean,
@@ -141,6 +194,7 @@ def summarise(env_id: str, policy_name: str, parts: Sequence[dict[str, Any]], *,
         "accuracy_at": {str(k): float(correct_at[:, k].mean()) for k in budgets},
         "accuracy_at_ci95": {str(k): wilson_ci95(int(correct_at[:, k].sum()), n) for k in budgets},
         "success_rate_ci95": wilson_ci95(int(success.sum()), n),
+        "ms_per_decision": 1000.0 * sum(p["decision_seconds"] for p in parts) / max(decisions, 1),
         "max_episode_steps": int(max_steps),
         "seed_start": int(seed_start),
         "seconds": round(sum(p["seconds"] for p in parts), 3),
@@ -148,26 +202,29 @@ def summarise(env_id: str, policy_name: str, parts: Sequence[dict[str, Any]], *,
         "localised_curve": [float(np.mean(localised & (steps <= s))) for s in range(max_steps + 1)],
         "accuracy_curve": [float(x) for x in correct_at[:, : max_steps + 1].mean(axis=0)],
     }
+    if task.env_kwargs:
+        row["env_kwargs"] = dict(task.env_kwargs)
+    if task.options:
+        row["options"] = dict(task.options)
+    if test_set:
+        row["test_set"] = True
+    if length:
+        hits, argmax_hits = int(cat["collapsed_end"].sum()), int(correct_at[:, length].sum())
+        row.update({"episode_length": int(length), "accuracy_at_L": hits / n, "accuracy_at_L_ci95": wilson_ci95(hits, n),
+                    "argmax_accuracy_at_L": argmax_hits / n, "argmax_accuracy_at_L_ci95": wilson_ci95(argmax_hits, n)})
+    return row
 
 
-def run_episodes(
-    env_id: str,
-    policy_name: str,
-    episodes: int,
-    *,
-    seed_start: int = 0,
-    env_kwargs: dict[str, Any] | None = None,
-    model_path: str | Path | None = None,
-    budgets: Sequence[int] = BUDGETS,
-    progress: bool = True,
-) -> dict[str, Any]:
+def run_episodes(env_id: str, policy_name: str, episodes: int, *, seed_start: int = 0, env_kwargs: dict | None = None,
+                 model_path: str | Path | None = None, budgets: Sequence[int] = BUDGETS, progress: bool = True,
+                 test_set: bool = False, options: dict | None = None) -> dict[str, Any]:
     """Run one policy for ``episodes`` episodes (seeds ``seed_start + i``); returns one row."""
     if int(episodes) < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes!r}")
-    seeds = range(seed_start, seed_start + int(episodes))
-    part = simulate(env_id, policy_name, seeds, env_kwargs=env_kwargs, model_path=model_path,
-                    budgets=budgets, progress=progress)
-    return summarise(env_id, policy_name, [part], seed_start=seed_start, budgets=budgets)
+    task = Task(env_id, policy_name, dict(env_kwargs or {}), model_path, dict(options or {}))
+    specs = episode_specs(env_id, task.env_kwargs, int(episodes), seed_start, test_set)
+    return summarise(task, parts=[simulate(task, specs, budgets=budgets, progress=progress)], seed_start=seed_start,
+                     budgets=budgets, test_set=test_set)
 
 
 def expand_models(items: Sequence[str | Path]) -> list[Path]:
@@ -190,43 +247,40 @@ def expand_models(items: Sequence[str | Path]) -> list[Path]:
         models += found
     seen = set()
     for m in models:
-        key = m.resolve()
-        if key in seen:
+        if m.resolve() in seen:
             raise ValueError(f"--ppo-model: {m} is given twice (each model is one seed)")
-        seen.add(key)
+        seen.add(m.resolve())
     return models
 
 
-def seed_aggregate(env_id: str, policy_name: str, runs: Sequence[Sequence[dict[str, Any]]], *, seed_start: int,
-                   budgets: Sequence[int] = BUDGETS) -> dict[str, Any]:
+def seed_aggregate(task: Task, runs: Sequence[Sequence[dict[str, Any]]], *, seed_start: int,
+                   budgets: Sequence[int] = BUDGETS, test_set: bool = False) -> dict[str, Any]:
     """One row across seeds from the :func:`simulate` parts of several models (``runs[i]``: model
     ``i``'s parts, every model on the same episodes); see the module docstring."""
     from gym_gridloc_agents import stats
 
-    per = [summarise(env_id, policy_name, parts, seed_start=seed_start, budgets=budgets) for parts in runs]
-    row = summarise(env_id, policy_name, [p for parts in runs for p in parts], seed_start=seed_start, budgets=budgets)
-    means = [r["mean_steps"] for r in per]
-    agg = stats.aggregate(means)
+    per = [summarise(task, parts=parts, seed_start=seed_start, budgets=budgets, test_set=test_set) for parts in runs]
+    row = summarise(task, parts=[p for parts in runs for p in parts], seed_start=seed_start, budgets=budgets, test_set=test_set)
+    agg = stats.aggregate([r["mean_steps"] for r in per])
     row.update({
-        "episodes": per[0]["episodes"],
-        "episodes_total": row["episodes"],
-        "seeds": len(per),
-        "mean_steps": agg["mean"],
-        "mean_steps_iqm": agg["iqm"],
-        "mean_steps_ci95": agg["ci95"],
-        "ci95": "bootstrap 95% interval across seeds (mean_steps, success_rate, accuracy_at)",
+        "episodes": per[0]["episodes"], "episodes_total": row["episodes"], "seeds": len(per),
+        "mean_steps": agg["mean"], "mean_steps_iqm": agg["iqm"], "mean_steps_ci95": agg["ci95"],
+        "ci95": "bootstrap 95% interval across seeds (mean_steps, success_rate, accuracy_at, accuracy_at_L)",
         "success_rate_ci95": stats.bootstrap_ci([r["success_rate"] for r in per]),
         "accuracy_at_ci95": {k: stats.bootstrap_ci([r["accuracy_at"][k] for r in per]) for k in row["accuracy_at"]},
         "model": [r["model"] for r in per],
-        "per_seed": [{k: r[k] for k in ("model", "mean_steps", "median_steps", "mean_steps_ci95", "success_rate",
-                                        "truncated_rate", "localised_correct_rate", "accuracy_at", "seconds")} for r in per],
+        "per_seed": [{k: r[k] for k in ("model", "mean_steps", "median_steps", "mean_steps_ci95", "success_rate", "truncated_rate",
+                                        "localised_correct_rate", "accuracy_at", "seconds", "accuracy_at_L") if k in r} for r in per],
     })
+    if "accuracy_at_L" in row:
+        acc = stats.aggregate([r["accuracy_at_L"] for r in per])
+        row.update({"accuracy_at_L": acc["mean"], "accuracy_at_L_iqm": acc["iqm"], "accuracy_at_L_ci95": acc["ci95"]})
     return row
 
 
-def _chunk_job(args: tuple) -> dict[str, Any]:
-    env_id, name, seeds, model_path = args
-    return simulate(env_id, name, seeds, model_path=model_path, progress=False)
+def _job(args: tuple) -> dict[str, Any]:
+    task, specs, budgets = args
+    return simulate(task, specs, budgets=budgets, progress=False)
 
 
 def run_benchmark(
@@ -235,21 +289,22 @@ def run_benchmark(
     episodes: int,
     *,
     seed_start: int = 0,
+    env_kwargs: dict | None = None,
+    test_set: bool = False,
     ppo_model: str | Path | Sequence[str | Path] | None = None,
     recurrent_model: str | Path | None = None,
+    policy_options: dict[str, dict] | None = None,
     progress: bool = True,
     jobs: int = 1,
 ) -> list[dict[str, Any]]:
-    """Rows for every environment x policy, in that order.  With ``jobs > 1`` the episodes are
-    split into chunks run in parallel processes (the same seeds, so the same numbers).  Several
-    ``ppo_model`` files (one per seed) make the ``ppo`` row the aggregate across seeds
-    (:func:`seed_aggregate`)."""
-    several = None
-    if isinstance(ppo_model, (list, tuple)):
-        if not ppo_model:
-            raise ValueError("ppo_model: an empty list of models")
-        several = list(ppo_model) if len(ppo_model) > 1 else None
-        ppo_model = ppo_model[0]
+    """Rows for every environment x policy, in that order, on the same episodes.  With
+    ``jobs > 1`` the episodes are split into chunks run in parallel processes (the same
+    episodes, so the same numbers).  Several ``ppo_model`` files (one per seed) make the ``ppo``
+    row the aggregate across seeds (:func:`seed_aggregate`).  ``policy_options`` maps a policy
+    name to its options (e.g. ``{"expectimax": {"depth": 3}}``)."""
+    models = list(ppo_model) if isinstance(ppo_model, (list, tuple)) else [ppo_model]
+    if not models:
+        raise ValueError("ppo_model: an empty list of models")
     for name in policies:
         if name not in POLICY_NAMES:
             raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")
@@ -257,160 +312,62 @@ def run_benchmark(
         raise ValueError(f"policies must not repeat, got {list(policies)}")
     if int(episodes) < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes!r}")
-    pairs = []
+    kwargs, options = dict(env_kwargs or {}), dict(policy_options or {})
+    groups: list[list[Task]] = []  # one group per row; several tasks = several seeds' models
     for env_id in env_ids:
         for name in policies:
-            path = ppo_model if name == "ppo" else recurrent_model if name == "recurrent" else None
-            if name == "ppo" and several:
-                pairs += [(env_id, name, m) for m in several]
-            else:
-                pairs.append((env_id, name, path))
-    # Fail before any long run if a model is missing or does not fit.
-    for env_id, name, path in pairs:
-        if name in ("ppo", "recurrent"):
-            make_policy(name, make_env(env_id).unwrapped.model, env_id=env_id, env_kwargs={}, path=path)
-    if several:
-        return _several_models(pairs, episodes, seed_start=seed_start, progress=progress, jobs=jobs)
+            paths = models if name == "ppo" else [recurrent_model] if name == "recurrent" else [None]
+            groups.append([Task(env_id, name, kwargs, p, dict(options.get(name, {}))) for p in paths])
+    for group in groups:  # fail before any long run if a model is missing or does not fit
+        for task in group:
+            if task.policy in LEARNED:
+                env = make_env(task.env_id, task.env_kwargs)
+                make_task_policy(task, env)
+                env.close()
+    specs = {env_id: episode_specs(env_id, kwargs, int(episodes), seed_start, test_set) for env_id in env_ids}
+    tasks = [t for group in groups for t in group]
     if jobs <= 1:
-        return [run_episodes(e, n, episodes, seed_start=seed_start, model_path=p, progress=progress) for e, n, p in pairs]
-    import multiprocessing as mp
-
-    from tqdm.auto import tqdm
-
-    chunk = max(1, math.ceil(episodes / (4 * jobs)))
-    tasks = []
-    for e, n, p in pairs:
-        for lo in range(0, episodes, chunk):
-            tasks.append((e, n, range(seed_start + lo, seed_start + min(episodes, lo + chunk)), p))
-    ctx = mp.get_context("spawn")
-    with ctx.Pool(jobs) as pool:
-        parts = list(tqdm(pool.imap(_chunk_job, tasks), total=len(tasks), desc="benchmark chunks", disable=not progress))
-        pool.close()  # let the workers exit on their own (``with`` alone terminates them)
-        pool.join()
-    rows = []
-    for e, n, _ in pairs:
-        mine = [part for task, part in zip(tasks, parts) if task[0] == e and task[1] == n]
-        rows.append(summarise(e, n, mine, seed_start=seed_start))
-    return rows
-
-
-def _several_models(pairs: list[tuple], episodes: int, *, seed_start: int, progress: bool, jobs: int) -> list[dict[str, Any]]:
-    """:func:`run_benchmark` when the ``ppo`` policy has one model per seed: the same episodes for
-    every pair, then one row per (environment, policy), the ``ppo`` ones across seeds."""
-    seeds = range(seed_start, seed_start + int(episodes))
-    if jobs <= 1:
-        parts = [[simulate(e, n, seeds, model_path=p, progress=progress)] for e, n, p in pairs]
+        parts = [[simulate(t, specs[t.env_id], progress=progress)] for t in tasks]
     else:
         import multiprocessing as mp
 
         from tqdm.auto import tqdm
 
         chunk = max(1, math.ceil(episodes / (4 * jobs)))
-        tasks = [(i, (e, n, seeds[lo: lo + chunk], p)) for i, (e, n, p) in enumerate(pairs) for lo in range(0, episodes, chunk)]
+        work = [(i, (t, specs[t.env_id][lo: lo + chunk], BUDGETS)) for i, t in enumerate(tasks) for lo in range(0, episodes, chunk)]
         with mp.get_context("spawn").Pool(jobs) as pool:
-            done = list(tqdm(pool.imap(_chunk_job, [t for _, t in tasks]), total=len(tasks), desc="benchmark chunks",
-                             disable=not progress))
-            pool.close()
+            done = list(tqdm(pool.imap(_job, [w for _, w in work]), total=len(work), desc="benchmark chunks", disable=not progress))
+            pool.close()  # let the workers exit on their own (``with`` alone terminates them)
             pool.join()
-        parts = [[part for (j, _), part in zip(tasks, done) if j == i] for i in range(len(pairs))]
-    rows: list[dict[str, Any]] = []
-    i = 0
-    while i < len(pairs):
-        e, n, _ = pairs[i]
-        k = i
-        while k < len(pairs) and pairs[k][:2] == (e, n):
-            k += 1
-        if n == "ppo":
-            rows.append(seed_aggregate(e, n, parts[i:k], seed_start=seed_start))
+        parts = [[part for (j, _), part in zip(work, done) if j == i] for i in range(len(tasks))]
+    rows, i = [], 0
+    for group in groups:
+        mine = parts[i: i + len(group)]
+        i += len(group)
+        if len(group) > 1:
+            rows.append(seed_aggregate(group[0], mine, seed_start=seed_start, test_set=test_set))
         else:
-            rows += [summarise(e, n, parts[j], seed_start=seed_start) for j in range(i, k)]
-        i = k
+            rows.append(summarise(group[0], parts=mine[0], seed_start=seed_start, test_set=test_set))
+    return add_gaps(rows)
+
+
+def add_gaps(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``gap_to_best_planner`` of every row: its mean steps over the lowest mean steps of a
+    planner's row on the same environment (and keyword arguments), where there is one."""
+    best: dict[str, float] = {}
+    for r in rows:
+        if r["policy"] in PLANNERS:
+            key = _env_key(r)
+            best[key] = min(best.get(key, math.inf), r["mean_steps"])
+    for r in rows:
+        b = best.get(_env_key(r))
+        r["gap_to_best_planner"] = None if b is None or b <= 0 else r["mean_steps"] / b
     return rows
 
 
-#: Keys every benchmark row has (what ``--update`` checks an existing file for).
-ROW_KEYS = ("env", "policy", "episodes", "mean_steps", "success_rate")
+def _env_key(row: dict[str, Any]) -> str:
+    return f"{row['env']} {sorted(row.get('env_kwargs', {}).items())} {row.get('test_set', False)}"
 
 
-def read_rows(path: str | Path) -> list[dict[str, Any]]:
-    """The rows of a bench JSON, or ``ValueError`` naming the file and what is wrong with it."""
-    import json
-
-    try:
-        rows = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path} is not a readable bench JSON ({exc}); --update merges into a file gridloc bench wrote") from None
-    if not isinstance(rows, list) or not all(isinstance(r, dict) and all(k in r for k in ROW_KEYS) for r in rows):
-        raise ValueError(f"{path} is not a bench JSON (a list of rows with {', '.join(ROW_KEYS)}); --update merges into a file gridloc bench wrote")
-    return rows
-
-
-def public_row(row: dict[str, Any]) -> dict[str, Any]:
-    """A row without its curves (for tables)."""
-    return {k: v for k, v in row.items() if not k.endswith("_curve")}
-
-
-def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
-    budgets = list(rows[0]["accuracy_at"]) if rows else [str(b) for b in BUDGETS]
-    head = ["env", "policy", "episodes", "mean steps (95% CI)", "median", "success", "truncated",
-            "correct if localised", *[f"acc@{b}" for b in budgets], "seconds"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] * len(head)) + "|"]
-    for r in rows:
-        lo, hi = r["mean_steps_ci95"]
-        lc = r["localised_correct_rate"]
-        policy = r["policy"] if "seeds" not in r else f"{r['policy']} ({r['seeds']} seeds, IQM {r['mean_steps_iqm']:.2f})"
-        cells = [
-            r["env"], policy, str(r["episodes"]),
-            f"{r['mean_steps']:.2f} ({lo:.2f}-{hi:.2f})", f"{r['median_steps']:g}",
-            f"{r['success_rate']:.3f}", f"{r['truncated_rate']:.3f}",
-            "-" if lc is None else f"{lc:.3f}",
-            *[f"{r['accuracy_at'][b]:.3f}" for b in budgets],
-            f"{r['seconds']:.1f}",
-        ]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None = None) -> None:
-    """Fraction localised against steps (left) and accuracy against the step budget (right),
-    one curve per policy, for the rows of ONE environment.  Written atomically."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    envs = {r["env"] for r in rows}
-    if len(envs) != 1:
-        raise ValueError(f"plot() takes the rows of one environment, got {sorted(envs)}")
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(9, 3.4), dpi=90)
-    for r in rows:
-        x = np.arange(len(r["localised_curve"]))
-        (line,) = ax1.plot(x, r["localised_curve"], label=f"{r['policy']} (mean {r['mean_steps']:.1f})")
-        ax2.plot(np.arange(len(r["accuracy_curve"])), r["accuracy_curve"], color=line.get_color(), label=r["policy"])
-        ks = [int(k) for k in r["accuracy_at"]]
-        ax2.plot(ks, [r["accuracy_at"][str(k)] for k in ks], "o", color=line.get_color(), ms=4)
-    # Show the steps where the curves still move (short episodes would be squeezed to the left).
-    last = 0
-    for r in rows:
-        c = np.asarray(r["localised_curve"])
-        last = max(last, int(np.searchsorted(c, 0.995 * c[-1])) if c[-1] > 0 else len(c) - 1)
-    ax1.set_xlim(0, min(len(rows[0]["localised_curve"]) - 1, max(10, int(last * 1.15) + 1)))
-    ax1.set_xlabel("steps from reset")
-    ax1.set_ylabel("fraction of episodes localised")
-    ax1.set_ylim(0, 1.02)
-    ax1.grid(alpha=0.3)
-    ax1.legend(fontsize=7, loc="lower right")
-    ax2.set_xlabel("step budget")
-    ax2.set_ylabel("P(most probable position = truth)")
-    ax2.set_ylim(0, 1.02)
-    ax2.set_xlim(0, max(60, 1))
-    ax2.grid(alpha=0.3)
-    fig.suptitle(title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy", fontsize=10)
-    fig.tight_layout()
-    from gym_gridloc_agents.files import atomic_path
-
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, format="png")
-    finally:
-        plt.close(fig)
+__all__ = ["BENCH_ENV_IDS", "BUDGETS", "DEFAULT_POLICIES", "PLANNERS", "Task", "add_gaps", "default_model_path",
+           "episode_specs", "expand_models", "run_benchmark", "run_episodes", "seed_aggregate", "simulate", "summarise"]

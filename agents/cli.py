@@ -6,6 +6,9 @@
     gridloc bench --all            # the README's table: 3 environments x 5 policies x 1000 episodes
     gridloc reproduce [--quiet]    # the seed documents' numbers (needs only the core install)
     gridloc render [--env ...] [--out results/episode.png] [--gif EP.gif]
+    gridloc bench --env DepthMaze-v0 --size 7 --test-set --episode-length 15 --episodes 1000
+    gridloc bench --env WindyMaze-v0 --policies greedy2,expectimax,ppo --option expectimax.depth=3 --frontier f.png
+    gridloc bound ColourGrid-v0 --depth 5   # no policy can localise faster than this
     gridloc plot [results/bench.json]
     gridloc view WindyMaze-v0 --policy ppo       # step through an episode (the render extra: pygame-ce)
     gridloc play DepthMaze-v0                    # drive the robot with the arrow keys
@@ -52,9 +55,19 @@ def _parser() -> argparse.ArgumentParser:
                         "glob: one model per seed, the ppo row is then the aggregate across seeds (e.g. a sweep's "
                         "models/<configuration>)")
     b.add_argument("--recurrent-model", metavar="PATH", help="benchmark this RecurrentPPO model instead of the shipped one")
+    b.add_argument("--size", type=int, metavar="N", help="map size (the size keyword of the environment, e.g. 7 for DepthMaze 7x7)")
+    b.add_argument("--test-set", action="store_true",
+                   help="run on the held-out test maps of gym_gridloc.maps.test_set (episode i: map i and its start pose; needs --size)")
+    b.add_argument("--episode-length", type=int, metavar="L",
+                   help="fixed-length episodes of L steps (the research protocol): the table adds accuracy at L")
+    b.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                   help="another keyword of gym.make (a YAML scalar, e.g. n_colours=4); repeat for several")
+    b.add_argument("--option", action="append", default=[], metavar="POLICY.KEY=VALUE",
+                   help="an option of one policy (a YAML scalar), e.g. expectimax.depth=3 or mcts.simulations=2000")
+    b.add_argument("--frontier", metavar="PATH.png", help="write the speed-quality plot: mean steps against ms per decision")
     b.add_argument("--jobs", type=int, default=1, help="parallel processes, each running chunks of episodes (default 1)")
     b.add_argument("--update", action="store_true",
-                   help="merge the new rows into the existing JSON file (same env and policy: replaced) and plot the merged rows")
+                   help="merge the new rows into the existing JSON file (the same environment, policy and options: replaced) and plot the merged rows")
     b.add_argument("--no-progress", action="store_true", help="no progress bars")
 
     # Their options are their modules' own (main() hands them over unparsed).
@@ -81,6 +94,14 @@ def _parser() -> argparse.ArgumentParser:
     w.add_argument("--output", metavar="DIR", help="where everything goes (default runs/sweeps/<config stem>)")
     w.add_argument("--resume", action="store_true", help="continue the interrupted sweep in --output (same arguments)")
 
+    lb = sub.add_parser("bound", help="a lower bound on any policy's mean steps to localise (exhaustive search to depth K)")
+    lb.add_argument("env", metavar="ENV_ID", help="environment id, e.g. ColourGrid-v0")
+    lb.add_argument("--depth", type=int, default=3, metavar="K", help="search depth (default 3; the cost grows about |A x Z|^K)")
+    lb.add_argument("--prune", type=float, default=0.0, metavar="P",
+                    help="drop readings below this probability (keeps it a bound, a looser one; default 0)")
+    lb.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE", help="a keyword of gym.make (repeatable)")
+    lb.add_argument("--json", metavar="PATH", help="write the bound as JSON")
+
     q = sub.add_parser("plot", help="redraw the benchmark figures from a results JSON")
     q.add_argument("json", nargs="?", default=str(RESULTS / "bench.json"), help="a bench JSON (default results/bench.json)")
     return p
@@ -104,7 +125,7 @@ def _render(args) -> int:
 
 
 def _plot(args) -> int:
-    from gym_gridloc_agents.bench import plot, read_rows
+    from gym_gridloc_agents.report import plot, plot_frontier, read_rows
 
     src = Path(args.json)
     if not src.is_file():
@@ -116,6 +137,10 @@ def _plot(args) -> int:
     for env in sorted({r["env"] for r in rows}):
         out = src.parent / f"bench_{env}.png"
         plot([r for r in rows if r["env"] == env], out)
+        print(f"wrote {out}")
+    if any(r.get("ms_per_decision") for r in rows):
+        out = src.parent / f"{src.stem}_frontier.png" if src.stem != "bench" else src.parent / "bench_frontier.png"
+        plot_frontier(rows, out)
         print(f"wrote {out}")
     return 0
 
@@ -175,109 +200,32 @@ def _sweep(args) -> int:
     return 0 if summary["best"] else 1
 
 
+def _bench(args) -> int:
+    from gym_gridloc_agents.bench_command import bench_main
+
+    return bench_main(args)
+
+
+def _bound(args) -> int:
+    from gym_gridloc_agents.bench_command import bound_main
+
+    return bound_main(args)
+
+
 def _fail(command: str, message: str) -> int:
     print(f"gridloc {command}: error: {message}", file=sys.stderr)
     return 2
 
 
-def _bench(args) -> int:
-    from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, markdown_table, plot, public_row, read_rows, run_benchmark
-    from gym_gridloc_agents.bench import expand_models
-    from gym_gridloc_agents.envs import check_environment
-    from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write, writable_file
-    from gym_gridloc_agents.policies import POLICY_NAMES
-
-    if args.all == bool(args.env):
-        return _fail("bench", "give exactly one of --env ENV_ID or --all")
-    envs = list(BENCH_ENV_IDS) if args.all else [args.env]
-    policies = [p.strip() for p in (args.policies or ",".join(DEFAULT_POLICIES)).split(",") if p.strip()]
-    episodes = args.episodes if args.episodes is not None else (1000 if args.all else 200)
-    json_path = args.json or (str(RESULTS / "bench.json") if args.all else None)
-    # Everything is checked before the first episode: a long run never ends in a traceback.
-    try:
-        for e in envs:
-            check_environment(e, {}, what=f"--env {e}", error=ValueError)
-        if not policies:
-            raise ValueError(f"--policies names no policy (got {args.policies!r}); allowed: {', '.join(POLICY_NAMES)}")
-        if episodes < 1:
-            raise ValueError(f"--episodes must be >= 1, got {episodes}")
-        if args.seed < 0 or args.seed + episodes > 2**32:
-            raise ValueError(f"--seed must be in 0..{2**32 - episodes} (episode i uses seed+i), got {args.seed}")
-        if args.jobs < 1:
-            raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
-        if args.plot and len(envs) > 1:
-            raise ValueError("--plot takes one environment; --all writes results/bench_<env>.png")
-        if args.update and not json_path:
-            raise ValueError("--update needs --json PATH (or --all)")
-        outputs = [(json_path, "results JSON")] if json_path else []
-        outputs += [(args.plot, "plot")] if args.plot else []
-        outputs += [(RESULTS / f"bench_{e}.png", "plot") for e in envs] if args.all else []
-        for path, what in outputs:
-            writable_file(path, what)
-        old_rows = read_rows(json_path) if args.update and Path(json_path).exists() else []
-    except (ValueError, OutputError) as exc:
-        return _fail("bench", str(exc))
-    try:
-        ppo_model = expand_models(args.ppo_model) if args.ppo_model else None
-        if ppo_model is not None and len(ppo_model) > 1 and len(envs) > 1:
-            raise ValueError("several --ppo-model files (one per seed) are models of one environment: give --env ENV_ID, not --all")
-        if ppo_model is not None and len(ppo_model) == 1:
-            ppo_model = ppo_model[0]
-    except ValueError as exc:
-        return _fail("bench", str(exc))
-    try:
-        rows = run_benchmark(
-            envs, policies, episodes, seed_start=args.seed, ppo_model=ppo_model,
-            recurrent_model=args.recurrent_model, progress=not args.no_progress, jobs=args.jobs,
-        )
-    except (ValueError, FileNotFoundError) as exc:
-        return _fail("bench", str(exc))
-    if args.update:
-        rows = merge_rows(old_rows, rows)
-    print(markdown_table(rows))
-    try:  # the rows are computed: a failing write puts them elsewhere and says where
-        if json_path:
-            rescue_write(lambda p: atomic_write_json(p, rows), Path(json_path), "results JSON")
-            print(f"\nwrote {json_path}", file=sys.stderr)
-        if args.plot:
-            rescue_write(lambda p: plot([r for r in rows if r["env"] == envs[0]], p), Path(args.plot), "plot")
-            print(f"wrote {args.plot}", file=sys.stderr)
-        if args.all:
-            for e in sorted({r["env"] for r in rows}):
-                path = RESULTS / f"bench_{e}.png"
-                rescue_write(lambda p, e=e: plot([r for r in rows if r["env"] == e], p), path, "plot")
-                print(f"wrote {path}", file=sys.stderr)
-            rescue_write(lambda p: atomic_write_json(p, [public_row(r) for r in rows]), RESULTS / "bench_table.json", "table JSON")
-    except OutputError as exc:
-        return _fail("bench", str(exc))
-    return 0
-
-
-def merge_rows(old: list[dict], new: list[dict]) -> list[dict]:
-    """``old`` rows with ``new`` merged in (same env and policy: replaced), in the order
-    environment, then policy as in POLICY_NAMES."""
-    import gym_gridloc
-    from gym_gridloc_agents.policies import POLICY_NAMES
-
-    keyed = {(r["env"], r["policy"]): r for r in old}
-    keyed.update({(r["env"], r["policy"]): r for r in new})
-    envs = list(gym_gridloc.ENV_IDS)
-
-    def order(key):
-        env, pol = key
-        return (envs.index(env) if env in envs else len(envs), env,
-                POLICY_NAMES.index(pol) if pol in POLICY_NAMES else len(POLICY_NAMES))
-
-    return [keyed[k] for k in sorted(keyed, key=order)]
-
-
 #: What ``gridloc`` needs beyond the core install (the ``rl`` extra), by import name.
 RL_MODULES = ("tqdm", "yaml", "matplotlib", "torch", "stable_baselines3", "sb3_contrib")
 #: The modules each subcommand needs beyond the core install.
-NEEDS = {"train": RL_MODULES, "bench": RL_MODULES, "render": ("matplotlib",), "plot": ("matplotlib",), "reproduce": ()}
+NEEDS = {"train": RL_MODULES, "bench": RL_MODULES, "render": ("matplotlib",), "plot": ("matplotlib",), "reproduce": (),
+         "bound": ("yaml",)}
 NEEDS["sweep"] = (*RL_MODULES, "ray", "optuna")
 COMMANDS = {"train": "_train", "bench": "_bench", "render": "_render", "plot": "_plot"}
 COMMANDS["sweep"] = "_sweep"
+COMMANDS["bound"] = "_bound"
 
 
 def missing_modules(command: str) -> list[str]:

@@ -33,7 +33,7 @@ import numpy as np
 
 from gym_gridloc import engine
 from gym_gridloc.core.model import GridModel
-from gym_gridloc_agents.base import TIE_TOL, Policy
+from gym_gridloc_agents.base import Policy
 
 #: Where the fitted leaves shipped with the package live (``<env_id>-entropy.json``).
 LEAF_DIR = Path(__file__).resolve().parent / "leaves"

@@ -31,7 +31,7 @@ from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.lookahead import Lookahead
 
 #: Names accepted by :func:`make_policy`.
-POLICY_NAMES = ("random", "greedy", "greedy2", "central", "expectimax", "mcts", "optimal", "ppo", "recurrent")
+POLICY_NAMES = ("random", "greedy", "greedy2", "central", "expectimax", "mcts", "optimal", "pomcp", "ppo", "recurrent")
 #: Policies a warm start may imitate (no model file of their own).
 EXPERT_NAMES = ("greedy", "greedy2", "central", "expectimax", "mcts", "optimal")
 
@@ -135,7 +135,7 @@ class PPOPolicy(Policy):
         if path is None:
             if env_id is None:
                 raise ValueError(f"policy {self.name!r} needs env_id=... (for the shipped model) or path=...")
-            path = default_model_path(env_id, self.algo)
+            path = default_model_path(env_id, self.algo, env_kwargs)
         self.path = Path(path)
         self.wrapper = _wrapper_options(wrapper if wrapper is not None else read_metadata(self.path).get("wrapper")
                                         if self.path.is_file() else None)
@@ -212,9 +212,22 @@ class RecurrentPolicy(PPOPolicy):
         return int(np.asarray(action).reshape(-1)[0])
 
 
-def default_model_path(env_id: str, algo: str = "ppo") -> Path:
-    """The shipped model file for ``env_id`` and ``algo`` (``ppo`` or ``recurrent_ppo``)."""
+def default_model_path(env_id: str, algo: str = "ppo", env_kwargs: dict[str, Any] | None = None) -> Path:
+    """The shipped model file for ``env_id``, ``algo`` (``ppo`` or ``recurrent_ppo``) and the
+    environment's keyword arguments: the model in :data:`POLICY_DIR` whose metadata names them
+    (episode keywords such as ``episode_length`` may differ); ``<env_id>.zip`` (or
+    ``-recurrent.zip``) for the default environment."""
     suffix = "" if algo == "ppo" else "-recurrent"
+    if env_kwargs:
+        from gym_gridloc_agents.files import _canonical, read_metadata
+
+        want = _canonical(env_kwargs)
+        for meta_path in sorted(POLICY_DIR.glob(f"{env_id}*.json")):
+            meta = read_metadata(meta_path.with_suffix(".zip"))
+            if meta.get("env_id") == env_id and meta.get("algo") == algo and _canonical(meta.get("env_kwargs", {})) == want:
+                return meta_path.with_suffix(".zip")
+        raise FileNotFoundError(f"no shipped {algo} model for {env_id} with {dict(env_kwargs)} in {POLICY_DIR}; "
+                                "train one (gridloc train CONFIG) and pass --ppo-model PATH")
     return POLICY_DIR / f"{env_id}{suffix}.zip"
 
 
@@ -252,6 +265,11 @@ def make_policy(
 
         horizon = options.get("horizon") or (env_kwargs or {}).get("episode_length") or 30
         return OptimalPolicy(model, seed=seed, horizon=horizon)
+    if name == "pomcp":
+        from gym_gridloc_agents.pomcp import PomcpPolicy
+
+        threshold = options.pop("threshold", None) or (env_kwargs or {}).get("localise_threshold", 0.9)
+        return PomcpPolicy(model, seed=seed, threshold=threshold, pose=pose, **options)
     if name == "ppo":
         return PPOPolicy(model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
     if name == "recurrent":

@@ -99,7 +99,9 @@ class _Recorded:
 # -- caches ----------------------------------------------------------------------------------------
 def _cache_key(cfg: dict[str, Any], what: str) -> str:
     pre = cfg["pretrain"]
-    return json.dumps({"what": what, "env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"], "wrapper": cfg["wrapper"],
+    # "labels": the targets are the expert's action distributions (a cache of one-hot indices from
+    # an older version is collected again)
+    return json.dumps({"what": what, "labels": "distribution", "env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"], "wrapper": cfg["wrapper"],
                        "expert": pre["expert"], "expert_kwargs": pre.get("expert_kwargs", {}),
                        "gamma": float(cfg["hyperparams"].get("gamma", 0.99))}, sort_keys=True, default=str)
 

@@ -21,7 +21,8 @@ class Episode:
     """What one episode did.
 
     ``steps`` counts actions; ``correct[k]`` says whether the most probable position (pose, where
-    the referee tests poses) was the truth after ``k`` steps (``k = 0``: at reset).  With
+    the referee tests poses) was the truth after ``k`` steps (``k = 0``: at reset),
+    ``localised_at[k]`` whether the referee declared it localised then, ``collapsed[k]`` both.  With
     ``keep=True``, ``observations[k]`` and ``beliefs[k]`` are what the policy saw before
     ``actions[k]`` (``observations`` ends with the last one), ``infos[k]`` came with
     ``observations[k]`` and ``states[k]`` is the true hidden state then; with ``frames=True``,
@@ -35,6 +36,7 @@ class Episode:
     success: bool = False
     correct: list[bool] = field(default_factory=list)
     collapsed: list[bool] = field(default_factory=list)
+    localised_at: list[bool] = field(default_factory=list)
     rewards: list[float] = field(default_factory=list)
     actions: list[int] = field(default_factory=list)
     observations: list[Any] = field(default_factory=list)
@@ -72,6 +74,7 @@ def rollout(env, policy, seed: int, *, keep: bool = False, frames: bool = False,
 
     def record(obs, info) -> None:
         ep.correct.append(_right(info))
+        ep.localised_at.append(bool(info["localised"]))
         ep.collapsed.append(bool(info["localised"]) and _right(info))
         if keep:
             ep.observations.append(obs["observation"] if isinstance(obs, dict) else obs)

@@ -7,11 +7,12 @@ and a percentile-bootstrap 95% interval of the mean (resampling the seeds with r
 resampling generator has a fixed seed, so the same values always give the same interval).
 
 Used by ``gridloc sweep`` (per configuration) and ``gridloc bench`` with several ``--ppo-model``
-files (one row across seeds).
+files (one row across seeds); :func:`wilson_ci95` gives the benchmark's intervals of rates.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -74,3 +75,16 @@ def median_index(scores: Sequence[float]) -> int:
     x = _values(scores)
     order = sorted(range(x.size), key=lambda i: (x[i], i))
     return order[(x.size - 1) // 2]
+
+
+def wilson_ci95(successes: int, n: int) -> list[float]:
+    """The Wilson score 95% interval of a proportion ``successes / n``."""
+    if n <= 0:
+        return [0.0, 1.0]
+    z = 1.959963984540054
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    lo = 0.0 if successes == 0 else max(0.0, centre - half)  # exact ends, no rounding residue
+    hi = 1.0 if successes == n else min(1.0, centre + half)
+    return [lo, hi]

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gym_gridloc_agents.bench import markdown_table, run_benchmark, run_episodes
+from gym_gridloc_agents.bench import run_benchmark, run_episodes
+from gym_gridloc_agents.report import markdown_table
 from gym_gridloc_agents.cli import main
 
 KEYS = {"env", "policy", "episodes", "success_rate", "truncated_rate", "mean_steps", "median_steps",
@@ -125,7 +126,8 @@ def test_parallel_chunks_give_the_same_numbers():
     one = run_benchmark(["ColourGrid-v0"], ["random", "greedy"], 5, seed_start=3, progress=False)
     two = run_benchmark(["ColourGrid-v0"], ["random", "greedy"], 5, seed_start=3, progress=False, jobs=2)
     for a, b in zip(one, two):
-        a.pop("seconds"), b.pop("seconds")
+        for key in ("seconds", "ms_per_decision"):  # timings differ
+            a.pop(key), b.pop(key)
         assert a == b
 
 
@@ -141,7 +143,7 @@ def test_cli_update_merges_rows(tmp_path, capsys):
 
 
 def test_wilson_interval_matches_known_values():
-    from gym_gridloc_agents.bench import wilson_ci95
+    from gym_gridloc_agents.stats import wilson_ci95
 
     # 0 of 10 and 10 of 10: the interval still has width (the normal approximation's would not).
     assert wilson_ci95(0, 10)[0] == 0.0 and abs(wilson_ci95(0, 10)[1] - 0.27753) < 1e-4
@@ -214,3 +216,81 @@ def test_computed_rows_survive_a_failing_write(tmp_path, capsys, monkeypatch):
     rescued = Path(err.split("written to ")[1].split(" instead")[0])
     rows = json.loads(rescued.read_text())
     assert rows[0]["policy"] == "random" and rows[0]["episodes"] == 3
+
+
+def test_test_set_protocol_rows_report_accuracy_at_L(tmp_path, capsys):
+    """DepthMaze on held-out maps with fixed-length episodes: every episode runs L steps on map i of
+    the test set, from its start pose; accuracy at L counts beliefs collapsed on the truth."""
+    from gym_gridloc import maps
+
+    js, front = tmp_path / "d.json", tmp_path / "front.png"
+    code = main(["bench", "--env", "DepthMaze-v0", "--size", "7", "--test-set", "--episode-length", "6",
+                 "--policies", "random,greedy", "--episodes", "5", "--json", str(js), "--frontier", str(front), "--no-progress"])
+    assert code == 0
+    table = capsys.readouterr().out
+    assert "acc@L (95% CI)" in table and "DepthMaze-v0 episode_length=6, size=7, test maps | greedy |" in table
+    rows = json.loads(js.read_text())
+    for r in rows:
+        assert r["test_set"] and r["episode_length"] == 6 and r["env_kwargs"] == {"size": 7, "episode_length": 6}
+        assert 0 <= r["accuracy_at_L"] <= r["argmax_accuracy_at_L"] <= 1
+        lo, hi = r["accuracy_at_L_ci95"]
+        assert lo <= r["accuracy_at_L"] <= hi
+        assert r["max_episode_steps"] == 6 and 1 <= r["mean_steps"] <= 6
+        assert r["ms_per_decision"] > 0
+    assert front.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # episode i is map i of the test set from its start pose: replay one by hand
+    import gymnasium as gym
+
+    from gym_gridloc import HMMBeliefWrapper
+    from gym_gridloc_agents.policies import make_policy
+    from gym_gridloc_agents.rollout import rollout
+
+    m = maps.test_set("DepthMaze-v0", 7, 5)[2]
+    env = HMMBeliefWrapper(gym.make("DepthMaze-v0", size=7, episode_length=6), full_state=True)
+    ep = rollout(env, make_policy("greedy", env.unwrapped.model, pose=True), m.index, keep=True,
+                 reset_options={"map": m.grid, "state": m.state})
+    assert np.array_equal(ep.states[0], m.state) and ep.steps == 6
+    assert np.array_equal(env.unwrapped.model.grid.free, m.grid.free)
+
+
+def test_markdown_table_columns_follow_the_rows():
+    rows = run_benchmark(["ColourGrid-v0"], ["greedy", "expectimax"], 3, progress=False, policy_options={"expectimax": {"depth": 1}})
+    table = markdown_table(rows)
+    assert "/ best planner" in table and "ms/decision" in table and "acc@L" not in table
+    assert "| expectimax (depth=1) |" in table
+    exp = next(r for r in rows if r["policy"] == "expectimax")
+    assert exp["gap_to_best_planner"] == 1.0 and exp["options"] == {"depth": 1}
+
+
+def test_merge_keeps_rows_with_other_options_or_maps():
+    from gym_gridloc_agents.report import merge_rows
+
+    base = {"env": "WindyMaze-v0", "policy": "expectimax", "episodes": 1, "mean_steps": 4.0, "success_rate": 1.0}
+    rows = merge_rows([base, {**base, "options": {"depth": 3}}], [{**base, "mean_steps": 3.9}, {**base, "env_kwargs": {"size": 9}}])
+    assert len(rows) == 3 and [r["mean_steps"] for r in rows if not r.get("options") and not r.get("env_kwargs")] == [3.9]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--option", "expectimax.depth=2"], "not among the benchmarked policies"),
+    (["--option", "depth=2"], "expected POLICY.KEY=VALUE"),
+    (["--test-set"], "--test-set needs --size"),
+    (["--size", "0"], "--size must be at least 1"),
+    (["--env-kwarg", "size"], "expected KEY=VALUE"),
+])
+def test_bench_protocol_arguments_are_checked(argv, message, capsys):
+    assert main(["bench", "--env", "WindyMaze-v0", "--policies", "random", "--episodes", "1", *argv]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_gridloc_bound(tmp_path, capsys):
+    from gym_gridloc_agents.planners import lower_bound
+
+    js = tmp_path / "lb.json"
+    assert main(["bound", "ColourGrid-v0", "--depth", "1", "--json", str(js)]) == 0
+    assert "no policy localises ColourGrid-v0 in fewer than" in capsys.readouterr().out
+    got = json.loads(js.read_text())
+    import gymnasium as gym
+
+    assert got["bound"] == pytest.approx(lower_bound(gym.make("ColourGrid-v0").unwrapped.model, 1)["bound"])
+    assert main(["bound", "ColourGrid-v0", "--depth", "0"]) == 2
+    assert main(["bound", "DepthMaze-v0", "--env-kwarg", "episode_length=5"]) == 2

@@ -1,0 +1,177 @@
+"""``gridloc bench`` and ``gridloc bound``: their arguments checked before any long run, the run,
+and the outputs (a failing write puts computed rows elsewhere and says where).  The parser is
+:mod:`gym_gridloc_agents.cli`'s; the benchmark itself is :mod:`gym_gridloc_agents.bench`."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+RESULTS = Path("results")
+
+
+def _fail(command: str, message: str) -> int:
+    print(f"gridloc {command}: error: {message}", file=sys.stderr)
+    return 2
+
+
+def _key_values(items: list[str], what: str) -> dict:
+    """``KEY=VALUE`` strings as a dict, each value a YAML scalar (``ValueError`` naming a bad one)."""
+    import yaml
+
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"{what} {item!r}: expected KEY=VALUE")
+        try:
+            out[key.strip()] = yaml.safe_load(value) if value.strip() else None
+        except yaml.YAMLError as exc:
+            raise ValueError(f"{what} {item!r}: the value is not a YAML scalar ({exc.__class__.__name__})") from None
+    return out
+
+
+def _bench_env_kwargs(args) -> dict:
+    kwargs = _key_values(args.env_kwarg, "--env-kwarg")
+    for key, value in (("size", args.size), ("episode_length", args.episode_length)):
+        if value is not None:
+            if value < 1:
+                raise ValueError(f"--{key.replace('_', '-')} must be at least 1, got {value}")
+            kwargs[key] = value
+    return kwargs
+
+
+def _policy_options(items: list[str], policies: list[str]) -> dict[str, dict]:
+    options: dict[str, dict] = {}
+    for key, value in _key_values(items, "--option").items():
+        policy, dot, name = key.partition(".")
+        if not dot or not name:
+            raise ValueError(f"--option {key}: expected POLICY.KEY=VALUE, e.g. expectimax.depth=3")
+        if policy not in policies:
+            raise ValueError(f"--option {key}: {policy!r} is not among the benchmarked policies ({', '.join(policies)})")
+        options.setdefault(policy, {})[name] = value
+    return options
+
+
+def bench_main(args) -> int:
+    """``gridloc bench``: every argument checked before the first episode, then the run and its outputs."""
+    from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, expand_models, run_benchmark
+    from gym_gridloc_agents.envs import check_environment
+    from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write, writable_file
+    from gym_gridloc_agents.policies import POLICY_NAMES
+    from gym_gridloc_agents.report import markdown_table, merge_rows, plot, plot_frontier, public_row, read_rows
+
+    if args.all == bool(args.env):
+        return _fail("bench", "give exactly one of --env ENV_ID or --all")
+    envs = list(BENCH_ENV_IDS) if args.all else [args.env]
+    policies = [p.strip() for p in (args.policies or ",".join(DEFAULT_POLICIES)).split(",") if p.strip()]
+    episodes = args.episodes if args.episodes is not None else (1000 if args.all else 200)
+    json_path = args.json or (str(RESULTS / "bench.json") if args.all else None)
+    frontier = args.frontier or (str(RESULTS / "bench_frontier.png") if args.all else None)
+    # Everything is checked before the first episode: a long run never ends in a traceback.
+    try:
+        env_kwargs = _bench_env_kwargs(args)
+        if args.all and env_kwargs:
+            raise ValueError("--all runs the default environments; give --env ENV_ID with --size, --episode-length or --env-kwarg")
+        for e in envs:
+            check_environment(e, env_kwargs, what=f"--env {e}", error=ValueError)
+        if not policies:
+            raise ValueError(f"--policies names no policy (got {args.policies!r}); allowed: {', '.join(POLICY_NAMES)}")
+        options = _policy_options(args.option, policies)
+        if args.test_set and "size" not in env_kwargs:
+            raise ValueError("--test-set needs --size N: the held-out maps are drawn per size")
+        if episodes < 1:
+            raise ValueError(f"--episodes must be >= 1, got {episodes}")
+        if args.seed < 0 or args.seed + episodes > 2**32:
+            raise ValueError(f"--seed must be in 0..{2**32 - episodes} (episode i uses seed+i), got {args.seed}")
+        if args.jobs < 1:
+            raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+        if args.plot and len(envs) > 1:
+            raise ValueError("--plot takes one environment; --all writes results/bench_<env>.png")
+        if args.update and not json_path:
+            raise ValueError("--update needs --json PATH (or --all)")
+        outputs = [(json_path, "results JSON")] if json_path else []
+        outputs += [(args.plot, "plot")] if args.plot else []
+        outputs += [(frontier, "frontier plot")] if frontier else []
+        outputs += [(RESULTS / f"bench_{e}.png", "plot") for e in envs] if args.all else []
+        for path, what in outputs:
+            writable_file(path, what)
+        old_rows = read_rows(json_path) if args.update and Path(json_path).exists() else []
+        ppo_model = expand_models(args.ppo_model) if args.ppo_model else None
+        if ppo_model is not None and len(ppo_model) > 1 and len(envs) > 1:
+            raise ValueError("several --ppo-model files (one per seed) are models of one environment: give --env ENV_ID, not --all")
+        if ppo_model is not None and len(ppo_model) == 1:
+            ppo_model = ppo_model[0]
+    except (ValueError, OutputError) as exc:
+        return _fail("bench", str(exc))
+    try:
+        rows = run_benchmark(
+            envs, policies, episodes, seed_start=args.seed, env_kwargs=env_kwargs, test_set=args.test_set,
+            ppo_model=ppo_model, recurrent_model=args.recurrent_model, policy_options=options,
+            progress=not args.no_progress, jobs=args.jobs,
+        )
+    except (ValueError, FileNotFoundError) as exc:
+        return _fail("bench", str(exc))
+    if args.update:
+        rows = merge_rows(old_rows, rows)
+    print(markdown_table(rows))
+    try:  # the rows are computed: a failing write puts them elsewhere and says where
+        if json_path:
+            rescue_write(lambda p: atomic_write_json(p, rows), Path(json_path), "results JSON")
+            print(f"\nwrote {json_path}", file=sys.stderr)
+        if args.plot:
+            rescue_write(lambda p: plot([r for r in rows if r["env"] == envs[0]], p), Path(args.plot), "plot")
+            print(f"wrote {args.plot}", file=sys.stderr)
+        if frontier:
+            rescue_write(lambda p: plot_frontier(rows, p), Path(frontier), "frontier plot")
+            print(f"wrote {frontier}", file=sys.stderr)
+        if args.all:
+            for e in sorted({r["env"] for r in rows}):
+                path = RESULTS / f"bench_{e}.png"
+                rescue_write(lambda p, e=e: plot([r for r in rows if r["env"] == e], p), path, "plot")
+                print(f"wrote {path}", file=sys.stderr)
+            rescue_write(lambda p: atomic_write_json(p, [public_row(r) for r in rows]), RESULTS / "bench_table.json", "table JSON")
+    except OutputError as exc:
+        return _fail("bench", str(exc))
+    return 0
+
+
+def bound_main(args) -> int:
+    """``gridloc bound``: the depth-K lower bound of one environment."""
+    import json
+
+    from gym_gridloc_agents.envs import check_environment, make_env
+    from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write, writable_file
+    from gym_gridloc_agents.planners import lower_bound
+
+    try:
+        kwargs = _key_values(args.env_kwarg, "--env-kwarg")
+        check_environment(args.env, kwargs, what=f"--env {args.env}", error=ValueError)
+        if args.depth < 1:
+            raise ValueError(f"--depth must be at least 1, got {args.depth}")
+        if not 0.0 <= args.prune < 1.0:
+            raise ValueError(f"--prune must be in [0, 1), got {args.prune}")
+        if args.json:
+            writable_file(args.json, "bound JSON")
+    except (ValueError, OutputError) as exc:
+        return _fail("bound", str(exc))
+    env = make_env(args.env, kwargs)
+    u = env.unwrapped
+    if getattr(u, "episode_length", None):
+        env.close()
+        return _fail("bound", "the bound is on steps to localise; fixed-length episodes (episode_length) have no such count")
+    print(f"gridloc bound: {args.env}, depth {args.depth}: exhaustive search over actions and readings ...", file=sys.stderr)
+    result = lower_bound(u.model, args.depth, threshold=u.localise_threshold, prune=args.prune, progress=True)
+    env.close()
+    result = {"env": args.env, "env_kwargs": kwargs, **result}
+    print(f"no policy localises {args.env} in fewer than {result['bound']:.4f} mean steps "
+          f"(depth {args.depth}, {result['seconds']:.0f} s)")
+    if args.json:
+        try:
+            rescue_write(lambda p: atomic_write_json(p, result), Path(args.json), "bound JSON")
+        except OutputError as exc:
+            return _fail("bound", str(exc))
+        print(f"wrote {args.json}", file=sys.stderr)
+    else:
+        print(json.dumps({k: v for k, v in result.items() if k != "per_reading"}))
+    return 0

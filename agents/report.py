@@ -1,0 +1,220 @@
+"""Tables and figures of benchmark rows (:mod:`gym_gridloc_agents.bench`): the markdown table,
+the localisation curves per environment, the speed/quality frontier, reading and merging the
+rows of a results JSON."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+#: Keys every row of a bench JSON has.
+ROW_KEYS = ("env", "policy", "episodes", "mean_steps", "success_rate")
+
+
+def read_rows(path: str | Path) -> list[dict[str, Any]]:
+    """The rows of a bench JSON, or ``ValueError`` naming the file and what is wrong with it."""
+    try:
+        rows = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path} is not a readable bench JSON ({exc}); --update merges into a file gridloc bench wrote") from None
+    if not isinstance(rows, list) or not all(isinstance(r, dict) and all(k in r for k in ROW_KEYS) for r in rows):
+        raise ValueError(f"{path} is not a bench JSON (a list of rows with {', '.join(ROW_KEYS)}); --update merges into a file gridloc bench wrote")
+    return rows
+
+
+def public_row(row: dict[str, Any]) -> dict[str, Any]:
+    """A row without its curves (for tables)."""
+    return {k: v for k, v in row.items() if not k.endswith("_curve")}
+
+
+def row_key(row: dict[str, Any]) -> tuple[str, str, str]:
+    """What makes two rows the same measurement: the environment with its keyword arguments and
+    maps, and the policy with its options."""
+    env = f"{row['env']} {json.dumps(row.get('env_kwargs', {}), sort_keys=True)} {bool(row.get('test_set'))}"
+    return env, row["policy"], json.dumps(row.get("options", {}), sort_keys=True)
+
+
+def merge_rows(old: list[dict], new: list[dict]) -> list[dict]:
+    """``old`` rows with ``new`` merged in (the same :func:`row_key`: replaced), in the order
+    environment, then policy as in ``POLICY_NAMES``."""
+    import gym_gridloc
+    from gym_gridloc_agents.policies import POLICY_NAMES
+
+    keyed = {row_key(r): r for r in old}
+    keyed.update({row_key(r): r for r in new})
+    envs = list(gym_gridloc.ENV_IDS)
+
+    def order(key):
+        env_key, pol, opts = key
+        env = env_key.split(" ")[0]
+        return (envs.index(env) if env in envs else len(envs), env_key,
+                POLICY_NAMES.index(pol) if pol in POLICY_NAMES else len(POLICY_NAMES), opts)
+
+    return [keyed[k] for k in sorted(keyed, key=order)]
+
+
+def env_label(row: dict[str, Any]) -> str:
+    """``WindyMaze-v0``, or with keyword arguments and test maps ``WindyMaze-v0 size=15, test maps``."""
+    extra = [f"{k}={_short(v)}" for k, v in sorted(row.get("env_kwargs", {}).items())]
+    if row.get("test_set"):
+        extra.append("test maps")
+    return row["env"] + (" " + ", ".join(extra) if extra else "")
+
+
+def policy_label(row: dict[str, Any]) -> str:
+    """The policy with its options and, across seeds, the seed count and IQM."""
+    label = row["policy"]
+    if row.get("options"):
+        label += " (" + ", ".join(f"{k}={_short(v)}" for k, v in sorted(row["options"].items())) + ")"
+    if "seeds" in row:
+        label += f" ({row['seeds']} seeds, IQM {row['mean_steps_iqm']:.2f})"
+    return label
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, (list, tuple)) and len(set(map(str, value))) == 1:
+        return str(value[0])
+    return str(value).replace(" ", "")
+
+
+def _interval(lo: float, hi: float, digits: int = 2) -> str:
+    return f"{lo:.{digits}f}-{hi:.{digits}f}"
+
+
+def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
+    """The rows as a markdown table.  Columns that no row has (accuracy at the episode length,
+    the gap to the best planner) are left out."""
+    budgets = list(rows[0]["accuracy_at"]) if rows else []
+    with_L = any("accuracy_at_L" in r for r in rows)
+    with_gap = any(r.get("gap_to_best_planner") is not None for r in rows)
+    with_ms = any("ms_per_decision" in r for r in rows)
+    head = ["env", "policy", "episodes", "mean steps (95% CI)", "median", "success", "truncated", "correct if localised",
+            *[f"acc@{b}" for b in budgets]]
+    head += ["acc@L (95% CI)", "argmax acc@L", "L"] if with_L else []
+    head += ["/ best planner"] if with_gap else []
+    head += ["ms/decision"] if with_ms else []
+    head += ["seconds"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] * len(head)) + "|"]
+    for r in rows:
+        lc = r["localised_correct_rate"]
+        cells = [
+            env_label(r), policy_label(r), str(r["episodes"]),
+            f"{r['mean_steps']:.2f} ({_interval(*r['mean_steps_ci95'])})", f"{r['median_steps']:g}",
+            f"{r['success_rate']:.3f}", f"{r['truncated_rate']:.3f}", "-" if lc is None else f"{lc:.3f}",
+            *[f"{r['accuracy_at'][b]:.3f}" if b in r["accuracy_at"] else "-" for b in budgets],
+        ]
+        if with_L:
+            if "accuracy_at_L" in r:
+                cells += [f"{r['accuracy_at_L']:.3f} ({_interval(*r['accuracy_at_L_ci95'], 3)})",
+                          f"{r['argmax_accuracy_at_L']:.3f}" if "argmax_accuracy_at_L" in r else "-", str(r["episode_length"])]
+            else:
+                cells += ["-", "-", "-"]
+        if with_gap:
+            gap = r.get("gap_to_best_planner")
+            cells.append("-" if gap is None else f"{gap:.3f}")
+        if with_ms:
+            ms = r.get("ms_per_decision")
+            cells.append("-" if ms is None else f"{ms:.3g}")
+        cells.append(f"{r['seconds']:.1f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _save(fig, path: str | Path) -> None:
+    import matplotlib.pyplot as plt
+
+    from gym_gridloc_agents.files import atomic_path
+
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png")
+    finally:
+        plt.close(fig)
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None = None) -> None:
+    """Fraction localised against steps (left) and accuracy against the step budget (right),
+    one curve per policy, for the rows of ONE environment.  Written atomically."""
+    plt = _pyplot()
+    envs = {env_label(r) for r in rows}
+    if len(envs) != 1:
+        raise ValueError(f"plot() takes the rows of one environment, got {sorted(envs)}")
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(9, 3.4), dpi=90)
+    for r in rows:
+        x = np.arange(len(r["localised_curve"]))
+        (line,) = ax1.plot(x, r["localised_curve"], label=f"{policy_label(r)} (mean {r['mean_steps']:.1f})")
+        ax2.plot(np.arange(len(r["accuracy_curve"])), r["accuracy_curve"], color=line.get_color(), label=r["policy"])
+        ks = [int(k) for k in r["accuracy_at"]]
+        ax2.plot(ks, [r["accuracy_at"][str(k)] for k in ks], "o", color=line.get_color(), ms=4)
+    # Show the steps where the curves still move (short episodes would be squeezed to the left).
+    last = 0
+    for r in rows:
+        c = np.asarray(r["localised_curve"])
+        last = max(last, int(np.searchsorted(c, 0.995 * c[-1])) if c[-1] > 0 else len(c) - 1)
+    ax1.set_xlim(0, min(len(rows[0]["localised_curve"]) - 1, max(10, int(last * 1.15) + 1)))
+    ax1.set_xlabel("steps from reset")
+    ax1.set_ylabel("fraction of episodes localised")
+    ax1.set_ylim(0, 1.02)
+    ax1.grid(alpha=0.3)
+    ax1.legend(fontsize=7, loc="lower right")
+    ax2.set_xlabel("step budget")
+    ax2.set_ylabel("P(most probable position = truth)")
+    ax2.set_ylim(0, 1.02)
+    ax2.set_xlim(0, max(60, 1))
+    ax2.grid(alpha=0.3)
+    fig.suptitle(title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy", fontsize=10)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None = None) -> None:
+    """Mean steps to localise against milliseconds per decision (log scale), one panel per
+    environment, one point per row with its 95% interval: what a step of planning buys.
+    Written atomically."""
+    plt = _pyplot()
+    rows = [r for r in rows if r.get("ms_per_decision")]
+    if not rows:
+        raise ValueError("plot_frontier() needs rows with ms_per_decision (a current gridloc bench)")
+    envs = sorted({env_label(r) for r in rows})
+    fig, axes = plt.subplots(1, len(envs), figsize=(4.2 * len(envs), 3.6), dpi=90, squeeze=False)
+    for ax, env in zip(axes[0], envs):
+        mine = sorted((r for r in rows if env_label(r) == env), key=lambda r: r["ms_per_decision"])
+        for r in mine:
+            lo, hi = r["mean_steps_ci95"]
+            ax.errorbar(r["ms_per_decision"], r["mean_steps"], yerr=[[r["mean_steps"] - lo], [hi - r["mean_steps"]]],
+                        fmt="o", ms=5, capsize=2)
+            ax.annotate(policy_label(r).split(" (")[0], (r["ms_per_decision"], r["mean_steps"]), fontsize=7,
+                        textcoords="offset points", xytext=(4, 4))
+        # the frontier: rows no faster-and-better row dominates
+        best, front = math.inf, []
+        for r in mine:
+            if r["mean_steps"] < best:
+                best = r["mean_steps"]
+                front.append(r)
+        ax.step([r["ms_per_decision"] for r in front], [r["mean_steps"] for r in front], where="post", color="grey",
+                alpha=0.5, lw=1)
+        ax.set_xscale("log")
+        ax.set_xlabel("ms per decision")
+        ax.set_ylabel("mean steps to localise")
+        ax.set_title(env, fontsize=9)
+        ax.grid(alpha=0.3, which="both")
+    fig.suptitle(title or "speed against quality: lower left is better", fontsize=10)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+__all__ = ["ROW_KEYS", "env_label", "markdown_table", "merge_rows", "plot", "plot_frontier", "policy_label",
+           "public_row", "read_rows", "row_key"]

@@ -1,0 +1,480 @@
+"""A :class:`~gym_gridloc.core.model.GridModel` as a `pomdp_py <https://h2r.github.io/pomdp-py/>`_
+POMDP, for its planners (POMCP, POUCT) and its tools.
+
+:func:`to_pomdp_py` builds pomdp_py's models from the model's numbers: probabilities exactly from
+:meth:`GridModel.outcomes` (kidnapping mixed in) and the sensor's likelihoods, samples through
+:func:`gym_gridloc.engine.sample_next` and :func:`~gym_gridloc.engine.sample_readings` with a numpy
+generator the adapter owns (seedable, so a planner on it is reproducible).  pomdp_py is an optional
+dependency (``pip install 'gym_gridloc[planning]'``); it is imported only when
+:func:`to_pomdp_py` is called.  (This module is longer than 400 lines: pomdp_py's classes must be
+defined inside a function, once pomdp_py is importable, and they belong with the adapter they serve.)
+
+Reward and the referee
+----------------------
+Our objective is the number of steps until the referee's test holds: the largest posterior
+probability of a position (of a pose, where the referee tests poses) reaches ``threshold``.  That is
+a property of the *belief*, not of the hidden state, so no state-based POMDP expresses it by itself:
+
+* The plain POMDP (``transition_model``, ``observation_model``, ``reward_model``) gives -1 per step
+  in every state and has no terminal state.  Every policy then has the same value (the same sum of
+  -1s up to the planner's depth): a planner on these models alone sees no difference between actions
+  (POMCP on them picks by tie-breaking, in practice the first action).  It is the faithful
+  translation of the model (for exact probabilities, value iteration on a fixed horizon, export to
+  ``.pomdp`` files), not something to plan localisation with.
+* The planning model (``blackbox_model``, a :class:`pomdp_py.BlackboxModel`) is the same POMDP with
+  the referee inside: its state is a hidden state together with the node of the simulated history,
+  which holds the exact belief after that history (the root belief stepped by
+  :func:`gym_gridloc.engine.stepper` with each simulated action and reading, computed once per node).
+  A step from a history whose belief does not pass the referee's test costs -1; once it passes, the
+  episode is over: the state is absorbing, the reward 0 and the observation :attr:`PomdpPy.done`.
+  With ``discount=1`` the return of a simulation is minus the number of steps until the referee's
+  test holds, cut at the planner's depth; POMCP maximising it minimises the expected number of steps
+  the benchmark counts (the benchmark applies the same test outside pomdp_py, to the environment's
+  own exact posterior, and ends the real episode there).  :meth:`PomdpPy.agent` builds an agent on
+  this model by default.
+
+>>> from gym_gridloc import windy_maze_model
+>>> from gym_gridloc.interop import to_pomdp_py
+>>> pp = to_pomdp_py(windy_maze_model(), seed=0)          # doctest: +SKIP
+>>> agent = pp.agent(windy_maze_model().prior())          # doctest: +SKIP
+>>> import pomdp_py; pomdp_py.POMCP(num_sims=300, max_depth=30, discount_factor=1.0,
+...     rollout_policy=pp.policy_model).plan(agent)        # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from gym_gridloc import engine
+from gym_gridloc.core.model import GridModel
+from gym_gridloc.core.validation import check_threshold
+
+__all__ = ["INSTALL_HINT", "PomdpPy", "to_pomdp_py"]
+
+#: How to get the optional dependency.
+INSTALL_HINT = "pip install 'gym_gridloc[planning]'"
+
+
+def _import_pomdp_py():
+    try:
+        import pomdp_py
+    except ImportError as exc:  # pragma: no cover - exercised without the extra
+        raise ImportError(
+            f"gym_gridloc.interop.to_pomdp_py needs the optional dependency pomdp_py ({exc}); install it with: {INSTALL_HINT}"
+        ) from exc
+    return pomdp_py
+
+
+@functools.cache
+def _classes() -> dict[str, type]:
+    """pomdp_py's subclasses for our models, defined once pomdp_py is importable."""
+    pomdp_py = _import_pomdp_py()
+
+    class State(pomdp_py.State):
+        """A hidden state ``(layer, row, col)`` (hashable, immutable)."""
+
+        __slots__ = ("col", "layer", "row")
+
+        def __init__(self, layer: int, row: int, col: int) -> None:
+            self.layer, self.row, self.col = int(layer), int(row), int(col)
+
+        @property
+        def tuple(self) -> tuple[int, int, int]:
+            return (self.layer, self.row, self.col)
+
+        def __hash__(self) -> int:
+            return hash((self.layer, self.row, self.col))
+
+        def __eq__(self, other: object) -> bool:
+            return type(other) is type(self) and self.tuple == other.tuple
+
+        def __repr__(self) -> str:
+            return f"State{self.tuple}"
+
+        def __deepcopy__(self, memo: dict) -> State:
+            return self  # immutable
+
+    class PlanState(State):
+        """A hidden state and the node of the simulated history (its exact belief): the state of
+        the planning model (see the module docstring).  Equal when both agree."""
+
+        __slots__ = ("node",)
+
+        def __init__(self, layer: int, row: int, col: int, node: _Node) -> None:
+            State.__init__(self, layer, row, col)
+            self.node = node
+
+        def __hash__(self) -> int:
+            return hash((self.layer, self.row, self.col, id(self.node)))
+
+        def __eq__(self, other: object) -> bool:
+            return type(other) is type(self) and self.tuple == other.tuple and self.node is other.node
+
+        def __repr__(self) -> str:
+            return f"PlanState{self.tuple}{' done' if self.node.done else ''}"
+
+    class Action(pomdp_py.Action):
+        """An action index; ``name`` is the model's name for it."""
+
+        def __init__(self, index: int, name: str) -> None:
+            self.index = int(index)
+            self.name = str(name)
+
+        def __hash__(self) -> int:
+            return hash(self.index)
+
+        def __eq__(self, other: object) -> bool:
+            return isinstance(other, Action) and self.index == other.index
+
+        def __repr__(self) -> str:
+            return f"Action({self.index}={self.name})"
+
+        def __deepcopy__(self, memo: dict) -> Action:
+            return self
+
+    class Observation(pomdp_py.Observation):
+        """A reading index (``-1``: the planning model's "the episode is over")."""
+
+        __slots__ = ("reading",)
+
+        def __init__(self, reading: int) -> None:
+            self.reading = int(reading)
+
+        def __hash__(self) -> int:
+            return hash(self.reading)
+
+        def __eq__(self, other: object) -> bool:
+            return isinstance(other, Observation) and self.reading == other.reading
+
+        def __repr__(self) -> str:
+            return f"Observation({self.reading})"
+
+        def __deepcopy__(self, memo: dict) -> Observation:
+            return self
+
+    class TransitionModel(pomdp_py.TransitionModel):
+        """``P(s' | s, a)`` exactly from :meth:`GridModel.outcomes` (kidnapping mixed in);
+        ``sample`` through :func:`gym_gridloc.engine.sample_next` with the adapter's generator."""
+
+        def __init__(self, pp: PomdpPy) -> None:
+            self.pp = pp
+
+        def probability(self, next_state, state, action) -> float:
+            m = self.pp.model
+            target = next_state.tuple
+            p = 0.0
+            for s2, q in m.outcomes(state.tuple, action.index):
+                if s2 == target:
+                    p += q
+            if m.kidnap_prob > 0.0:
+                p = (1.0 - m.kidnap_prob) * p + m.kidnap_prob / m.n_states
+            return p
+
+        def sample(self, state, action):
+            return self.pp.to_state(self.pp.sample_next(state.tuple, action.index))
+
+        def get_all_states(self) -> list:
+            """Every hidden state (a list of ``n_states``: small models only)."""
+            m = self.pp.model
+            return [State(*m.state_of_index(i)) for i in range(m.n_states)]
+
+        def argmax(self, state, action):
+            return self.pp.to_state(max(self.pp.model.outcomes(state.tuple, action.index), key=lambda o: o[1])[0])
+
+    class ObservationModel(pomdp_py.ObservationModel):
+        """``P(o | s', a)`` exactly from the sensor's likelihood (the action plays no part);
+        ``sample`` through :func:`gym_gridloc.engine.sample_readings` with the adapter's generator."""
+
+        def __init__(self, pp: PomdpPy) -> None:
+            self.pp = pp
+
+        def probability(self, observation, next_state, action) -> float:
+            z = observation.reading
+            if not 0 <= z < self.pp.model.sensor.n_readings:
+                return 0.0
+            return float(self.pp.likelihood_table[z, self.pp.model.state_index(next_state.tuple)])
+
+        def sample(self, next_state, action):
+            return self.pp.observations[self.pp.sample_reading(next_state.tuple)]
+
+        def get_all_observations(self) -> list:
+            return list(self.pp.observations)
+
+        def argmax(self, next_state, action):
+            col = self.pp.likelihood_table[:, self.pp.model.state_index(next_state.tuple)]
+            return self.pp.observations[int(np.argmax(col))]
+
+    class RewardModel(pomdp_py.RewardModel):
+        """-1 per step (see the module docstring for how this relates to the referee)."""
+
+        def sample(self, state, action, next_state) -> float:
+            return -1.0
+
+        def argmax(self, state, action, next_state) -> float:
+            return -1.0
+
+        def probability(self, reward, state, action, next_state) -> float:
+            return 1.0 if reward == -1.0 else 0.0
+
+    class PolicyModel(pomdp_py.RolloutPolicy):
+        """Uniform over the actions (every action is possible everywhere); also POMCP's rollout
+        policy, drawing with the adapter's generator (not Python's ``random``)."""
+
+        def __init__(self, pp: PomdpPy) -> None:
+            self.pp = pp
+
+        def get_all_actions(self, state=None, history=None) -> list:
+            return list(self.pp.actions)
+
+        def probability(self, action, state) -> float:
+            return 1.0 / len(self.pp.actions)
+
+        def sample(self, state):
+            return self.pp.actions[self.pp.random_action()]
+
+        def rollout(self, state, history=None):
+            node = getattr(state, "node", None)
+            if node is not None and node.done:  # the episode is over: every action is the same
+                return self.pp.actions[0]
+            return self.pp.actions[self.pp.random_action()]
+
+    class LocalisationModel(pomdp_py.BlackboxModel):
+        """The planning model ``(s', o, r, 1) ~ G(s, a)`` on :class:`PlanState`: the plain POMDP's
+        step, ending (absorbing, reward 0, observation ``done``) once the exact belief of the
+        simulated history passes the referee's test (see the module docstring)."""
+
+        def __init__(self, pp: PomdpPy) -> None:
+            self.pp = pp
+
+        def sample(self, state, action):
+            node = state.node
+            if node.done:
+                return state, self.pp.done, 0.0, 1
+            pp = self.pp
+            a = action.index
+            layer, r, c = pp.sample_next((state.layer, state.row, state.col), a)
+            z = pp.sample_reading((layer, r, c))
+            return PlanState(layer, r, c, node.child(a, z)), pp.observations[z], -1.0, 1
+
+    class ParticleBelief(pomdp_py.Particles):
+        """Unweighted particles that draw with the adapter's generator (pomdp_py's draw with
+        Python's global ``random``); a deep copy copies the list only (states are immutable)."""
+
+        def __init__(self, particles: list, pp: PomdpPy) -> None:
+            super().__init__(particles)
+            self._list = particles
+            self._pp = pp
+
+        def random(self):
+            if not self._list:
+                return None
+            return self._list[int(self._pp.rng.integers(len(self._list)))]
+
+        def __deepcopy__(self, memo: dict) -> ParticleBelief:
+            return ParticleBelief(list(self._list), self._pp)
+
+    return {k: v for k, v in locals().items() if isinstance(v, type)}
+
+
+class _Node:
+    """A simulated history's exact belief, whether it passes the referee's test, and its children
+    by ``(action, reading)`` (made on first use)."""
+
+    __slots__ = ("belief", "children", "done", "pp")
+
+    def __init__(self, pp: PomdpPy, belief: np.ndarray) -> None:
+        self.pp = pp
+        self.belief = belief
+        self.done = pp.localised(belief)
+        self.children: dict[int, _Node] = {}
+
+    def child(self, action: int, reading: int) -> _Node:
+        key = action * self.pp.n_readings + reading
+        node = self.children.get(key)
+        if node is None:
+            out = np.empty_like(self.belief)
+            self.pp._step(self.belief, action, reading, out)
+            node = self.children[key] = _Node(self.pp, out)
+        return node
+
+
+@dataclass(eq=False)
+class PomdpPy:
+    """What :func:`to_pomdp_py` returns: pomdp_py's models of a :class:`GridModel`, the classes
+    they use, and conversions.
+
+    Models: ``transition_model``, ``observation_model``, ``reward_model`` (the plain POMDP, -1 per
+    step), ``policy_model`` (uniform; POMCP's rollout policy), ``blackbox_model`` (the planning
+    model, which ends at the referee's test: see the module docstring).  Classes: ``State``,
+    ``PlanState``, ``Action``, ``Observation``, ``ParticleBelief``.  Every sample is drawn with
+    :attr:`rng` (:meth:`seed` replaces it).
+    """
+
+    model: GridModel
+    threshold: float
+    pose: bool
+    discount: float
+    rng: np.random.Generator
+    classes: dict[str, type] = field(repr=False)
+    actions: tuple = field(init=False, repr=False)
+    observations: tuple = field(init=False, repr=False)
+    done: Any = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        c = self.classes
+        self.State, self.PlanState, self.Action, self.Observation = c["State"], c["PlanState"], c["Action"], c["Observation"]
+        self.ParticleBelief = c["ParticleBelief"]
+        m = self.model
+        self.n_readings = int(m.sensor.n_readings)
+        self.actions = tuple(c["Action"](i, n) for i, n in enumerate(m.action_names))
+        self.observations = tuple(c["Observation"](z) for z in range(self.n_readings))
+        self.done = c["Observation"](-1)
+        self.transition_model = c["TransitionModel"](self)
+        self.observation_model = c["ObservationModel"](self)
+        self.reward_model = c["RewardModel"]()
+        self.policy_model = c["PolicyModel"](self)
+        self.blackbox_model = c["LocalisationModel"](self)
+        self._step = engine.stepper(m)
+        self._table: np.ndarray | None = None
+        self.seed(self.rng)
+
+    # -- randomness ------------------------------------------------------------------------------
+    def seed(self, seed: Any = None) -> None:
+        """Draw from ``np.random.default_rng(seed)`` from now on (a Generator is used as given)."""
+        self.rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        self._actions_drawn, self._next_drawn = [], 0
+
+    def random_action(self) -> int:
+        """A uniform action index (drawn from :attr:`rng` 1024 at a time)."""
+        i = self._next_drawn
+        if i >= len(self._actions_drawn):
+            self._actions_drawn, i = self.rng.integers(len(self.actions), size=1024).tolist(), 0
+        self._next_drawn = i + 1
+        return self._actions_drawn[i]
+
+    def sample_next(self, state: tuple[int, int, int], action: int) -> tuple[int, int, int]:
+        """One draw of :func:`gym_gridloc.engine.sample_next` for one state."""
+        nxt = engine.sample_next(self.model, np.array([state], dtype=np.int64), int(action), self.rng)[0]
+        return int(nxt[0]), int(nxt[1]), int(nxt[2])
+
+    def sample_reading(self, state: tuple[int, int, int]) -> int:
+        """One draw of :func:`gym_gridloc.engine.sample_readings` for one state."""
+        return int(engine.sample_readings(self.model, np.array([state], dtype=np.int64), self.rng)[0])
+
+    # -- numbers ---------------------------------------------------------------------------------
+    @property
+    def likelihood_table(self) -> np.ndarray:
+        """``P(reading | state)`` as a ``(n_readings, n_states)`` array (built on first use)."""
+        if self._table is None:
+            m = self.model
+            self._table = np.stack([m.likelihood_vector(z) for z in range(self.n_readings)])
+            self._table.setflags(write=False)
+        return self._table
+
+    def confidence(self, belief: np.ndarray) -> float:
+        """The referee's confidence in an exact belief ``(L, H, W)``: the largest position (pose,
+        with ``pose``) probability."""
+        b = np.asarray(belief)
+        if self.pose or b.shape[0] == 1:
+            return float(b.max())
+        return float(b.sum(axis=0).max())
+
+    def localised(self, belief: np.ndarray) -> bool:
+        """The referee's test: :meth:`confidence` reaches ``threshold``."""
+        return self.confidence(belief) >= self.threshold
+
+    # -- conversions -----------------------------------------------------------------------------
+    def to_state(self, state: Any):
+        """``(layer, row, col)`` (a tuple or an array) of a free state as a :class:`State`."""
+        layer, r, c = (int(v) for v in np.asarray(state).reshape(3))
+        L, h, w = self.model.belief_shape
+        if not (0 <= layer < L and 0 <= r < h and 0 <= c < w and self.model.grid.free[r, c]):
+            raise ValueError(f"{(layer, r, c)} is not a free state (layer, row, col) of {self.model!r}")
+        return self.State(layer, r, c)
+
+    @staticmethod
+    def from_state(state) -> tuple[int, int, int]:
+        """A :class:`State` (or :class:`PlanState`) as ``(layer, row, col)``."""
+        return state.tuple
+
+    def to_action(self, action: Any):
+        return self.actions[self.model.check_action(action)]
+
+    @staticmethod
+    def from_action(action) -> int:
+        return action.index
+
+    def to_observation(self, observation: Any):
+        """An observation as the environment emits it as an :class:`Observation`."""
+        return self.observations[self.model.sensor.to_reading(observation)]
+
+    def from_observation(self, observation) -> Any:
+        """An :class:`Observation` as the environment would emit it."""
+        if observation.reading < 0:
+            raise ValueError("the planning model's 'done' observation has no environment observation")
+        return self.model.sensor.to_observation(observation.reading)
+
+    # -- beliefs and agents ----------------------------------------------------------------------
+    def _belief(self, belief: np.ndarray) -> np.ndarray:
+        b = np.asarray(belief, dtype=np.float64)
+        shape = self.model.belief_shape
+        if b.shape == shape[1:] and shape[0] == 1:
+            b = b[None]
+        if b.shape != shape:
+            raise ValueError(f"belief must have shape {shape}, got {b.shape}")
+        if (b < 0).any() or not np.isfinite(b).all() or (b[~self.model.state_mask] != 0).any() or not b.sum() > 0:
+            raise ValueError("belief must be non-negative, finite, zero on obstacles and not all zero")
+        return np.ascontiguousarray(b / b.sum())
+
+    def draw_states(self, belief: np.ndarray, n: int) -> list[tuple[int, int, int]]:
+        """``n`` hidden states drawn independently from an exact belief ``(L, H, W)``."""
+        vec = self.model.to_vector(self._belief(belief))
+        idx = self.rng.choice(vec.size, size=int(n), p=vec / vec.sum())
+        return [self.model.state_of_index(int(i)) for i in idx]
+
+    def particles(self, belief: np.ndarray, n: int = 1000, *, plan: bool = True):
+        """A :class:`ParticleBelief` of ``n`` states drawn from an exact belief: :class:`PlanState`
+        at the root of a new history tree (``plan``) or plain :class:`State`."""
+        b = self._belief(belief)
+        states = self.draw_states(b, n)
+        if plan:
+            root = _Node(self, b)
+            return self.ParticleBelief([self.PlanState(*s, root) for s in states], self)
+        return self.ParticleBelief([self.State(*s) for s in states], self)
+
+    def agent(self, belief: np.ndarray, *, n_particles: int = 1000, plan: bool = True):
+        """A ``pomdp_py.Agent`` whose belief is ``n_particles`` particles drawn from the exact
+        belief ``(L, H, W)``.  ``plan`` (default): on the planning model (the blackbox that ends at
+        the referee's test); ``plan=False``: on the plain POMDP's explicit models."""
+        pomdp_py = _import_pomdp_py()
+        init = self.particles(belief, n_particles, plan=plan)
+        if plan:
+            return pomdp_py.Agent(init, policy_model=self.policy_model, observation_model=self.observation_model,
+                                  blackbox_model=self.blackbox_model)
+        return pomdp_py.Agent(init, policy_model=self.policy_model, transition_model=self.transition_model,
+                              observation_model=self.observation_model, reward_model=self.reward_model)
+
+
+def to_pomdp_py(model: GridModel, *, threshold: float = 0.9, discount: float = 1.0, pose: bool = False,
+                seed: Any = None) -> PomdpPy:
+    """pomdp_py's models of ``model`` (see :class:`PomdpPy` and the module docstring).
+
+    ``threshold`` and ``pose`` are the referee's (``localise_threshold``, ``referee_pose``): the
+    planning model ends where the referee would.  ``discount`` is the discount a planner on these
+    models should use (1: the return is minus the number of steps; kept on the adapter for
+    planners, pomdp_py's models do not discount).  ``seed``: the adapter's generator (an int, a
+    Generator or None).  Needs pomdp_py (``pip install 'gym_gridloc[planning]'``).
+    """
+    classes = _classes()
+    if not isinstance(model, GridModel):
+        raise TypeError(f"to_pomdp_py needs a GridModel, got {type(model).__name__}")
+    thr = check_threshold("threshold", threshold)
+    d = float(discount)
+    if not 0.0 < d <= 1.0:
+        raise ValueError(f"discount must be in (0, 1], got {discount!r}")
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    return PomdpPy(model=model, threshold=thr, pose=bool(pose), discount=d, rng=rng, classes=classes)
