@@ -51,265 +51,56 @@ Ray and Optuna are imported here only, when a sweep runs (the ``sweep`` extra).
 from __future__ import annotations
 
 import contextlib
-import copy
-import hashlib
-import itertools
 import json
 import os
 import re
-import shutil
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from gym_gridloc_agents.config import ConfigError, load_config, validate_config
+# What a sweep is (--grid, the trials' configs, --resume's check) is sweep_spec; what its trials
+# produced and the report, sweep_results.  Their public names are importable from here too.
+from gym_gridloc_agents.sweep_results import (
+    BEST_RULE,
+    MEDIAN_RULE,
+    METRICS,
+    _score,
+    collect,
+    completed_metadata,
+    config_table,
+    saved_statuses,
+    selected_evaluation,
+    summarise,
+    summary_table,
+)
+from gym_gridloc_agents.sweep_spec import (
+    OWNED_KEYS,
+    SPEC_KEYS,
+    SweepError,
+    check_resume,
+    checked_configs,
+    command_line,
+    config_label,
+    configurations,
+    default_output,
+    parse_grid,
+    parse_value,
+    prepare,
+    set_dotted,
+    split_values,
+    trial_config,
+)
+
+__all__ = [
+    "BEST_RULE", "EXPERIMENT", "MEDIAN_RULE", "METRICS", "OWNED_KEYS", "SPEC_KEYS", "SweepError", "check_resume",
+    "checked_configs", "collect", "command_line", "completed_metadata", "config_label", "config_table",
+    "configurations", "default_output", "latest_checkpoint", "param_space", "parse_grid", "parse_value",
+    "prepare", "run", "saved_statuses", "selected_evaluation", "set_dotted", "split_values", "summarise",
+    "summary_table", "trial_config", "trial_fn", "tune_config",
+]
 
 #: Tune's experiment directory, under the sweep's output directory.
 EXPERIMENT = "tune"
-#: Config keys the sweep sets itself (seeds come from ``--seeds``, paths from ``--output``).
-OWNED_KEYS = ("seed", "output", "checkpoint_dir", "tensorboard_log")
-#: What is compared on ``--resume``: a sweep resumes only with the same arguments.
-SPEC_KEYS = ("config", "grid", "seeds", "search", "trials")
-#: Per-seed evaluation metrics (those ``train`` reports) and the score.
-METRICS = ("score", "mean_steps", "accuracy", "argmax_accuracy")
-
-MEDIAN_RULE = ("the seed whose score is the median of the configuration's seeds (the lower median for an even "
-               "count, ties to the lower seed), not the best seed")
-BEST_RULE = "the configuration with the best (lowest) mean score across seeds, among those whose seeds all finished"
-
-
-class SweepError(ValueError):
-    """Bad sweep arguments, or a sweep that cannot start or resume (one line, names the problem)."""
-
-
-# -- --grid ---------------------------------------------------------------------------------------
-_NUMBER = re.compile(r"^[-+]?(\d[\d_]*\.?\d*|\.\d+)([eE][-+]?\d+)?$")
-
-
-def parse_value(text: str) -> Any:
-    """One value as YAML reads a scalar (``64`` int, ``0.5`` float, ``true``, ``null``, a word is
-    a string, ``[16, 16]`` a list), except that a number in exponent notation without a dot
-    (``1e-4``, a string in YAML 1.1) is a float."""
-    import yaml
-
-    text = text.strip()
-    try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise SweepError(f"{text!r} is not a YAML value ({' '.join(str(exc).split())})") from None
-    if isinstance(value, str) and _NUMBER.match(text):
-        value = float(text.replace("_", ""))
-    return value
-
-
-def split_values(text: str) -> list[str]:
-    """``"1e-4,3e-4"`` -> ``["1e-4", "3e-4"]``; commas inside ``[...]``/``{...}`` or quotes do not split."""
-    parts, depth, quote, cur = [], 0, None, []
-    for ch in text:
-        if quote:
-            quote = None if ch == quote else quote
-        elif ch in "'\"":
-            quote = ch
-        elif ch in "[{":
-            depth += 1
-        elif ch in "]}":
-            depth -= 1
-        elif ch == "," and depth == 0:
-            parts.append("".join(cur))
-            cur = []
-            continue
-        cur.append(ch)
-    parts.append("".join(cur))
-    return parts
-
-
-def parse_grid(items: Sequence[str] | None) -> dict[str, list[Any]]:
-    """``["hyperparams.learning_rate=1e-4,3e-4", ...]`` -> ``{"hyperparams.learning_rate": [0.0001, 0.0003]}``."""
-    grid: dict[str, list[Any]] = {}
-    for item in items or ():
-        key, eq, rest = item.partition("=")
-        key = key.strip()
-        if not eq or not key:
-            raise SweepError(f"--grid {item!r}: expected KEY=V1,V2,... with KEY a config key as a dotted path, "
-                             "e.g. hyperparams.learning_rate=1e-4,3e-4")
-        if any(not part for part in key.split(".")):
-            raise SweepError(f"--grid {item!r}: {key!r} is not a dotted path of config keys")
-        if key.split(".")[0] in OWNED_KEYS:
-            raise SweepError(f"--grid {item!r}: the sweep sets {key.split('.')[0]} itself "
-                             f"(seeds: --seeds N, from the config's seed; paths: --output DIR)")
-        if key in grid:
-            raise SweepError(f"--grid: {key} is given twice; give all its values in one --grid {key}=V1,V2,...")
-        texts = split_values(rest)
-        if not rest.strip() or any(not t.strip() for t in texts):
-            raise SweepError(f"--grid {item!r}: {key} needs values, e.g. {key}=V1,V2 (an empty value is not one)")
-        values = []
-        for t in texts:
-            try:
-                values.append(parse_value(t))
-            except SweepError as exc:
-                raise SweepError(f"--grid {item!r}: {exc}") from None
-        if len({_canonical(v) for v in values}) != len(values):
-            raise SweepError(f"--grid {item!r}: {key} repeats a value")
-        grid[key] = values
-    return grid
-
-
-def set_dotted(cfg: dict[str, Any], key: str, value: Any) -> None:
-    """``cfg["a"]["b"] = value`` for ``key="a.b"`` (missing mappings are created)."""
-    parts = key.split(".")
-    d = cfg
-    for i, part in enumerate(parts[:-1]):
-        if d.get(part) is None:
-            d[part] = {}
-        if not isinstance(d[part], dict):
-            raise SweepError(f"--grid {key}: {'.'.join(parts[: i + 1])} is {d[part]!r} in the config, not a mapping")
-        d = d[part]
-    d[parts[-1]] = copy.deepcopy(value)
-
-
-def _canonical(value: Any) -> str:
-    return json.dumps(value, sort_keys=True, separators=(",", ":"))
-
-
-def configurations(grid: dict[str, list[Any]]) -> list[dict[str, Any]]:
-    """Every combination of the grid's values (the first key varies slowest); ``[{}]`` without a grid."""
-    keys = list(grid)
-    return [dict(zip(keys, combo)) for combo in itertools.product(*(grid[k] for k in keys))]
-
-
-_SAFE = re.compile(r"^[A-Za-z0-9._+-]+$")
-
-
-def config_label(overrides: dict[str, Any], keys: Sequence[str]) -> str:
-    """A configuration's name, also its directory name: ``learning_rate=0.0001_n_steps=64``
-    (``base`` without a grid).  Keys are shortened to their last part unless two grid keys share
-    it; a value that is not a plain word or number, or a name over 80 characters, gets a short
-    hash of the configuration so that two configurations never share a name."""
-    if not overrides:
-        return "base"
-    short = [k.split(".")[-1] for k in keys]
-    names = {k: (s if short.count(s) == 1 else k) for k, s in zip(keys, short)}
-    lossless, parts = True, []
-    for k in keys:
-        v = overrides[k]
-        text = json.dumps(v) if not isinstance(v, str) else v
-        if not _SAFE.match(text):
-            lossless = False
-            text = re.sub(r"[^A-Za-z0-9._+-]+", "_", text).strip("_") or "x"
-        parts.append(f"{names[k]}={text}")
-    label = "_".join(parts)
-    if not lossless or len(label) > 80:
-        digest = hashlib.sha1(_canonical({k: overrides[k] for k in keys}).encode()).hexdigest()[:6]
-        label = f"{label[:72]}-{digest}"
-    return label
-
-
-# -- the sweep's specification ----------------------------------------------------------------------
-def default_output(config: str | Path) -> Path:
-    return Path("runs") / "sweeps" / Path(config).stem
-
-
-def command_line(config: str | Path, *, seeds: int = 1, grid: Sequence[str] | dict | None = None, search: str | None = None,
-                 trials: int | None = None, output: str | Path | None = None, address: str | None = None,
-                 cpus: int | None = None) -> str:
-    """The ``gridloc sweep`` command of these arguments (for messages and the metadata)."""
-    import shlex
-
-    items = grid if not isinstance(grid, dict) else [f"{k}={','.join(json.dumps(v) for v in vs)}" for k, vs in grid.items()]
-    words = ["gridloc", "sweep", str(config), "--seeds", str(seeds)]
-    words += ["--grid", *items] if items else []
-    words += ["--search", search, "--trials", str(trials)] if search else []
-    words += ["--address", address] if address else []
-    words += ["--cpus", str(cpus)] if cpus else []
-    words += ["--output", str(output)] if output is not None else []
-    return " ".join(shlex.quote(w) for w in words)
-
-
-def prepare(config: str | Path, *, seeds: int = 1, grid: Sequence[str] | dict | None = None, search: str | None = None,
-            trials: int | None = None, output: str | Path | None = None, address: str | None = None,
-            cpus: int | None = None) -> dict[str, Any]:
-    """Check the arguments and every configuration of the sweep before anything runs; returns
-    the sweep's specification (what ``sweep.json`` holds).  Raises :class:`SweepError` or
-    :class:`ConfigError` with a one-line message.  (``address`` and ``cpus`` only go into the
-    recorded command: a sweep may be resumed elsewhere.)"""
-    import yaml
-
-    command = command_line(config, seeds=seeds, grid=grid, search=search, trials=trials, output=output,
-                           address=address, cpus=cpus)
-
-    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
-        raise SweepError(f"--seeds must be a whole number >= 1, got {seeds!r}")
-    if search not in (None, "optuna"):
-        raise SweepError(f"--search must be optuna, got {search!r}")
-    if search == "optuna" and trials is None:
-        raise SweepError("--search optuna needs --trials N (how many configurations Optuna tries, each with every seed)")
-    if search is None and trials is not None:
-        raise SweepError("--trials N needs --search optuna (a --grid sweep runs every combination)")
-    if trials is not None and (isinstance(trials, bool) or not isinstance(trials, int) or trials < 1):
-        raise SweepError(f"--trials must be a whole number >= 1, got {trials!r}")
-    grid = dict(grid) if isinstance(grid, dict) else parse_grid(grid)
-    if search == "optuna" and not grid:
-        raise SweepError("--search optuna chooses among --grid values: give at least one --grid KEY=V1,V2,...")
-    base = load_config(config)  # a missing or malformed config fails here, naming its file
-    raw = yaml.safe_load(Path(config).read_text(encoding="utf-8"))
-    if base["seed"] + seeds - 1 > 2**32 - 1:
-        raise SweepError(f"--seeds {seeds}: seeds {base['seed']}..{base['seed'] + seeds - 1} exceed 2**32 - 1")
-    out = Path(output) if output is not None else default_output(config)
-    spec = {
-        "version": 1, "config_path": str(config), "config": raw, "grid": grid, "seeds": seeds, "search": search,
-        "trials": trials, "output": str(out.expanduser().resolve()), "command": command,
-    }
-    try:
-        json.dumps(spec)  # a config that JSON cannot hold fails now, not in sweep.json
-    except (TypeError, ValueError) as exc:
-        raise SweepError(f"{config}: the sweep records its config as JSON, which cannot hold it ({exc})") from None
-    checked_configs(spec)
-    return spec
-
-
-def checked_configs(spec: dict[str, Any]) -> list[dict[str, Any]]:
-    """The validated training configs (first seed) the sweep may run, checked now: every
-    combination of a grid sweep; for Optuna, which picks among a product that may be large, the
-    config alone and with each single ``--grid`` value (a combination that does not validate
-    fails as that trial's error)."""
-    if spec["search"] != "optuna":
-        return [trial_config(spec, o, 0) for o in configurations(spec["grid"])]
-    return [trial_config(spec, {}, 0)] + [trial_config(spec, {k: v}, 0) for k, vs in spec["grid"].items() for v in vs]
-
-
-def trial_config(spec: dict[str, Any], overrides: dict[str, Any], index: int) -> dict[str, Any]:
-    """The validated training config of one trial: the configuration's overrides, seed
-    ``config seed + index``, and its paths under the sweep's output directory.  A config without
-    evaluations (``eval_freq: 0``) is evaluated once, at the end (the sweep needs a score)."""
-    raw = copy.deepcopy(spec["config"])
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{spec['config_path']}: a config must be a mapping of keys to values")
-    for key, value in overrides.items():
-        set_dotted(raw, key, value)
-    where = spec["config_path"] + "".join(f" {k}={json.dumps(v)}" for k, v in overrides.items())
-    label = config_label(overrides, list(spec["grid"]))
-    seed = raw.get("seed", 0)
-    if isinstance(seed, int) and not isinstance(seed, bool):
-        seed = raw["seed"] = seed + index
-    out = Path(spec["output"])
-    raw["output"] = str(out / "models" / label / f"seed{seed}.zip")
-    raw["checkpoint_dir"] = str(out / "checkpoints" / label / f"seed{seed}")
-    if raw.get("tensorboard_log"):
-        raw["tensorboard_log"] = str(out / "tensorboard" / label)
-    cfg = validate_config(raw, source=where)
-    if cfg["eval_freq"] == 0:
-        cfg["eval_freq"] = cfg["total_timesteps"]
-    return cfg
-
-
-def check_resume(spec: dict[str, Any], stored: dict[str, Any], directory: Path) -> None:
-    for key in SPEC_KEYS:
-        if _canonical(stored.get(key)) != _canonical(spec.get(key)):
-            raise SweepError(
-                f"--resume: the sweep in {directory} was started with another {key} "
-                f"({'config file contents' if key == 'config' else json.dumps(stored.get(key))}); "
-                f"resume it with the same arguments: {stored.get('command', '?')}"
-            )
 
 
 # -- one trial (runs in a Ray worker) ---------------------------------------------------------------
@@ -342,49 +133,11 @@ def latest_checkpoint(directory: Path) -> Path | None:
     return best
 
 
-def _comparable(cfg: dict[str, Any]) -> str:
-    return _canonical({k: v for k, v in cfg.items() if k not in ("output", "checkpoint_dir", "tensorboard_log")})
-
-
-def completed_metadata(cfg: dict[str, Any]) -> dict[str, Any] | None:
-    """The metadata of this trial's finished model, if it exists and was trained with this config."""
-    from gym_gridloc_agents.files import read_metadata
-
-    out = Path(cfg["output"])
-    if not out.is_file():
-        return None
-    try:
-        meta = read_metadata(out)
-    except ValueError:
-        return None
-    if meta.get("interrupted") is not False or not isinstance(meta.get("config"), dict):
-        return None
-    if _comparable(meta["config"]) != _comparable(json.loads(json.dumps(cfg))):
-        return None
-    return meta
-
-
-def selected_evaluation(meta: dict[str, Any]) -> dict[str, Any]:
-    """The held-out evaluation of the model ``train`` kept (its best evaluation)."""
-    evals = meta.get("evaluations") or []
-    chosen = [e for e in evals if e.get("num_timesteps") == meta.get("selected_timesteps")]
-    if not chosen and not evals:
-        raise ValueError("the model's metadata holds no evaluation")
-    return dict((chosen or evals)[-1])
-
-
-def _score(cfg: dict[str, Any], entry: dict[str, Any]) -> float:
-    from gym_gridloc_agents.train import _score as score
-
-    return float(score(cfg, entry))
-
-
 def trial_fn(config: dict[str, Any], spec: dict[str, Any]) -> None:
     """Ray Tune's function trainable: train one configuration with one seed, reporting every
     held-out evaluation (``final: False``) and the kept model's evaluation at the end (``final: True``)."""
-    from ray import tune
-
     from gym_gridloc_agents.train import train
+    from ray import tune
 
     overrides = {k: json.loads(v) for k, v in (config.get("overrides") or {}).items()}
     index = int(config.get("seed_index", config.get("__trial_index__", 0)))
@@ -521,190 +274,3 @@ def run(spec: dict[str, Any], *, address: str | None = None, cpus: int | None = 
         if started:
             ray.shutdown()
     return summarise(spec, records)
-
-
-def saved_statuses(exp_dir: Path) -> dict[str, str]:
-    """Trial id -> status in Tune's last saved experiment state (what ``Tuner.restore`` resumes
-    from): after Ctrl-C the interrupted trials are RUNNING or PENDING there, while in memory Tune
-    has already stopped them (TERMINATED, like a trial the pruner stopped).  ``{}`` if unreadable."""
-    try:
-        latest = max(Path(exp_dir).glob("experiment_state-*.json"), key=lambda p: p.stat().st_mtime)
-        out = {}
-        for item in json.loads(latest.read_text(encoding="utf-8"))["trial_data"]:
-            state = json.loads(item[0]) if isinstance(item[0], str) else item[0]
-            out[str(state["trial_id"])] = str(state["status"])
-        return out
-    except (OSError, ValueError, KeyError, TypeError, IndexError):
-        return {}
-
-
-def _status(result, trial_id: str | None, status: str | None, saved: dict[str, str], search: str | None) -> str:
-    if (result.metrics or {}).get("final"):
-        return "done"
-    if result.error is not None or status == "ERROR":
-        return "error"
-    status = saved.get(str(trial_id), status)
-    if status == "TERMINATED" and search == "optuna":
-        return "stopped"  # by the pruner (a grid sweep has none)
-    return "unfinished"
-
-
-def collect(results, exp_dir: Path, search: str | None = None) -> list[dict[str, Any]]:
-    """One record per Tune trial: its configuration, seed index, status and last report."""
-    trials = list(getattr(getattr(results, "_experiment_analysis", None), "trials", None) or [])
-    saved = saved_statuses(exp_dir)
-    records = []
-    for i, result in enumerate(results):
-        trial = trials[i] if i < len(trials) else None
-        config = getattr(trial, "config", None) or result.config or {}  # a trial that never ran has no result config
-        metrics = {k: v for k, v in (result.metrics or {}).items() if k != "config"}
-        trial_id = getattr(trial, "trial_id", None) or metrics.get("trial_id")
-        records.append({
-            "trial_id": trial_id,
-            "overrides": {k: json.loads(v) for k, v in (config.get("overrides") or {}).items()},
-            "index": int(config.get("seed_index", config.get("__trial_index__", 0))),
-            "status": _status(result, trial_id, getattr(trial, "status", None), saved, search),
-            "metrics": metrics,
-            "error": None if result.error is None else " ".join(str(result.error).split())[:500],
-        })
-    return records
-
-
-# -- results ----------------------------------------------------------------------------------------
-_PRIORITY = {"done": 0, "stopped": 1, "error": 2, "unfinished": 3}
-
-
-def summarise(spec: dict[str, Any], records: list[dict[str, Any]]) -> dict[str, Any]:
-    """Group the trials by configuration, aggregate across seeds, pick the best configuration and
-    its median seed; write the tables, JSON files and ``best.zip``; return the summary."""
-    from gym_gridloc_agents import stats
-    from gym_gridloc_agents.files import atomic_path, atomic_write_json, atomic_write_text, read_metadata
-
-    out = Path(spec["output"])
-    keys = list(spec["grid"])
-    order = configurations(spec["grid"]) if spec["search"] != "optuna" else []
-    groups: dict[str, dict[str, Any]] = {}
-    for o in order:
-        groups[_canonical(o)] = {"overrides": o, "seeds": {}}
-    for r in sorted(records, key=lambda r: (_PRIORITY[r["status"]], str(r["trial_id"]))):
-        g = groups.setdefault(_canonical(r["overrides"]), {"overrides": r["overrides"], "seeds": {}})
-        g["seeds"].setdefault(r["index"], r)  # one record per seed: a finished one first (Optuna may repeat a configuration)
-    configs = []
-    for g in groups.values():
-        overrides = g["overrides"]
-        cfg0 = trial_config(spec, overrides, 0)
-        label = config_label(overrides, keys)
-        rows = []
-        for index in range(spec["seeds"]):
-            r = g["seeds"].get(index)
-            m = (r or {}).get("metrics") or {}
-            rows.append({
-                "seed": cfg0["seed"] + index, "status": r["status"] if r else "not run",
-                **{k: m.get(k) for k in ("score", "mean_steps", "accuracy", "argmax_accuracy")},
-                "selected_timesteps": m.get("selected_timesteps"), "num_timesteps": m.get("num_timesteps"),
-                "model": m.get("model") if r and r["status"] == "done" else None,
-                "trial_id": r["trial_id"] if r else None, "error": r["error"] if r else None,
-            })
-        done = [row for row in rows if row["status"] == "done"]
-        entry: dict[str, Any] = {
-            "label": label, "overrides": overrides, "seeds": rows, "complete": len(done) == len(rows),
-            "score": "minus the accuracy (fixed-length episodes)" if cfg0["env_kwargs"].get("episode_length")
-            else "mean steps to localise (lower is better)",
-            "evaluation": f"held-out validation episodes (seeds 2000000+i, {cfg0['eval_episodes']} per evaluation); "
-                          "each seed's number is the evaluation of the model train kept (its best evaluation)",
-            "aggregate": {k: stats.aggregate([row[k] for row in done]) for k in METRICS} if done else None,
-            "median_seed": None, "median_model": None,
-        }
-        if done:
-            med = done[stats.median_index([row["score"] for row in done])]
-            entry["median_seed"], entry["median_model"] = med["seed"], med["model"]
-        configs.append(entry)
-    configs.sort(key=lambda c: (not c["complete"], c["aggregate"]["score"]["mean"] if c["aggregate"] else float("inf")))
-    # Trials still to run (an interrupted sweep): no best model until --resume has run them.
-    if spec["search"] == "optuna":
-        pending = max(0, spec["trials"] * spec["seeds"] - sum(r["status"] in ("done", "stopped", "error") for r in records))
-    else:
-        pending = sum(r["status"] in ("unfinished", "not run") for c in configs for r in c["seeds"])
-    complete = [c for c in configs if c["complete"]]
-    best = complete[0] if complete and not pending else None
-    summary: dict[str, Any] = {
-        "output": str(out), "command": spec["command"], "seeds": spec["seeds"], "grid": spec["grid"],
-        "search": spec["search"], "trials": len(records), "pending": pending,
-        "statuses": {s: sum(1 for r in records if r["status"] == s) for s in _PRIORITY if any(r["status"] == s for r in records)},
-        "best_rule": BEST_RULE, "median_rule": MEDIAN_RULE,
-        "best": None, "configurations": configs,
-    }
-    for c in configs:
-        atomic_write_json(out / "results" / f"{c['label']}.json", c)
-        atomic_write_text(out / "results" / f"{c['label']}.md", config_table(c) + "\n")
-    if best is not None:
-        src = Path(best["median_model"])
-        best_info = {"label": best["label"], "overrides": best["overrides"], "seed": best["median_seed"],
-                     "source": str(src), "aggregate": best["aggregate"], "best_rule": BEST_RULE, "median_rule": MEDIAN_RULE}
-        if src.is_file():
-            with atomic_path(out / "best.zip") as tmp:
-                shutil.copyfile(src, tmp)
-            atomic_write_json(out / "best.json", {**read_metadata(src), "sweep": best_info})
-            best_info["model"] = str(out / "best.zip")
-        else:
-            best_info["model"] = None
-            best_info["problem"] = (f"{src} is not on this machine: on a cluster, --output must be a directory every "
-                                    "node reaches at the same path (a shared file system)")
-        summary["best"] = best_info
-    atomic_write_json(out / "summary.json", summary)
-    atomic_write_text(out / "summary.md", summary_table(summary) + "\n")
-    return summary
-
-
-def _f(x: Any, digits: int = 3) -> str:
-    return "-" if x is None else f"{x:.{digits}f}" if isinstance(x, float) else str(x)
-
-
-def config_table(c: dict[str, Any]) -> str:
-    """One configuration: a row per seed, then the mean, IQM and bootstrap 95% interval across seeds."""
-    over = ", ".join(f"{k}={json.dumps(v)}" for k, v in c["overrides"].items()) or "the config as it is"
-    lines = [f"## {c['label']}", "", f"Overrides: {over}. Score: {c['score']}. {c['evaluation']}.", "",
-             "| seed | status | steps trained | model kept at | mean steps | accuracy | argmax accuracy | score |",
-             "|---|---|---|---|---|---|---|---|"]
-    for r in c["seeds"]:
-        lines.append(f"| {r['seed']} | {r['status']} | {_f(r['num_timesteps'])} | {_f(r['selected_timesteps'])} | "
-                     f"{_f(r['mean_steps'])} | {_f(r['accuracy'])} | {_f(r['argmax_accuracy'])} | {_f(r['score'])} |")
-    a = c["aggregate"]
-    if a:
-        n = a["score"]["n"]
-        for name, key in (("mean", "mean"), ("IQM", "iqm")):
-            lines.append(f"| **{name}** ({n} seeds) | | | | {_f(a['mean_steps'][key])} | {_f(a['accuracy'][key])} | "
-                         f"{_f(a['argmax_accuracy'][key])} | {_f(a['score'][key])} |")
-        ci = {k: "{:.3f}-{:.3f}".format(*a[k]["ci95"]) for k in METRICS}
-        lines.append(f"| **95% CI of the mean** (bootstrap) | | | | {ci['mean_steps']} | {ci['accuracy']} | "
-                     f"{ci['argmax_accuracy']} | {ci['score']} |")
-        lines += ["", f"Median seed: {c['median_seed']} ({c['median_model']})."]
-    if not c["complete"]:
-        lines += ["", "Not every seed finished training: this configuration cannot be the best one."]
-    return "\n".join(lines)
-
-
-def summary_table(s: dict[str, Any]) -> str:
-    """Every configuration, best first: the score's mean, IQM and 95% interval across seeds."""
-    lines = ["| configuration | seeds done | score mean | score IQM | score 95% CI | mean steps | accuracy | |",
-             "|---|---|---|---|---|---|---|---|"]
-    best = (s.get("best") or {}).get("label")
-    for c in s["configurations"]:
-        a = c["aggregate"]
-        done = sum(r["status"] == "done" for r in c["seeds"])
-        if a:
-            cells = [_f(a["score"]["mean"]), _f(a["score"]["iqm"]), "{:.3f}-{:.3f}".format(*a["score"]["ci95"]),
-                     _f(a["mean_steps"]["mean"]), _f(a["accuracy"]["mean"])]
-        else:
-            cells = ["-"] * 5
-        mark = "best" if c["label"] == best else ("" if c["complete"] else "incomplete")
-        lines.append(f"| {c['label']} | {done}/{len(c['seeds'])} | " + " | ".join(cells) + f" | {mark} |")
-    if s.get("best"):
-        b = s["best"]
-        where = b["model"] or b.get("problem")
-        lines += ["", f"Best configuration: {b['label']}; its median seed {b['seed']}: {where}."]
-    elif s.get("pending"):
-        lines += ["", f"The sweep is unfinished ({s['pending']} trial(s) to run): continue it with --resume."]
-    else:
-        lines += ["", "No configuration finished every seed: no best model."]
-    return "\n".join(lines)

@@ -1,0 +1,259 @@
+"""What a ``gridloc sweep`` is before Ray runs anything: the ``--grid`` values and their
+configurations (and their names), the checked arguments (:func:`prepare`, what ``sweep.json``
+holds), each trial's validated training config, and the ``--resume`` check.
+
+No Ray here: :mod:`gym_gridloc_agents.sweep` runs the sweep; :mod:`gym_gridloc_agents.sweep_results`
+reads and reports what its trials produced.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+import re
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from gym_gridloc_agents.config import ConfigError, load_config, validate_config
+
+#: Config keys the sweep sets itself (seeds come from ``--seeds``, paths from ``--output``).
+OWNED_KEYS = ("seed", "output", "checkpoint_dir", "tensorboard_log")
+#: What is compared on ``--resume``: a sweep resumes only with the same arguments.
+SPEC_KEYS = ("config", "grid", "seeds", "search", "trials")
+
+
+class SweepError(ValueError):
+    """Bad sweep arguments, or a sweep that cannot start or resume (one line, names the problem)."""
+
+
+# -- --grid ---------------------------------------------------------------------------------------
+_NUMBER = re.compile(r"^[-+]?(\d[\d_]*\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+
+def parse_value(text: str) -> Any:
+    """One value as YAML reads a scalar (``64`` int, ``0.5`` float, ``true``, ``null``, a word is
+    a string, ``[16, 16]`` a list), except that a number in exponent notation without a dot
+    (``1e-4``, a string in YAML 1.1) is a float."""
+    import yaml
+
+    text = text.strip()
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise SweepError(f"{text!r} is not a YAML value ({' '.join(str(exc).split())})") from None
+    if isinstance(value, str) and _NUMBER.match(text):
+        value = float(text.replace("_", ""))
+    return value
+
+
+def split_values(text: str) -> list[str]:
+    """``"1e-4,3e-4"`` -> ``["1e-4", "3e-4"]``; commas inside ``[...]``/``{...}`` or quotes do not split."""
+    parts, depth, quote, cur = [], 0, None, []
+    for ch in text:
+        if quote:
+            quote = None if ch == quote else quote
+        elif ch in "'\"":
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+        elif ch in "]}":
+            depth -= 1
+        elif ch == "," and depth == 0:
+            parts.append("".join(cur))
+            cur = []
+            continue
+        cur.append(ch)
+    parts.append("".join(cur))
+    return parts
+
+
+def parse_grid(items: Sequence[str] | None) -> dict[str, list[Any]]:
+    """``["hyperparams.learning_rate=1e-4,3e-4", ...]`` -> ``{"hyperparams.learning_rate": [0.0001, 0.0003]}``."""
+    grid: dict[str, list[Any]] = {}
+    for item in items or ():
+        key, eq, rest = item.partition("=")
+        key = key.strip()
+        if not eq or not key:
+            raise SweepError(f"--grid {item!r}: expected KEY=V1,V2,... with KEY a config key as a dotted path, "
+                             "e.g. hyperparams.learning_rate=1e-4,3e-4")
+        if any(not part for part in key.split(".")):
+            raise SweepError(f"--grid {item!r}: {key!r} is not a dotted path of config keys")
+        if key.split(".")[0] in OWNED_KEYS:
+            raise SweepError(f"--grid {item!r}: the sweep sets {key.split('.')[0]} itself "
+                             f"(seeds: --seeds N, from the config's seed; paths: --output DIR)")
+        if key in grid:
+            raise SweepError(f"--grid: {key} is given twice; give all its values in one --grid {key}=V1,V2,...")
+        texts = split_values(rest)
+        if not rest.strip() or any(not t.strip() for t in texts):
+            raise SweepError(f"--grid {item!r}: {key} needs values, e.g. {key}=V1,V2 (an empty value is not one)")
+        values = []
+        for t in texts:
+            try:
+                values.append(parse_value(t))
+            except SweepError as exc:
+                raise SweepError(f"--grid {item!r}: {exc}") from None
+        if len({_canonical(v) for v in values}) != len(values):
+            raise SweepError(f"--grid {item!r}: {key} repeats a value")
+        grid[key] = values
+    return grid
+
+
+def set_dotted(cfg: dict[str, Any], key: str, value: Any) -> None:
+    """``cfg["a"]["b"] = value`` for ``key="a.b"`` (missing mappings are created)."""
+    parts = key.split(".")
+    d = cfg
+    for i, part in enumerate(parts[:-1]):
+        if d.get(part) is None:
+            d[part] = {}
+        if not isinstance(d[part], dict):
+            raise SweepError(f"--grid {key}: {'.'.join(parts[: i + 1])} is {d[part]!r} in the config, not a mapping")
+        d = d[part]
+    d[parts[-1]] = copy.deepcopy(value)
+
+
+def _canonical(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, separators=(",", ":"))
+
+
+def configurations(grid: dict[str, list[Any]]) -> list[dict[str, Any]]:
+    """Every combination of the grid's values (the first key varies slowest); ``[{}]`` without a grid."""
+    keys = list(grid)
+    return [dict(zip(keys, combo)) for combo in itertools.product(*(grid[k] for k in keys))]
+
+
+_SAFE = re.compile(r"^[A-Za-z0-9._+-]+$")
+
+
+def config_label(overrides: dict[str, Any], keys: Sequence[str]) -> str:
+    """A configuration's name, also its directory name: ``learning_rate=0.0001_n_steps=64``
+    (``base`` without a grid).  Keys are shortened to their last part unless two grid keys share
+    it; a value that is not a plain word or number, or a name over 80 characters, gets a short
+    hash of the configuration so that two configurations never share a name."""
+    if not overrides:
+        return "base"
+    short = [k.split(".")[-1] for k in keys]
+    names = {k: (s if short.count(s) == 1 else k) for k, s in zip(keys, short)}
+    lossless, parts = True, []
+    for k in keys:
+        v = overrides[k]
+        text = json.dumps(v) if not isinstance(v, str) else v
+        if not _SAFE.match(text):
+            lossless = False
+            text = re.sub(r"[^A-Za-z0-9._+-]+", "_", text).strip("_") or "x"
+        parts.append(f"{names[k]}={text}")
+    label = "_".join(parts)
+    if not lossless or len(label) > 80:
+        digest = hashlib.sha1(_canonical({k: overrides[k] for k in keys}).encode()).hexdigest()[:6]
+        label = f"{label[:72]}-{digest}"
+    return label
+
+
+# -- the sweep's specification ----------------------------------------------------------------------
+def default_output(config: str | Path) -> Path:
+    return Path("runs") / "sweeps" / Path(config).stem
+
+
+def command_line(config: str | Path, *, seeds: int = 1, grid: Sequence[str] | dict | None = None, search: str | None = None,
+                 trials: int | None = None, output: str | Path | None = None, address: str | None = None,
+                 cpus: int | None = None) -> str:
+    """The ``gridloc sweep`` command of these arguments (for messages and the metadata)."""
+    import shlex
+
+    items = grid if not isinstance(grid, dict) else [f"{k}={','.join(json.dumps(v) for v in vs)}" for k, vs in grid.items()]
+    words = ["gridloc", "sweep", str(config), "--seeds", str(seeds)]
+    words += ["--grid", *items] if items else []
+    words += ["--search", search, "--trials", str(trials)] if search else []
+    words += ["--address", address] if address else []
+    words += ["--cpus", str(cpus)] if cpus else []
+    words += ["--output", str(output)] if output is not None else []
+    return " ".join(shlex.quote(w) for w in words)
+
+
+def prepare(config: str | Path, *, seeds: int = 1, grid: Sequence[str] | dict | None = None, search: str | None = None,
+            trials: int | None = None, output: str | Path | None = None, address: str | None = None,
+            cpus: int | None = None) -> dict[str, Any]:
+    """Check the arguments and every configuration of the sweep before anything runs; returns
+    the sweep's specification (what ``sweep.json`` holds).  Raises :class:`SweepError` or
+    :class:`ConfigError` with a one-line message.  (``address`` and ``cpus`` only go into the
+    recorded command: a sweep may be resumed elsewhere.)"""
+    import yaml
+
+    command = command_line(config, seeds=seeds, grid=grid, search=search, trials=trials, output=output,
+                           address=address, cpus=cpus)
+
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
+        raise SweepError(f"--seeds must be a whole number >= 1, got {seeds!r}")
+    if search not in (None, "optuna"):
+        raise SweepError(f"--search must be optuna, got {search!r}")
+    if search == "optuna" and trials is None:
+        raise SweepError("--search optuna needs --trials N (how many configurations Optuna tries, each with every seed)")
+    if search is None and trials is not None:
+        raise SweepError("--trials N needs --search optuna (a --grid sweep runs every combination)")
+    if trials is not None and (isinstance(trials, bool) or not isinstance(trials, int) or trials < 1):
+        raise SweepError(f"--trials must be a whole number >= 1, got {trials!r}")
+    grid = dict(grid) if isinstance(grid, dict) else parse_grid(grid)
+    if search == "optuna" and not grid:
+        raise SweepError("--search optuna chooses among --grid values: give at least one --grid KEY=V1,V2,...")
+    base = load_config(config)  # a missing or malformed config fails here, naming its file
+    raw = yaml.safe_load(Path(config).read_text(encoding="utf-8"))
+    if base["seed"] + seeds - 1 > 2**32 - 1:
+        raise SweepError(f"--seeds {seeds}: seeds {base['seed']}..{base['seed'] + seeds - 1} exceed 2**32 - 1")
+    out = Path(output) if output is not None else default_output(config)
+    spec = {
+        "version": 1, "config_path": str(config), "config": raw, "grid": grid, "seeds": seeds, "search": search,
+        "trials": trials, "output": str(out.expanduser().resolve()), "command": command,
+    }
+    try:
+        json.dumps(spec)  # a config that JSON cannot hold fails now, not in sweep.json
+    except (TypeError, ValueError) as exc:
+        raise SweepError(f"{config}: the sweep records its config as JSON, which cannot hold it ({exc})") from None
+    checked_configs(spec)
+    return spec
+
+
+def checked_configs(spec: dict[str, Any]) -> list[dict[str, Any]]:
+    """The validated training configs (first seed) the sweep may run, checked now: every
+    combination of a grid sweep; for Optuna, which picks among a product that may be large, the
+    config alone and with each single ``--grid`` value (a combination that does not validate
+    fails as that trial's error)."""
+    if spec["search"] != "optuna":
+        return [trial_config(spec, o, 0) for o in configurations(spec["grid"])]
+    return [trial_config(spec, {}, 0)] + [trial_config(spec, {k: v}, 0) for k, vs in spec["grid"].items() for v in vs]
+
+
+def trial_config(spec: dict[str, Any], overrides: dict[str, Any], index: int) -> dict[str, Any]:
+    """The validated training config of one trial: the configuration's overrides, seed
+    ``config seed + index``, and its paths under the sweep's output directory.  A config without
+    evaluations (``eval_freq: 0``) is evaluated once, at the end (the sweep needs a score)."""
+    raw = copy.deepcopy(spec["config"])
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{spec['config_path']}: a config must be a mapping of keys to values")
+    for key, value in overrides.items():
+        set_dotted(raw, key, value)
+    where = spec["config_path"] + "".join(f" {k}={json.dumps(v)}" for k, v in overrides.items())
+    label = config_label(overrides, list(spec["grid"]))
+    seed = raw.get("seed", 0)
+    if isinstance(seed, int) and not isinstance(seed, bool):
+        seed = raw["seed"] = seed + index
+    out = Path(spec["output"])
+    raw["output"] = str(out / "models" / label / f"seed{seed}.zip")
+    raw["checkpoint_dir"] = str(out / "checkpoints" / label / f"seed{seed}")
+    if raw.get("tensorboard_log"):
+        raw["tensorboard_log"] = str(out / "tensorboard" / label)
+    cfg = validate_config(raw, source=where)
+    if cfg["eval_freq"] == 0:
+        cfg["eval_freq"] = cfg["total_timesteps"]
+    return cfg
+
+
+def check_resume(spec: dict[str, Any], stored: dict[str, Any], directory: Path) -> None:
+    for key in SPEC_KEYS:
+        if _canonical(stored.get(key)) != _canonical(spec.get(key)):
+            raise SweepError(
+                f"--resume: the sweep in {directory} was started with another {key} "
+                f"({'config file contents' if key == 'config' else json.dumps(stored.get(key))}); "
+                f"resume it with the same arguments: {stored.get('command', '?')}"
+            )
