@@ -113,13 +113,17 @@ def _load_cache(cache: Path | None, key: str) -> list[dict[str, Any]]:
         with np.load(cache, allow_pickle=False) as data:
             if str(data["key"]) != key:
                 return []
-            bounds, lengths = data["bounds"], data["lengths"]
-            obs_keys = [k[4:] for k in data.files if k.startswith("obs.")]
-            out = []
-            for a, b, n in zip(bounds[:-1], bounds[1:], lengths):
-                obs = {k: data[f"obs.{k}"][a:b] for k in obs_keys} if obs_keys else data["obs"][a:b]
-                out.append({"obs": obs, "targets": data["targets"][a:b], "returns": data["returns"][a:b], "length": int(n)})
-            return out
+            # Each array is read once (``data[name]`` decompresses the whole array again at every access);
+            # episodes are copies of their rows, so no episode keeps a whole array alive.
+            arrays = {k: data[k] for k in data.files if k != "key"}
+        bounds, lengths = arrays["bounds"], arrays["lengths"]
+        obs_keys = [k[4:] for k in arrays if k.startswith("obs.")]
+        out = []
+        for a, b, n in zip(bounds[:-1], bounds[1:], lengths):
+            obs = {k: arrays[f"obs.{k}"][a:b].copy() for k in obs_keys} if obs_keys else arrays["obs"][a:b].copy()
+            out.append({"obs": obs, "targets": arrays["targets"][a:b].copy(), "returns": arrays["returns"][a:b].copy(),
+                        "length": int(n)})
+        return out
     except (OSError, KeyError, ValueError):
         return []  # an unreadable cache is collected again
 
@@ -142,8 +146,11 @@ def _expert(cfg: dict[str, Any], env):
     from gym_gridloc_agents.policies import make_policy
 
     pre = cfg["pretrain"]
-    return make_policy(pre["expert"], env.unwrapped.model, pose=env.unwrapped.referee_pose, env_kwargs=cfg["env_kwargs"],
-                       **pre.get("expert_kwargs", {}))
+    options = dict(pre.get("expert_kwargs", {}))
+    if pre["expert"] in ("central", "expectimax", "mcts"):  # the planners plan for the referee's own test
+        options.setdefault("threshold", env.unwrapped.localise_threshold)
+    return make_policy(pre["expert"], env.unwrapped.model, env_id=cfg["env_id"], pose=env.unwrapped.referee_pose,
+                       env_kwargs=cfg["env_kwargs"], **options)
 
 
 def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | None = None) -> list[dict[str, Any]]:

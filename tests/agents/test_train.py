@@ -485,3 +485,25 @@ def test_a_fresh_run_sets_an_old_best_model_aside(tmp_path):
     train(tiny(tmp_path, total_timesteps=256, eval_freq=128, eval_episodes=2), progress_bar=False)
     kept = list(ckpt.glob("best-before-*.zip"))
     assert len(kept) == 1 and kept[0].read_bytes() == b"old best"
+
+
+def test_warm_start_cache_roundtrip_reads_each_array_once(tmp_path, monkeypatch):
+    """The expert cache comes back as written, and loading it reads every stored array once (an
+    access per episode decompressed a whole array each time: 2000 DepthMaze episodes took 23 GB)."""
+    from gym_gridloc_agents import pretrain
+
+    rng = np.random.default_rng(0)
+    episodes = [{"obs": {"belief": rng.random((n, 4, 5, 5), dtype=np.float32), "observation": rng.integers(0, 5, n)},
+                 "targets": rng.random((n, 3), dtype=np.float32), "returns": rng.random(n), "length": n} for n in (3, 1, 4, 2)]
+    path = tmp_path / "expert.npz"
+    pretrain._save_cache(path, "k", episodes)
+    reads = []
+    real = np.lib.npyio.NpzFile.__getitem__
+    monkeypatch.setattr(np.lib.npyio.NpzFile, "__getitem__", lambda self, key: reads.append(key) or real(self, key))
+    back = pretrain._load_cache(path, "k")
+    assert len(reads) == len(set(reads))
+    assert len(back) == 4 and [e["length"] for e in back] == [3, 1, 4, 2]
+    for a, b in zip(episodes, back):
+        assert np.array_equal(a["obs"]["belief"], b["obs"]["belief"]) and np.array_equal(a["targets"], b["targets"])
+        assert b["obs"]["belief"].base is None  # a copy, not a view keeping the whole array alive
+    assert pretrain._load_cache(path, "another key") == []
