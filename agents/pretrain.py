@@ -13,6 +13,8 @@ then trains on the environment's reward.  Only the PPO policy's weights are chan
 Nothing is lost to Ctrl-C: the expert's episodes (and each DAgger round's labels) are kept in
 cache files in the checkpoint directory, and the epochs and rounds already done are counted;
 :class:`WarmStartInterrupted` says how far it got, and a resumed training continues from there.
+The expert's episodes do not depend on the training seed: trainings whose checkpoint directories
+are siblings (the seeds of a sweep) share them.
 """
 
 from __future__ import annotations
@@ -128,6 +130,24 @@ def _load_cache(cache: Path | None, key: str) -> list[dict[str, Any]]:
         return []  # an unreadable cache is collected again
 
 
+def _sibling_caches(cache: Path, key: str) -> list[tuple[int, Path]]:
+    """Expert caches of other trainings beside this one (``<checkpoints>/*/expert.npz``) made for the
+    same data (the same key: environment, wrapper, expert, gamma).  The expert's episodes do not
+    depend on the training seed (seeds ``PRETRAIN_SEED_BASE + i``), so the seeds of a sweep, or a
+    config trained again under another output, share them instead of playing them again."""
+    found = []
+    for other in sorted(cache.parent.parent.glob(f"*/{cache.name}")):
+        if other.resolve() == cache.resolve():
+            continue
+        try:
+            with np.load(other, allow_pickle=False) as data:
+                if str(data["key"]) == key:
+                    found.append((len(data["lengths"]), other))
+        except (OSError, KeyError, ValueError):
+            continue
+    return sorted(found, key=lambda t: -t[0])
+
+
 def _save_cache(cache: Path, key: str, episodes: list[dict[str, Any]]) -> None:
     from gym_gridloc_agents.files import atomic_path
 
@@ -164,6 +184,10 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
     gamma = float(cfg["hyperparams"].get("gamma", 0.99))
     key = _cache_key(cfg, "expert")
     episodes = _load_cache(cache, key)[: pre["episodes"]]
+    if cache is not None and len(episodes) < pre["episodes"]:
+        others = _sibling_caches(cache, key)  # (episodes held, path), most first
+        if others and others[0][0] > len(episodes):
+            episodes = _load_cache(others[0][1], key)[: pre["episodes"]]
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
     expert = _Recorded(_expert(cfg, env))
     try:

@@ -507,3 +507,28 @@ def test_warm_start_cache_roundtrip_reads_each_array_once(tmp_path, monkeypatch)
         assert np.array_equal(a["obs"]["belief"], b["obs"]["belief"]) and np.array_equal(a["targets"], b["targets"])
         assert b["obs"]["belief"].base is None  # a copy, not a view keeping the whole array alive
     assert pretrain._load_cache(path, "another key") == []
+
+
+def test_expert_episodes_are_shared_with_sibling_trainings(tmp_path, monkeypatch):
+    """The expert's episodes do not depend on the training seed: a training whose checkpoint
+    directory is new reuses a sibling's cache of the same data and plays none again."""
+    import gym_gridloc_agents.rollout as rollout_module
+    from gym_gridloc_agents import pretrain
+    from gym_gridloc_agents.config import load_config
+
+    cfg = load_config("configs/ppo_colourgrid.yml")
+    cfg["pretrain"].update(expert="greedy", episodes=6, expert_kwargs={})
+    first = pretrain.collect_expert(cfg, progress=False, cache=tmp_path / "seed0" / "expert.npz")
+    other = dict(cfg, pretrain=dict(cfg["pretrain"], expert="greedy2"))  # another expert: not shared
+    pretrain.collect_expert(other, progress=False, cache=tmp_path / "seed9" / "expert.npz")
+    calls = []
+    original = rollout_module.rollout
+    monkeypatch.setattr(rollout_module, "rollout", lambda *a, **k: calls.append(a) or original(*a, **k))
+    second = pretrain.collect_expert(cfg, progress=False, cache=tmp_path / "seed1" / "expert.npz")
+    assert calls == []
+    assert [e["length"] for e in second] == [e["length"] for e in first]
+    assert all(np.array_equal(a["targets"], b["targets"]) for a, b in zip(first, second))
+    assert (tmp_path / "seed1" / "expert.npz").is_file()
+    cfg["pretrain"]["episodes"] = 8  # more than any sibling holds: the rest is played
+    third = pretrain.collect_expert(cfg, progress=False, cache=tmp_path / "seed2" / "expert.npz")
+    assert len(calls) == 2 and [e["length"] for e in third[:6]] == [e["length"] for e in first]
