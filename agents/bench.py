@@ -36,6 +36,7 @@ from __future__ import annotations
 import glob
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -283,6 +284,19 @@ def _job(args: tuple) -> dict[str, Any]:
     return simulate(task, specs, budgets=budgets, progress=False)
 
 
+def applicable(name: str, env_id: str, env_kwargs: dict, options: dict) -> bool:
+    """Whether policy ``name`` can run on the environment: ``central`` needs a sensor with a
+    "nothing" reading (RingSensor), or a ``nothing`` option naming one; every other policy runs
+    everywhere."""
+    if name != "central" or options.get("nothing") is not None:
+        return True
+    env = make_env(env_id, env_kwargs)
+    try:
+        return getattr(env.unwrapped.model.sensor, "nothing", None) is not None
+    finally:
+        env.close()
+
+
 def run_benchmark(
     env_ids: Sequence[str],
     policies: Sequence[str],
@@ -316,6 +330,10 @@ def run_benchmark(
     groups: list[list[Task]] = []  # one group per row; several tasks = several seeds' models
     for env_id in env_ids:
         for name in policies:
+            if not applicable(name, env_id, kwargs, options.get(name, {})):
+                warnings.warn(f"policy {name!r} does not apply to {env_id} (its sensor has no 'nothing' reading): "
+                              "no row for it", stacklevel=2)
+                continue
             paths = models if name == "ppo" else [recurrent_model] if name == "recurrent" else [None]
             groups.append([Task(env_id, name, kwargs, p, dict(options.get(name, {}))) for p in paths])
     for group in groups:  # fail before any long run if a model is missing or does not fit
@@ -369,5 +387,5 @@ def _env_key(row: dict[str, Any]) -> str:
     return f"{row['env']} {sorted(row.get('env_kwargs', {}).items())} {row.get('test_set', False)}"
 
 
-__all__ = ["BENCH_ENV_IDS", "BUDGETS", "DEFAULT_POLICIES", "PLANNERS", "Task", "add_gaps", "default_model_path",
+__all__ = ["BENCH_ENV_IDS", "BUDGETS", "DEFAULT_POLICIES", "PLANNERS", "Task", "add_gaps", "applicable", "default_model_path",
            "episode_specs", "expand_models", "run_benchmark", "run_episodes", "seed_aggregate", "simulate", "summarise"]

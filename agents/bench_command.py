@@ -5,6 +5,7 @@ and the outputs (a failing write puts computed rows elsewhere and says where).  
 from __future__ import annotations
 
 import sys
+import warnings
 from pathlib import Path
 
 RESULTS = Path("results")
@@ -53,6 +54,36 @@ def _policy_options(items: list[str], policies: list[str]) -> dict[str, dict]:
     return options
 
 
+def _available_defaults(envs: list[str], policies: list[str], env_kwargs: dict, args) -> list[str]:
+    """The default policies without the learned ones (``ppo``, ``recurrent``) that have no model
+    for these environments and keywords and no ``--ppo-model``/``--recurrent-model``; says which
+    rows it leaves out on stderr."""
+    from gym_gridloc_agents.policies import default_model_path
+
+    given = {"ppo": args.ppo_model, "recurrent": args.recurrent_model}
+    keep = []
+    for name in policies:
+        algo = {"ppo": "ppo", "recurrent": "recurrent_ppo"}.get(name)
+        if algo is None or given[name]:
+            keep.append(name)
+            continue
+        missing = []
+        for e in envs:
+            try:
+                found = default_model_path(e, algo, env_kwargs).is_file()
+            except FileNotFoundError:
+                found = False
+            if not found:
+                missing.append(e)
+        if missing:
+            print(f"gridloc bench: no shipped {name} model for {', '.join(missing)}"
+                  f"{' with ' + str(env_kwargs) if env_kwargs else ''}: its row is left out "
+                  f"(train one and pass --{'ppo' if name == 'ppo' else 'recurrent'}-model PATH)", file=sys.stderr)
+        else:
+            keep.append(name)
+    return keep
+
+
 def bench_main(args) -> int:
     """``gridloc bench``: every argument checked before the first episode, then the run and its outputs."""
     from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, expand_models, run_benchmark
@@ -77,6 +108,8 @@ def bench_main(args) -> int:
             check_environment(e, env_kwargs, what=f"--env {e}", error=ValueError)
         if not policies:
             raise ValueError(f"--policies names no policy (got {args.policies!r}); allowed: {', '.join(POLICY_NAMES)}")
+        if args.policies is None:  # the defaults: learned rows only where a model exists for them
+            policies = _available_defaults(envs, policies, env_kwargs, args)
         options = _policy_options(args.option, policies)
         if args.test_set and "size" not in env_kwargs:
             raise ValueError("--test-set needs --size N: the held-out maps are drawn per size")
@@ -105,13 +138,17 @@ def bench_main(args) -> int:
     except (ValueError, OutputError) as exc:
         return _fail("bench", str(exc))
     try:
-        rows = run_benchmark(
-            envs, policies, episodes, seed_start=args.seed, env_kwargs=env_kwargs, test_set=args.test_set,
-            ppo_model=ppo_model, recurrent_model=args.recurrent_model, policy_options=options,
-            progress=not args.no_progress, jobs=args.jobs,
-        )
+        with warnings.catch_warnings(record=True) as notes:
+            warnings.simplefilter("always", UserWarning)
+            rows = run_benchmark(
+                envs, policies, episodes, seed_start=args.seed, env_kwargs=env_kwargs, test_set=args.test_set,
+                ppo_model=ppo_model, recurrent_model=args.recurrent_model, policy_options=options,
+                progress=not args.no_progress, jobs=args.jobs,
+            )
     except (ValueError, FileNotFoundError) as exc:
         return _fail("bench", str(exc))
+    for note in notes:  # e.g. a policy that does not apply to an environment: one line each
+        print(f"gridloc bench: {note.message}", file=sys.stderr)
     if args.update:
         rows = merge_rows(old_rows, rows)
     print(markdown_table(rows))

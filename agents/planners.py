@@ -301,6 +301,7 @@ class CentralPolicy(PlannerPolicy):
         if depth not in (1, 2):
             raise ValueError(f"central depth must be 1 or 2, got {depth!r}")
         self.nothing_arg, self.depth = nothing, int(depth)
+        nothing_reading(model, nothing)  # refuse sensors without a "nothing" reading now, not at the first act
         super().__init__(model, **kw)
 
     @property
@@ -396,7 +397,7 @@ class ExpectimaxPolicy(PlannerPolicy):
     """Depth-``depth`` expectimax on the expected number of steps to localise.
 
     ``leaf``: the estimate of the steps still needed at depth ``depth`` (see :func:`load_leaf`:
-    ``"one"``, a number, an :class:`EntropyLeaf`/:class:`MLPLeaf` or its JSON file).  ``prune``:
+    ``"one"``, a number, an :class:`EntropyLeaf` or its JSON file).  ``prune``:
     readings with ``p(z | b, a) < prune`` are dropped and the rest renormalised.
     """
 

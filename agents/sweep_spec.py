@@ -137,7 +137,8 @@ def config_label(overrides: dict[str, Any], keys: Sequence[str]) -> str:
     short = [k.split(".")[-1] for k in keys]
     names = {k: (s if short.count(s) == 1 else k) for k, s in zip(keys, short)}
     lossless, parts = True, []
-    for k in keys:
+    present = [k for k in keys if k in overrides]  # Optuna's validation trials set one key of several
+    for k in present:
         v = overrides[k]
         text = json.dumps(v) if not isinstance(v, str) else v
         if not _SAFE.match(text):
@@ -146,7 +147,7 @@ def config_label(overrides: dict[str, Any], keys: Sequence[str]) -> str:
         parts.append(f"{names[k]}={text}")
     label = "_".join(parts)
     if not lossless or len(label) > 80:
-        digest = hashlib.sha1(_canonical({k: overrides[k] for k in keys}).encode()).hexdigest()[:6]
+        digest = hashlib.sha1(_canonical({k: overrides[k] for k in present}).encode()).hexdigest()[:6]
         label = f"{label[:72]}-{digest}"
     return label
 

@@ -294,3 +294,18 @@ def test_gridloc_bound(tmp_path, capsys):
     assert got["bound"] == pytest.approx(lower_bound(gym.make("ColourGrid-v0").unwrapped.model, 1)["bound"])
     assert main(["bound", "ColourGrid-v0", "--depth", "0"]) == 2
     assert main(["bound", "DepthMaze-v0", "--env-kwarg", "episode_length=5"]) == 2
+
+
+def test_central_runs_where_it_applies_and_is_left_out_elsewhere(capsys):
+    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "random,central", "--episodes", "3", "--no-progress"]) == 0
+    out, err = capsys.readouterr()
+    assert "'central' does not apply to ColourGrid-v0" in err and "| central |" not in out and "| random |" in out
+    rows = run_benchmark(["RingSensor8x8-v0"], ["central"], 2, progress=False)
+    assert [r["policy"] for r in rows] == ["central"]
+
+
+def test_default_policies_leave_out_learned_rows_without_a_model(capsys):
+    argv = ["bench", "--env", "DepthMaze-v0", "--size", "9", "--episode-length", "6", "--episodes", "2", "--no-progress"]
+    assert main(argv) == 0
+    out, err = capsys.readouterr()
+    assert "no shipped ppo model for DepthMaze-v0" in err and "| greedy2 |" in out and "| ppo |" not in out

@@ -439,3 +439,14 @@ def test_bench_aggregates_models_across_seeds(tmp_path, capsys):
     assert main(["bench", "--env", "ColourGrid-v0", "--ppo-model", str(tmp_path / "nothing*.zip")]) == 2
     assert main(["bench", "--all", "--ppo-model", str(seeds)]) == 2
     assert main(["bench", "--env", "ColourGrid-v0", "--ppo-model", str(seeds / "seed_a.zip"), str(seeds / "seed_a.zip")]) == 2
+
+
+def test_optuna_with_several_grid_keys_is_checked_key_by_key(tmp_path):
+    from gym_gridloc_agents.sweep_spec import config_label, prepare
+
+    spec = prepare(tiny_config(tmp_path), search="optuna", trials=2, output=tmp_path / "out",
+                   grid=["hyperparams.learning_rate=1e-4,1e-3", "hyperparams.n_steps=64,128"])
+    assert sorted(spec["grid"]) == ["hyperparams.learning_rate", "hyperparams.n_steps"]
+    keys = list(spec["grid"])
+    assert config_label({"hyperparams.n_steps": 64}, keys) == "n_steps=64"
+    assert config_label({"hyperparams.learning_rate": 1e-3, "hyperparams.n_steps": 64}, keys) == "learning_rate=0.001_n_steps=64"
