@@ -104,6 +104,9 @@ def _parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("plot", help="redraw the benchmark figures from a results JSON")
     q.add_argument("json", nargs="?", default=str(RESULTS / "bench.json"), help="a bench JSON (default results/bench.json)")
+    q.add_argument("--training", nargs="+", metavar="MODEL.zip",
+                   help="instead: plot these models' training curves (their held-out evaluations) to --out")
+    q.add_argument("--out", metavar="PATH.png", default=str(RESULTS / "training.png"), help="the --training plot (default results/training.png)")
     return p
 
 
@@ -125,8 +128,21 @@ def _render(args) -> int:
 
 
 def _plot(args) -> int:
-    from gym_gridloc_agents.report import plot, plot_frontier, read_rows
+    from gym_gridloc_agents.report import plot, plot_frontier, plot_training, read_rows
 
+    if args.training:
+        from gym_gridloc_agents.files import OutputError, writable_file
+
+        try:
+            for m in args.training:
+                if not Path(m).is_file():
+                    raise ValueError(f"--training {m}: no such model file")
+            writable_file(args.out, "plot")
+            plot_training(args.training, args.out)
+        except (ValueError, OutputError) as exc:
+            return _fail("plot", str(exc))
+        print(f"wrote {args.out}")
+        return 0
     src = Path(args.json)
     if not src.is_file():
         return _fail("plot", f"{src} does not exist; run `gridloc bench --all` first")

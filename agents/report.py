@@ -216,5 +216,42 @@ def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path, *, title: st
     _save(fig, path)
 
 
-__all__ = ["ROW_KEYS", "env_label", "markdown_table", "merge_rows", "plot", "plot_frontier", "policy_label",
-           "public_row", "read_rows", "row_key"]
+__all__ = ["ROW_KEYS", "env_label", "markdown_table", "merge_rows", "plot", "plot_frontier", "plot_training",
+           "policy_label", "public_row", "read_rows", "row_key"]
+
+
+def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str | None = None) -> None:
+    """The training curves of models (``.zip`` files with their metadata JSON beside them): the
+    held-out evaluations made while training (step 0 is the warm-started policy before PPO),
+    accuracy on fixed-length episodes (``episode_length``) and mean steps otherwise, with the
+    evaluation the training kept circled.  Written atomically."""
+    from gym_gridloc_agents.files import read_metadata
+
+    plt = _pyplot()
+    metas = []
+    for m in models:
+        meta = read_metadata(Path(m))
+        if not meta.get("evaluations"):
+            raise ValueError(f"{m}: its metadata has no evaluations (trained with eval_freq: 0?)")
+        metas.append((Path(m), meta))
+    protocol = [bool((meta.get("env_kwargs") or {}).get("episode_length")) for _, meta in metas]
+    panels = 2 if (any(protocol) and not all(protocol)) else 1
+    fig, axes = plt.subplots(1, panels, figsize=(4.8 * panels, 3.6), dpi=90, squeeze=False)
+    for (m, meta), proto in zip(metas, protocol):
+        ax = axes[0][0 if proto or all(not p for p in protocol) else 1]
+        evals = sorted(meta["evaluations"], key=lambda e: e["num_timesteps"])
+        key = "accuracy" if proto else "mean_steps"
+        x = [e["num_timesteps"] for e in evals]
+        (line,) = ax.plot(x, [e[key] for e in evals], "o-", ms=3, label=m.stem)
+        kept = meta.get("selected_timesteps")
+        for e in evals:
+            if kept is not None and e["num_timesteps"] == kept:
+                ax.plot([kept], [e[key]], "o", ms=10, mfc="none", color=line.get_color())
+        ax.xaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v / 1000:g}k" if v else "0"))
+        ax.set_xlabel("PPO steps (0 = the warm-started policy)")
+        ax.set_ylabel("accuracy at L (validation maps)" if proto else "mean steps (held-out episodes)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(title or "training curves: held-out evaluations (circled: the model kept)", fontsize=10)
+    fig.tight_layout()
+    _save(fig, path)

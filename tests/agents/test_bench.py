@@ -309,3 +309,19 @@ def test_default_policies_leave_out_learned_rows_without_a_model(capsys):
     assert main(argv) == 0
     out, err = capsys.readouterr()
     assert "no shipped ppo model for DepthMaze-v0" in err and "| greedy2 |" in out and "| ppo |" not in out
+
+
+def test_training_curves_plot(tmp_path, capsys):
+    for name, kwargs, evals in [("proto", {"size": 7, "episode_length": 15}, [(0, 0.9, 15.0), (500, 0.4, 15.0)]),
+                                ("steps", {}, [(0, 0.9, 3.1), (500, 0.92, 3.0)])]:
+        (tmp_path / f"{name}.zip").write_bytes(b"")
+        meta = {"algo": "ppo", "env_id": "DepthMaze-v0", "env_kwargs": kwargs, "selected_timesteps": 0,
+                "evaluations": [{"num_timesteps": t, "accuracy": a, "mean_steps": m} for t, a, m in evals]}
+        (tmp_path / f"{name}.json").write_text(json.dumps(meta))
+    out = tmp_path / "curves.png"
+    assert main(["plot", "--training", str(tmp_path / "proto.zip"), str(tmp_path / "steps.zip"), "--out", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    (tmp_path / "bare.zip").write_bytes(b"")
+    (tmp_path / "bare.json").write_text(json.dumps({"algo": "ppo", "env_id": "DepthMaze-v0"}))
+    assert main(["plot", "--training", str(tmp_path / "bare.zip"), "--out", str(out)]) == 2
+    assert "has no evaluations" in capsys.readouterr().err
