@@ -280,7 +280,11 @@ def seed_aggregate(task: Task, runs: Sequence[Sequence[dict[str, Any]]], *, seed
 
 
 def _job(args: tuple) -> dict[str, Any]:
-    task, specs, budgets = args
+    task, specs, budgets, torch_threads = args
+    if torch_threads is not None and task.policy in LEARNED:
+        import torch
+
+        torch.set_num_threads(torch_threads)
     return simulate(task, specs, budgets=budgets, progress=False)
 
 
@@ -310,12 +314,14 @@ def run_benchmark(
     policy_options: dict[str, dict] | None = None,
     progress: bool = True,
     jobs: int = 1,
+    torch_threads: int | None = None,
 ) -> list[dict[str, Any]]:
     """Rows for every environment x policy, in that order, on the same episodes.  With
     ``jobs > 1`` the episodes are split into chunks run in parallel processes (the same
     episodes, so the same numbers).  Several ``ppo_model`` files (one per seed) make the ``ppo``
     row the aggregate across seeds (:func:`seed_aggregate`).  ``policy_options`` maps a policy
-    name to its options (e.g. ``{"expectimax": {"depth": 3}}``)."""
+    name to its options (e.g. ``{"expectimax": {"depth": 3}}``).  ``torch_threads``: torch's
+    threads for the learned policies, in this process and in every job (None: torch's default)."""
     models = list(ppo_model) if isinstance(ppo_model, (list, tuple)) else [ppo_model]
     if not models:
         raise ValueError("ppo_model: an empty list of models")
@@ -344,6 +350,10 @@ def run_benchmark(
                 env.close()
     specs = {env_id: episode_specs(env_id, kwargs, int(episodes), seed_start, test_set) for env_id in env_ids}
     tasks = [t for group in groups for t in group]
+    if torch_threads is not None and any(t.policy in LEARNED for t in tasks):
+        import torch
+
+        torch.set_num_threads(int(torch_threads))
     if jobs <= 1:
         parts = [[simulate(t, specs[t.env_id], progress=progress)] for t in tasks]
     else:
@@ -352,7 +362,7 @@ def run_benchmark(
         from tqdm.auto import tqdm
 
         chunk = max(1, math.ceil(episodes / (4 * jobs)))
-        work = [(i, (t, specs[t.env_id][lo: lo + chunk], BUDGETS)) for i, t in enumerate(tasks) for lo in range(0, episodes, chunk)]
+        work = [(i, (t, specs[t.env_id][lo: lo + chunk], BUDGETS, torch_threads)) for i, t in enumerate(tasks) for lo in range(0, episodes, chunk)]
         with mp.get_context("spawn").Pool(jobs) as pool:
             done = list(tqdm(pool.imap(_job, [w for _, w in work]), total=len(work), desc="benchmark chunks", disable=not progress))
             pool.close()  # let the workers exit on their own (``with`` alone terminates them)

@@ -119,6 +119,8 @@ def bench_main(args) -> int:
             raise ValueError(f"--seed must be in 0..{2**32 - episodes} (episode i uses seed+i), got {args.seed}")
         if args.jobs < 1:
             raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+        if args.torch_threads < 1:
+            raise ValueError(f"--torch-threads must be >= 1, got {args.torch_threads}")
         if args.plot and len(envs) > 1:
             raise ValueError("--plot takes one environment; --all writes results/bench_<env>.png")
         if args.update and not json_path:
@@ -143,7 +145,7 @@ def bench_main(args) -> int:
             rows = run_benchmark(
                 envs, policies, episodes, seed_start=args.seed, env_kwargs=env_kwargs, test_set=args.test_set,
                 ppo_model=ppo_model, recurrent_model=args.recurrent_model, policy_options=options,
-                progress=not args.no_progress, jobs=args.jobs,
+                progress=not args.no_progress, jobs=args.jobs, torch_threads=args.torch_threads,
             )
     except (ValueError, FileNotFoundError) as exc:
         return _fail("bench", str(exc))

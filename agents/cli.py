@@ -68,6 +68,8 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--jobs", type=int, default=1, help="parallel processes, each running chunks of episodes (default 1)")
     b.add_argument("--update", action="store_true",
                    help="merge the new rows into the existing JSON file (the same environment, policy and options: replaced) and plot the merged rows")
+    b.add_argument("--torch-threads", type=int, default=1, metavar="N",
+                   help="torch threads of the learned policies, per process (default 1: fastest for these small networks)")
     b.add_argument("--no-progress", action="store_true", help="no progress bars")
 
     # Their options are their modules' own (main() hands them over unparsed).
