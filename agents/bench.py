@@ -33,7 +33,6 @@ and ``accuracy_at_ci95``); rates, curves and ``median_steps`` pool the episodes 
 
 from __future__ import annotations
 
-import glob
 import math
 import time
 import warnings
@@ -228,32 +227,6 @@ def run_episodes(env_id: str, policy_name: str, episodes: int, *, seed_start: in
                      budgets=budgets, test_set=test_set)
 
 
-def expand_models(items: Sequence[str | Path]) -> list[Path]:
-    """The model files of ``--ppo-model``: a file as given, a directory's ``*.zip`` (not its
-    subdirectories), a glob pattern's matches, each sorted by name; ``ValueError`` for a directory
-    or pattern without a model, or a file given twice."""
-    models: list[Path] = []
-    for item in items:
-        path = Path(item)
-        if path.is_dir():
-            found = sorted(path.glob("*.zip"))
-            if not found:
-                raise ValueError(f"--ppo-model {item}: the directory holds no .zip model")
-        elif glob.has_magic(str(item)):
-            found = sorted(Path(p) for p in glob.glob(str(item)) if Path(p).is_file())
-            if not found:
-                raise ValueError(f"--ppo-model {item}: no file matches")
-        else:
-            found = [path]
-        models += found
-    seen = set()
-    for m in models:
-        if m.resolve() in seen:
-            raise ValueError(f"--ppo-model: {m} is given twice (each model is one seed)")
-        seen.add(m.resolve())
-    return models
-
-
 def seed_aggregate(task: Task, runs: Sequence[Sequence[dict[str, Any]]], *, seed_start: int,
                    budgets: Sequence[int] = BUDGETS, test_set: bool = False) -> dict[str, Any]:
     """One row across seeds from the :func:`simulate` parts of several models (``runs[i]``: model
@@ -398,4 +371,4 @@ def _env_key(row: dict[str, Any]) -> str:
 
 
 __all__ = ["BENCH_ENV_IDS", "BUDGETS", "DEFAULT_POLICIES", "PLANNERS", "Task", "add_gaps", "applicable", "default_model_path",
-           "episode_specs", "expand_models", "run_benchmark", "run_episodes", "seed_aggregate", "simulate", "summarise"]
+           "episode_specs", "run_benchmark", "run_episodes", "seed_aggregate", "simulate", "summarise"]

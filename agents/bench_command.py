@@ -86,9 +86,9 @@ def _available_defaults(envs: list[str], policies: list[str], env_kwargs: dict, 
 
 def bench_main(args) -> int:
     """``gridloc bench``: every argument checked before the first episode, then the run and its outputs."""
-    from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, expand_models, run_benchmark
+    from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, run_benchmark
     from gym_gridloc_agents.envs import check_environment
-    from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write, writable_file
+    from gym_gridloc_agents.files import OutputError, atomic_write_json, expand_models, rescue_write, writable_file
     from gym_gridloc_agents.policies import POLICY_NAMES
     from gym_gridloc_agents.report import markdown_table, merge_rows, plot, plot_frontier, public_row, read_rows
 

@@ -11,12 +11,13 @@ Model zip files are pickles: load only files from a trusted source.
 from __future__ import annotations
 
 import contextlib
+import glob
 import json
 import os
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 #: Marks the temporary files of atomic writes (``.<name>.gridloc-tmp-<random>``).
 TMP_MARK = ".gridloc-tmp-"
@@ -213,6 +214,32 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
 #: Environment keywords that shape episodes, not the model a policy acts on: they may differ
 #: between training and use (e.g. a policy trained for 15 steps, benchmarked at 30).
 EPISODE_KWARGS = ("episode_length", "reward", "render_mode", "new_map_each_reset")
+
+
+def expand_models(items: Sequence[str | Path]) -> list[Path]:
+    """The model files of ``--ppo-model``: a file as given, a directory's ``*.zip`` (not its
+    subdirectories), a glob pattern's matches, each sorted by name; ``ValueError`` for a directory
+    or pattern without a model, or a file given twice."""
+    models: list[Path] = []
+    for item in items:
+        path = Path(item)
+        if path.is_dir():
+            found = sorted(path.glob("*.zip"))
+            if not found:
+                raise ValueError(f"--ppo-model {item}: the directory holds no .zip model")
+        elif glob.has_magic(str(item)):
+            found = sorted(Path(p) for p in glob.glob(str(item)) if Path(p).is_file())
+            if not found:
+                raise ValueError(f"--ppo-model {item}: no file matches")
+        else:
+            found = [path]
+        models += found
+    seen = set()
+    for m in models:
+        if m.resolve() in seen:
+            raise ValueError(f"--ppo-model: {m} is given twice (each model is one seed)")
+        seen.add(m.resolve())
+    return models
 
 
 def _canonical(kwargs: dict) -> str:
