@@ -102,7 +102,7 @@ def setup_size(side: int, steps: int, dense_max_gib: float) -> tuple[dict, dict,
     # The three are the same filter: check before timing.
     ref = csr_step()
     stencil()
-    err = float(np.abs(f.belief - ref).max())
+    err = float(np.abs(f.belief_vector - ref).max())
     if err > 1e-12:
         raise AssertionError(f"{side}x{side}: stencil and CSR filters differ by {err:.3g}")
     out["err"] = err
