@@ -25,15 +25,19 @@ def _check_model(model: Any, who: str) -> GridModel:
 
 
 def checked_belief(model: GridModel, belief: Any) -> np.ndarray:
-    """An (L, H, W) array or an (S,) vector as a normalised (L, H, W) belief, or a clear error."""
+    """An (L, H, W) array, an (S,) vector or (one layer) an (H, W) array as a normalised (L, H, W)
+    belief, or a clear error."""
     try:
         b = np.asarray(belief, dtype=np.float64)
     except (TypeError, ValueError):
         raise TypeError(f"belief must be an array of numbers, got {type(belief).__name__}") from None
     if b.shape == (model.n_states,):
         b = model.from_vector(b)
+    elif model.n_layers == 1 and b.shape == model.shape:
+        b = b[None]
     elif b.shape != model.belief_shape:
-        raise ValueError(f"belief must have shape {model.belief_shape} or ({model.n_states},), got {b.shape}")
+        one = f", {model.shape}" if model.n_layers == 1 else ""
+        raise ValueError(f"belief must have shape {model.belief_shape}{one} or ({model.n_states},), got {b.shape}")
     if not np.all(np.isfinite(b)) or np.any(b < 0) or np.any(b[~model.state_mask] != 0):
         raise ValueError("belief must be finite, non-negative and zero on obstacles")
     peak = float(b.max())
@@ -159,7 +163,8 @@ class ForwardFilter:
         return self.belief_vector
 
     def set_belief(self, belief: np.ndarray) -> "ForwardFilter":
-        """Replace the belief with an (L, H, W) array or an (S,) vector (checked, normalised)."""
+        """Replace the belief with an (L, H, W) array, an (S,) vector or, for a model of one layer,
+        an (H, W) array like :attr:`position_belief` (checked, normalised)."""
         self._f = checked_belief(self.model, belief)
         self._spare = None
         self._scale = 1.0

@@ -224,6 +224,13 @@ def test_set_belief_is_checked_and_normalised():
         f.set_belief(np.zeros(model.n_states))
     with pytest.raises(TypeError, match="belief must be an array of numbers, got str"):
         f.set_belief("uniform")
+    # one layer: an (H, W) array like position_belief is accepted too
+    wm = windy_maze_model()
+    g = ForwardFilter(wm).reset([0, 0, 0, 1])
+    g.set_belief(2.0 * wm.prior()[0])
+    np.testing.assert_allclose(g.position_belief, wm.prior()[0], rtol=1e-15)
+    with pytest.raises(ValueError, match=r"belief must have shape \(1, 6, 7\), \(6, 7\) or \(31,\), got \(7, 6\)"):
+        g.set_belief(np.ones((7, 6)))
     # A step from a set belief is the dense step.
     f.set_belief(v)
     f.step(2, 5)
