@@ -17,6 +17,10 @@ def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, err
 
     if not isinstance(env_id, str) or env_id not in gym.registry:
         raise error(f"{what}: {env_id!r} is not a registered environment (gym_gridloc's: {', '.join(gym_gridloc.ENV_IDS)})")
+    known = _keywords(env_id)
+    unknown = sorted(set(env_kwargs) - known) if known else []
+    if unknown:
+        raise error(f"{what}: {env_id} has no keyword {', '.join(map(repr, unknown))} (its keywords: {', '.join(sorted(known))})")
     try:
         env = gym.make(env_id, **env_kwargs)
     except (TypeError, ValueError, gym.error.Error) as exc:
@@ -25,6 +29,22 @@ def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, err
     env.close()
     if not ok:
         raise error(f"{what}: {env_id} is not a gym_gridloc environment (allowed: {', '.join(gym_gridloc.ENV_IDS)})")
+
+
+def _keywords(env_id: str) -> set[str]:
+    """The keyword arguments a gym_gridloc environment's class takes (empty: not one of ours, or
+    it takes ``**kwargs``)."""
+    import inspect
+
+    from gymnasium.envs.registration import load_env_creator
+
+    entry = gym.registry[env_id].entry_point
+    if not isinstance(entry, str) or not entry.startswith("gym_gridloc."):
+        return set()
+    params = inspect.signature(load_env_creator(entry)).parameters.values()
+    if any(p.kind is p.VAR_KEYWORD for p in params):
+        return set()
+    return {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)} - {"self"}
 
 
 def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, wrapper: dict[str, Any] | None = None) -> gym.Env:

@@ -53,5 +53,7 @@ def test_make_env_and_check_environment():
     assert make_env("WindyMaze-v0", wrapper={"belief": False}).observation_space == gym.spaces.MultiBinary(4)
     with pytest.raises(ValueError, match="is not a gym_gridloc environment"):
         check_environment("CartPole-v1", {}, what="env", error=ValueError)
-    with pytest.raises(ValueError, match="does not build with"):
+    with pytest.raises(ValueError, match=r"env: WindyMaze-v0 has no keyword 'slip' \(its keywords: drift, kidnap_prob, layout,"):
         check_environment("WindyMaze-v0", {"slip": 0.1}, what="env", error=ValueError)
+    with pytest.raises(ValueError, match=r"does not build with \{'drift': 0.7\}: drift"):
+        check_environment("WindyMaze-v0", {"drift": 0.7}, what="env", error=ValueError)

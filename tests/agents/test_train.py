@@ -378,7 +378,8 @@ def test_a_metadata_file_that_is_not_a_json_object_is_named(tmp_path):
 @pytest.mark.parametrize("line, message", [
     ("total_timesteps: .inf", "total_timesteps must be a finite number"),
     ("total_timesteps: .nan", "total_timesteps must be a finite number"),
-    ("env_kwargs: {foo: 1}", "ColourGrid-v0 does not build with {'foo': 1}"),
+    ("env_kwargs: {foo: 1}", "ColourGrid-v0 has no keyword 'foo' (its keywords: accuracy, kidnap_prob, layout,"),
+    ("env_kwargs: {slip: 2}", "ColourGrid-v0 does not build with {'slip': 2}: slip must be a probability in [0, 1], got 2"),
     ("env_id: CartPole-v1", "CartPole-v1 is not a gym_gridloc environment"),
     ("hyperparams: {n_steps: -5}", "hyperparams.n_steps must be >= 1, got -5"),
     ("hyperparams: {batch_size: 0}", "hyperparams.batch_size must be >= 2, got 0"),
