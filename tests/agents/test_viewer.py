@@ -1,4 +1,4 @@
-"""``gridloc play`` / ``gridloc view`` (agents/viewer.py), without a display (SDL's dummy video
+"""``gridloc play`` / ``gridloc view`` (agents/viewer/), without a display (SDL's dummy video
 driver): scripted key and mouse events drive the apps and the tests read the drawn surface."""
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from gym_gridloc import rendering
 from gym_gridloc.filter import ForwardFilter
 
 viewer = pytest.importorskip("gym_gridloc_agents.viewer")
+from gym_gridloc_agents.viewer.style import _fmt  # noqa: E402
 
 
 @pytest.fixture
@@ -149,14 +150,14 @@ def test_inspector_shows_the_models_numbers_for_a_clicked_cell(pg, env_id):
             want[key] = want.get(key, 0.0) + p
         assert data["transitions"][a] == pytest.approx(want)
         for p in want.values():
-            assert viewer._fmt(p) in texts
+            assert _fmt(p) in texts
     zs, ps = model.sensor.distribution(r, c, layer)
     assert data["readings"] == pytest.approx({int(z): float(p) for z, p in zip(zs, ps)})
     assert sum(data["readings"].values()) == pytest.approx(1.0)
     shown = " ".join(app.texts)
     for p in data["readings"].values():
         if p > 0:
-            assert viewer._fmt(p) in shown
+            assert _fmt(p) in shown
     # the clicked cell is framed, a right click goes back to following the robot
     click(pg, loop, app, r, c, button=3)
     assert app.pinned is None and app.inspected() == app.shown().state

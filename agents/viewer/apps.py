@@ -1,0 +1,223 @@
+"""The two commands' apps: :class:`PlayApp` (a live environment driven by keys) and
+:class:`ViewApp` (a recorded episode of a policy, stepped forwards and backwards)."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from gym_gridloc_agents.viewer.app import App
+from gym_gridloc_agents.viewer.style import DIM, INK, Shown
+
+class PlayApp(App):
+    """``gridloc play``: the arrow keys command the robot of a live environment."""
+
+    command = "gridloc play"
+
+    def __init__(self, pg, env, env_id: str, *, seed: int = 0, max_steps: int | None = None, **kwargs: Any) -> None:
+        super().__init__(pg, env_id, **kwargs)
+        self.env = env
+        self.seed = seed
+        self.max_steps = max_steps
+        self.episode = -1
+        self.keymap = self._keymap(env.unwrapped.model)
+        self.reset()
+
+    @staticmethod
+    def _keymap(model) -> dict[str, int]:
+        names = tuple(model.action_names)
+        keys: dict[str, int] = {str(a): a for a in range(min(model.n_actions, 10))}
+        if names == ("left", "right", "forward"):
+            keys.update({"left": 0, "right": 1, "up": 2})
+        elif names == ("N", "E", "S", "W"):
+            keys.update({"up": 0, "right": 1, "down": 2, "left": 3})
+        return keys
+
+    def reset(self) -> None:
+        self.episode += 1
+        self.episode_seed = None if self.seed is None else self.seed + self.episode
+        obs, self.info = self.env.reset(seed=self.episode_seed)
+        self.observations = [obs["observation"]]  # this episode's sensor observations and actions
+        self.actions: list[int] = []
+        self.steps = 0
+        self.action: int | None = None
+        self.terminated = self.truncated = False
+        self.keymap = self._keymap(self.env.unwrapped.model)
+
+    @property
+    def done(self) -> bool:
+        return self.terminated or self.truncated
+
+    def act(self, action: int) -> None:
+        if self.done:
+            self.message = "the episode is over: r starts a new one"
+            return
+        obs, _, terminated, truncated, self.info = self.env.step(int(action))
+        self.observations.append(obs["observation"])
+        self.actions.append(int(action))
+        self.steps += 1
+        self.action = int(action)
+        self.terminated = bool(terminated)
+        self.truncated = bool(truncated) or (self.max_steps is not None and self.steps >= self.max_steps)
+
+    def on_key(self, name: str) -> bool:
+        if name == "r":
+            self.reset()
+            return True
+        if name in self.keymap:
+            self.act(self.keymap[name])
+            return True
+        return False
+
+    def shown(self) -> Shown:
+        u = self.env.unwrapped
+        return Shown(u.model, u.posterior, u.state, u.last_reading, self.action, self.info,
+                     estimate=tuple(self.info["estimate"]), full=self.env.filter.full_belief)
+
+    def status(self, s: Shown):
+        model = s.model
+        act = "-" if s.action is None else model.action_names[s.action]
+        seed = "" if self.episode_seed is None else f", seed {self.episode_seed}"
+        lines: list[tuple[str, Any]] = [
+            (f"{self.env_id}: play", None),
+            (f"episode {self.episode + 1}{seed}   step {self.steps}   last action: {act}", INK),
+        ]
+        lines += self.referee_lines(s, self.env.unwrapped.localise_threshold)
+        if self.terminated:
+            lines.append(("episode over (localised): r starts a new one", DIM))
+        elif self.truncated:
+            lines.append(("episode over (step limit): r starts a new one", DIM))
+        return lines
+
+    def help_lines(self) -> list[str]:
+        names = tuple(self.shown().model.action_names)
+        if names == ("left", "right", "forward"):
+            move = "left/right arrows: turn   up arrow: move forward"
+        elif names == ("N", "E", "S", "W"):
+            move = "arrows: move N / E / S / W (up / right / down / left)"
+        else:
+            move = f"digits: actions ({self.shown().model.action_legend})"
+        return [move, "click: inspect a cell   right click: follow the robot", "r: new episode   esc: quit"]
+
+
+# -- view -------------------------------------------------------------------------------------------
+class ViewApp(App):
+    """``gridloc view``: a recorded episode of a policy, stepped forwards and backwards."""
+
+    command = "gridloc view"
+
+    def __init__(self, pg, env, env_id: str, policy, policy_name: str, *, seed: int = 0, max_steps: int | None = None,
+                 delay_ms: int = 600, smooth: bool = False, viterbi: bool = False, **kwargs: Any) -> None:
+        super().__init__(pg, env_id, **kwargs)
+        self.env = env
+        self.policy = policy
+        self.policy_name = policy_name
+        self.max_steps = max_steps
+        self.delay = delay_ms / 1000.0
+        self.show_smooth = smooth
+        self.show_viterbi = viterbi
+        self.playing = False
+        self._last_advance = 0.0
+        self.run_episode(seed)
+
+    def run_episode(self, seed: int) -> None:
+        from gym_gridloc_agents.rollout import rollout
+
+        from gym_gridloc.inference import forward_backward, viterbi
+
+        self.seed = int(seed)
+        ep = rollout(self.env, self.policy, self.seed, keep=True, max_steps=self.max_steps)
+        self.ep = ep
+        self.model = ep.model
+        fb = forward_backward(self.model, ep.actions, ep.observations)
+        self.filtered = fb.filtered_positions
+        self.smoothed = fb.smoothed_positions
+        self.full_filtered, self.full_smoothed = fb.filtered, fb.smoothed
+        self.viterbi_path = [tuple(int(v) for v in p) for p in viterbi(self.model, ep.actions, ep.observations)[0]]
+        self.readings = [self.model.sensor.to_reading(o) for o in ep.observations]
+        self.k = 0
+        self.playing = False
+
+    @property
+    def last(self) -> int:
+        return self.ep.steps
+
+    def on_key(self, name: str) -> bool:
+        if name == "right":
+            self.k = min(self.k + 1, self.last)
+        elif name == "left":
+            self.k = max(self.k - 1, 0)
+        elif name == "home":
+            self.k = 0
+        elif name == "end":
+            self.k = self.last
+        elif name == "space":
+            if not self.playing and self.k >= self.last:
+                self.k = 0
+            self.playing = not self.playing
+            self._last_advance = time.monotonic()
+        elif name == "s":
+            self.show_smooth = not self.show_smooth
+        elif name == "v":
+            self.show_viterbi = not self.show_viterbi
+        elif name == "r":
+            self.k, self.playing = 0, False
+        elif name == "n":
+            self.run_episode(self.seed + 1)
+        else:
+            return False
+        return True
+
+    def tick(self, now: float) -> None:
+        if self.playing and now - self._last_advance >= self.delay:
+            self._last_advance = now
+            if self.k < self.last:
+                self.k += 1
+                self.dirty = True
+            if self.k >= self.last:
+                self.playing = False
+                self.dirty = True
+
+    def shown(self) -> Shown:
+        k = self.k
+        belief = self.smoothed[k] if self.show_smooth else self.filtered[k]
+        info = self.ep.infos[k]
+        if self.show_smooth:
+            est = tuple(int(v) for v in np.unravel_index(int(np.argmax(belief)), belief.shape))
+        else:
+            est = tuple(info["estimate"])
+        return Shown(self.model, belief, self.ep.states[k], self.readings[k],
+                     self.ep.actions[k - 1] if k > 0 else None, info, estimate=est,
+                     path=self.viterbi_path[: k + 1] if self.show_viterbi else None,
+                     full=(self.full_smoothed if self.show_smooth else self.full_filtered)[k])
+
+    def status(self, s: Shown):
+        k = self.k
+        ep = self.ep
+        act = "-" if s.action is None else s.model.action_names[s.action]
+        end = "localised" if ep.terminated else "time limit" if ep.truncated else "stopped (--steps)"
+        state = "playing" if self.playing else "paused"
+        lines: list[tuple[str, Any]] = [
+            (f"{self.env_id}: view, policy {self.policy_name}", None),
+            (f"seed {self.seed}   step {k} / {self.last} ({end} at {self.last})   [{state}]", INK),
+            (f"action into this step: {act}", INK),
+        ]
+        lines += self.referee_lines(s, self.env.unwrapped.localise_threshold)
+        truth = tuple(s.state[1:])
+        sm = self.smoothed[k]
+        sm_est = tuple(int(v) for v in np.unravel_index(int(np.argmax(sm)), sm.shape))
+        err = abs(sm_est[0] - truth[0]) + abs(sm_est[1] - truth[1])
+        on = "ON, shown" if self.show_smooth else "off"
+        lines.append((f"[s] smoothed ({on}): estimate {sm_est} p={sm.max():.3f} error {err}", INK if self.show_smooth else DIM))
+        vp = self.viterbi_path[k]
+        verr = abs(vp[0] - truth[0]) + abs(vp[1] - truth[1])
+        on = "ON, shown" if self.show_viterbi else "off"
+        lines.append((f"[v] Viterbi ({on}): at step {k} {vp}, error {verr}", INK if self.show_viterbi else DIM))
+        return lines
+
+    def help_lines(self) -> list[str]:
+        return ["right/left arrows: step   space: play/pause   home/end: first/last",
+                "s: smoothed belief   v: Viterbi path   n: new episode   r: rewind",
+                "click: inspect a cell   right click: follow the robot   esc: quit"]

@@ -1,0 +1,135 @@
+"""``gridloc play`` and ``gridloc view``: parse, build the app, show it, record it."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from gym_gridloc_agents.viewer.app import App
+from gym_gridloc_agents.viewer.apps import PlayApp, ViewApp
+from gym_gridloc_agents.viewer.args import UsageError, _checked, _common_arguments, _env_kwargs, _Parser, build_env, import_pygame
+from gym_gridloc_agents.viewer.loop import Loop
+
+def _play_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="gridloc play", description="drive the robot with the arrow keys and watch the exact belief")
+    _common_arguments(p)
+    return p
+
+
+def _view_parser() -> argparse.ArgumentParser:
+    from gym_gridloc_agents.policies import POLICY_NAMES
+
+    p = _Parser(prog="gridloc view", description="step through an episode of a policy: belief, smoothing, Viterbi, inspector")
+    _common_arguments(p)
+    p.add_argument("--policy", default="greedy", choices=POLICY_NAMES, help="the policy (default greedy)")
+    p.add_argument("--ppo-model", metavar="PATH", help="the model file of --policy ppo (default: the shipped one for ENV)")
+    p.add_argument("--smooth", action="store_true", help="start with the smoothed belief shown (key s)")
+    p.add_argument("--viterbi", action="store_true", help="start with the Viterbi path shown (key v)")
+    return p
+
+
+def play_app(argv: Sequence[str]) -> tuple[PlayApp, argparse.Namespace]:
+    """Parse ``gridloc play``'s arguments and build the app (raises :class:`UsageError`)."""
+    args = _play_parser().parse_args(list(argv))
+    _checked(args)
+    from gym_gridloc.wrappers import HMMBeliefWrapper
+
+    pg = import_pygame("gridloc play")
+    env = HMMBeliefWrapper(build_env(args.env, _env_kwargs(args)))  # its filter: the headings' belief
+    app = PlayApp(pg, env, args.env, seed=args.seed, max_steps=args.steps, tile=args.tile, inspect=args.inspect)
+    _check_inspect(app, args)
+    return app, args
+
+
+def view_app(argv: Sequence[str]) -> tuple[ViewApp, argparse.Namespace]:
+    """Parse ``gridloc view``'s arguments, run the episode and build the app (raises :class:`UsageError`)."""
+    from gym_gridloc_agents.policies import make_policy
+
+    from gym_gridloc.wrappers import HMMBeliefWrapper
+
+    args = _view_parser().parse_args(list(argv))
+    _checked(args)
+    if args.ppo_model is not None and args.policy not in ("ppo", "recurrent"):
+        raise UsageError(f"--ppo-model is the model of --policy ppo, not of --policy {args.policy}")
+    if args.ppo_model is not None and not Path(args.ppo_model).is_file():
+        raise UsageError(f"--ppo-model: {args.ppo_model} is not a file")
+    kwargs = _env_kwargs(args)
+    pg = import_pygame("gridloc view")
+    env = HMMBeliefWrapper(build_env(args.env, kwargs))
+    try:
+        policy = make_policy(args.policy, env.unwrapped.model, env_id=args.env, env_kwargs=kwargs, seed=args.seed,
+                             path=args.ppo_model, pose=env.unwrapped.referee_pose)
+    except (ValueError, FileNotFoundError, TypeError, ImportError) as exc:
+        raise UsageError(f"--policy {args.policy}: {' '.join(str(exc).split())}") from None
+    app = ViewApp(pg, env, args.env, policy, args.policy, seed=args.seed, max_steps=args.steps, delay_ms=args.delay,
+                  smooth=args.smooth, viterbi=args.viterbi, tile=args.tile, inspect=args.inspect)
+    _check_inspect(app, args)
+    return app, args
+
+
+def _check_inspect(app: App, args) -> None:
+    if args.inspect is not None:
+        h, w = app.shown().model.shape
+        if not (0 <= args.inspect[0] < h and 0 <= args.inspect[1] < w):
+            raise UsageError(f"--inspect {args.inspect[0]},{args.inspect[1]} is outside the {h}x{w} map")
+
+
+def _random_keys(app: PlayApp, n: int, seed: int) -> list[str]:
+    keys = [k for k in app.keymap if not k.isdigit()] or list(app.keymap)
+    rng = np.random.default_rng(seed)
+    return [keys[int(i)] for i in rng.integers(len(keys), size=n)]
+
+
+def _run(command: str, build, argv: Sequence[str] | None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        app, args = build(argv)
+    except UsageError as exc:
+        print(f"{command}: error: {exc}", file=sys.stderr)
+        return 2
+    except SystemExit as exc:  # --help
+        return int(exc.code or 0)
+    keys = args.keys
+    if keys is None and args.no_window:
+        if isinstance(app, ViewApp):
+            keys = ["right"] * app.last
+        elif args.steps is not None:
+            keys = _random_keys(app, args.steps, args.seed)
+        else:
+            print(f"{command}: error: --no-window needs --keys K1,K2,... or --steps N (random arrow keys)", file=sys.stderr)
+            return 2
+    try:
+        loop = Loop(app, window=not args.no_window, record=args.record)
+    except UsageError as exc:
+        print(f"{command}: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        if keys is not None:
+            loop.script(keys, args.delay / 1000.0)
+            end = loop.end
+        else:
+            loop.run()
+            end = None
+    except KeyboardInterrupt:
+        end = None
+    finally:
+        loop.close()
+        app.env.close()
+    done = loop.finish(end)
+    if done:
+        print(done)
+    return 0
+
+
+def play_main(argv: Sequence[str] | None = None) -> int:
+    """``gridloc play ENV [options]``; returns the exit status (2: bad arguments)."""
+    return _run("gridloc play", play_app, argv)
+
+
+def view_main(argv: Sequence[str] | None = None) -> int:
+    """``gridloc view ENV [options]``; returns the exit status (2: bad arguments)."""
+    return _run("gridloc view", view_app, argv)

@@ -1,0 +1,197 @@
+"""The inspector: the seed documents' transition and sensor views of one hidden state, as numbers
+(:meth:`Inspector.inspector`) and drawn in the side panel."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from gym_gridloc_agents.viewer.style import DIM, HEADINGS, INK, OFF, Shown, _fmt, _shade
+
+
+class Inspector:
+    """The inspector part of :class:`~gym_gridloc_agents.viewer.app.App`: it reads the app's
+    ``shown()``, ``pinned`` cell and layer, fonts and text helpers."""
+
+    # -- the inspector's numbers ----------------------------------------------------------------------
+    def inspected(self) -> tuple[int, int, int]:
+        """The inspected hidden state ``(layer, row, col)``: the clicked cell, else the robot's."""
+        s = self.shown()
+        h, w = s.model.shape
+        if self.pinned is not None and not (0 <= self.pinned[0] < h and 0 <= self.pinned[1] < w):
+            self.pinned = None  # a new map of another size
+        if self.pinned is None:
+            return tuple(int(v) for v in s.state)
+        return (int(self.pinned_layer), int(self.pinned[0]), int(self.pinned[1]))
+
+    def inspector(self) -> dict[str, Any] | None:
+        """What the inspector shows for the inspected state: ``transitions[action]`` maps next
+        states ``(layer, row, col)`` to P(next | state, action) (``model.outcomes``: kidnapping
+        left out), ``positions[action]`` the same summed over layers by position, and
+        ``readings`` maps every reading to P(reading | state) (``sensor.distribution``).  None on
+        an obstacle."""
+        model = self.shown().model
+        layer, r, c = self.inspected()
+        if not model.grid.free[r, c]:
+            return None
+        transitions, positions = {}, {}
+        for a in range(model.n_actions):
+            nxt: dict[tuple[int, int, int], float] = {}
+            pos: dict[tuple[int, int], float] = {}
+            for (l2, r2, c2), p in model.outcomes((layer, r, c), a):
+                key = (int(l2), int(r2), int(c2))
+                nxt[key] = nxt.get(key, 0.0) + p
+                pos[key[1:]] = pos.get(key[1:], 0.0) + p
+            transitions[a], positions[a] = nxt, pos
+        zs, ps = model.sensor.distribution(r, c, layer)
+        readings = {int(z): float(p) for z, p in zip(zs, ps)}
+        return {"state": (layer, r, c), "transitions": transitions, "positions": positions, "readings": readings}
+
+    # -- drawing ------------------------------------------------------------------------------------
+    def draw_inspector(self, surf, s: Shown, x0: int, y: int, width: int) -> int:
+        from gym_gridloc.core.ring import RingSensor
+
+        model = s.model
+        data = self.inspector()
+        layer, r, c = self.inspected()
+        where = f"cell ({r}, {c})" + (f" facing {HEADINGS[layer]}" if model.n_layers == 4 else
+                                      f" layer {layer}" if model.n_layers > 1 else "")
+        how = "clicked; right click: follow the robot" if self.pinned is not None else "the robot's; click a cell to inspect it"
+        y = self._text(surf, f"Inspector: {where}", x0, y, self.bold)
+        y = self._text(surf, f"({how}{'; h: heading' if model.n_layers > 1 else ''})", x0, y, self.small, DIM)
+        if data is None:
+            return self._text(surf, "an obstacle: no robot is ever there", x0, y + 4, self.font, DIM)
+        if model.n_layers > 1 and s.full is not None:
+            names = HEADINGS if model.n_layers == 4 else [str(i) for i in range(model.n_layers)]
+            probs = "  ".join(f"{n} {_fmt(float(s.full[i, r, c]))}" for i, n in enumerate(names))
+            y = self._text(surf, f"belief here by heading: {probs}", x0, y + 2, self.font)
+        y += 4
+        note = ""
+        if model.kidnap_prob > 0:
+            note = f"  (then kidnapped w.p. {model.kidnap_prob:g})"
+        given = "cell, heading" if model.n_layers == 4 else "cell, layer" if model.n_layers > 1 else "cell"
+        y = self._text(surf, f"P(next position | {given}, action)" + note, x0, y, self.font)
+        y = self.draw_transitions(surf, data, (layer, r, c), x0, y + 2, width)
+        y += 6
+        given = given if model.sensor.layered else "cell"
+        y = self._text(surf, f"P(reading | {given})", x0, y, self.font)
+        if s.reading is not None and not isinstance(model.sensor, RingSensor):
+            self._text(surf, "framed: the reading received", x0 + 200, y - self.font.get_linesize() + 2, self.small, DIM)
+        return self.draw_readings(surf, data, (layer, r, c), x0, y + 2, width, s.reading)
+
+    def draw_transitions(self, surf, data, state, x0: int, y: int, width: int) -> int:
+        model = self.shown().model
+        _, r, c = state
+        n = model.n_actions
+        reach = max([max(abs(r2 - r), abs(c2 - c)) for pos in data["positions"].values() for (r2, c2) in pos] + [1])
+        side = 2 * reach + 1
+        px = max(18, min(36, (width // n - 10) // side))
+        y_top = y
+        bottom = y
+        for a in range(n):
+            x = x0 + a * (side * px + 10)
+            yy = self._text(surf, model.action_names[a], x, y_top, self.small, INK)
+            values = np.full((side, side), np.nan)
+            for i in range(side):
+                for j in range(side):
+                    rr, cc = r - reach + i, c - reach + j
+                    if 0 <= rr < model.shape[0] and 0 <= cc < model.shape[1] and model.grid.free[rr, cc]:
+                        values[i, j] = data["positions"][a].get((rr, cc), 0.0)
+            yy = self._heat(surf, values, x, yy, px, centre=(reach, reach))
+            if model.n_layers > 1:  # the next headings, as text
+                for (l2, r2, c2), p in sorted(data["transitions"][a].items(), key=lambda kv: -kv[1])[:3]:
+                    head = HEADINGS[l2] if model.n_layers == 4 else str(l2)
+                    yy = self._text(surf, f"{head} ({r2},{c2}) {_fmt(p)}", x, yy, self.small, INK)
+            bottom = max(bottom, yy)
+        return bottom
+
+    def draw_readings(self, surf, data, state, x0: int, y: int, width: int, current: int | None) -> int:
+        from gym_gridloc.core.ring import RingSensor
+        from gym_gridloc.core.sensors import ColourSensor, DepthSensor, WallSensor
+        from gym_gridloc.rendering import COLOUR_RGB
+
+        model = self.shown().model
+        sensor = model.sensor
+        _, r, c = state
+        readings = data["readings"]
+        if isinstance(sensor, RingSensor):
+            h, w = model.shape
+            values = np.full((5, 5), np.nan)
+            for i in range(5):
+                for j in range(5):
+                    rr, cc = r - 2 + i, c - 2 + j
+                    if 0 <= rr < h and 0 <= cc < w:
+                        values[i, j] = readings.get(rr * w + cc, 0.0)
+            y = self._text(surf, "reading the cell at each place round it:", x0, y, self.small, DIM)
+            self._text(surf, f"nothing: {readings[sensor.nothing]:.4f}", x0 + 5 * 32 + 12, y + 2 * 32 + 8, self.font)
+            return self._heat(surf, values, x0, y, 32, centre=(2, 2))
+        if isinstance(sensor, ColourSensor):
+            per_row = max(1, width // 100)
+            for k, (z, p) in enumerate(readings.items()):
+                i, j = divmod(k, per_row)
+                x, yy = x0 + 2 + j * 100, y + 2 + i * 26
+                colour = COLOUR_RGB.get(sensor.colours[z], (128, 128, 128))
+                self.pg.draw.rect(surf, colour, (x, yy, 20, 20))
+                if z == current:
+                    self.pg.draw.rect(surf, INK, (x - 2, yy - 2, 24, 24), width=2)
+                self._text(surf, f"{sensor.colours[z]} {_fmt(p)}", x + 24, yy + 2, self.font)
+            return y + 2 + 26 * -(-len(readings) // per_row)
+        if isinstance(sensor, WallSensor):
+            y = self._text(surf, "bits W N E S (o = obstacle sensed):", x0, y, self.small, DIM)
+            cols, colw = 4, min(110, width // 4)
+            for z, p in readings.items():
+                bits = "".join("o" if b else "-" for b in sensor.to_observation(z))
+                i, j = divmod(z, cols)
+                x, yy = x0 + j * colw, y + i * 24
+                self.pg.draw.rect(surf, _shade(p), (x, yy, colw - 6, 21))
+                if z == current:
+                    self.pg.draw.rect(surf, (0, 200, 220), (x, yy, colw - 6, 21), width=2)
+                a = np.sqrt(p) * 0.85
+                self._text_on(surf, f"{bits} {_fmt(p)}", x + 4, yy + 3, (255, 255, 255) if a > 0.5 else INK)
+            return y + 4 * 24
+        # Depth and any other sensor: reading: probability, in columns.
+        label = (lambda z: f"d={z}") if isinstance(sensor, DepthSensor) else sensor.describe
+        items = list(readings.items())
+        if len(items) > 24:
+            items = [(z, p) for z, p in items if p > 0][:24]
+        colw = 110
+        per_row = max(1, width // colw)
+        for k, (z, p) in enumerate(items):
+            i, j = divmod(k, per_row)
+            x, yy = x0 + j * colw, y + i * 24
+            self.pg.draw.rect(surf, _shade(p), (x, yy, colw - 6, 21))
+            if z == current:
+                self.pg.draw.rect(surf, (0, 200, 220), (x, yy, colw - 6, 21), width=2)
+            a = np.sqrt(p) * 0.85
+            self._text_on(surf, f"{label(z)}: {_fmt(p)}", x + 4, yy + 3, (255, 255, 255) if a > 0.5 else INK)
+        rows = -(-len(items) // per_row)
+        return y + rows * 24
+
+    def _text_on(self, surf, text: str, x: int, y: int, colour, font=None) -> None:
+        """Text without a background (on a shaded box)."""
+        font = font or self.font
+        self.texts.append(text)
+        surf.blit(font.render(text, True, colour), (x, y))
+
+    def _heat(self, surf, values: np.ndarray, x: int, y: int, px: int, centre=None) -> int:
+        """A small heatmap of probabilities with their numbers; NaN: not a free cell."""
+        pg = self.pg
+        for i in range(values.shape[0]):
+            for j in range(values.shape[1]):
+                rect = (x + j * px, y + i * px, px - 1, px - 1)
+                v = values[i, j]
+                if np.isnan(v):
+                    pg.draw.rect(surf, OFF, rect)
+                    continue
+                pg.draw.rect(surf, _shade(v), rect)
+                if v > 0:
+                    a = np.sqrt(v) * 0.85
+                    text = _fmt(v)
+                    img = self.small.render(text, True, (255, 255, 255) if a > 0.5 else INK)
+                    self.texts.append(text)
+                    surf.blit(img, (rect[0] + (px - 1 - img.get_width()) // 2, rect[1] + (px - 1 - img.get_height()) // 2))
+        if centre is not None:
+            i, j = centre
+            pg.draw.rect(surf, (255, 140, 0), (x + j * px - 1, y + i * px - 1, px + 1, px + 1), width=2)
+        return y + values.shape[0] * px + 2
