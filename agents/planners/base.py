@@ -1,0 +1,47 @@
+"""The planners' common policy: a cost per action at the exact belief, the cheapest played (ties
+share the probability)."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from gym_gridloc.core.model import GridModel
+from gym_gridloc_agents.base import Policy
+from gym_gridloc_agents.planners.ops import BeliefOps
+
+
+class PlannerPolicy(Policy):
+    """A planner on the exact belief: ``reset(seed, model)``, ``act(observation, belief)``; the
+    time spent deciding is kept (``seconds``, ``decisions``)."""
+
+    name = "planner"
+
+    def __init__(self, model: GridModel, *, threshold: float = 0.9, seed: int | None = None, **_: Any) -> None:
+        super().__init__(model, seed=seed)
+        self.threshold = float(threshold)
+        self.ops = BeliefOps(model, self.threshold)
+        self.decisions = 0
+        self.seconds = 0.0
+
+    def set_model(self, model: GridModel) -> None:
+        super().set_model(model)
+        self.ops = BeliefOps(model, self.threshold)
+
+    def values(self, b: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        """Each action's cost (lower is better) at the normalised belief ``b``."""
+        raise NotImplementedError
+
+    def act(self, observation: Any, belief: np.ndarray) -> int:
+        return self.choose(self.probabilities(observation, belief))
+
+    def probabilities(self, observation: Any, belief: np.ndarray) -> np.ndarray:
+        t = time.perf_counter()
+        ties = self.best(self.values(self.ops.full(belief)))
+        self.seconds += time.perf_counter() - t
+        self.decisions += 1
+        out = np.zeros(self.n_actions)
+        out[ties] = 1.0 / len(ties)
+        return out

@@ -1,0 +1,278 @@
+"""``mcts``: Monte Carlo tree search on the exact belief MDP, with readings sampled (UCT with
+rollouts) or enumerated (an incremental, selective expectimax)."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from gym_gridloc_agents.planners.base import PlannerPolicy
+from gym_gridloc_agents.planners.central import nothing_reading
+from gym_gridloc_agents.planners.leaves import load_leaf
+
+
+class _Node:
+    __slots__ = ("belief", "n", "na", "qa", "preds", "pz", "children")
+
+    def __init__(self, belief):
+        self.belief = belief
+        self.n = 0
+        self.na = None
+        self.qa = None
+        self.preds = None
+        self.pz = None
+        self.children = {}
+
+
+class MCTSPolicy(PlannerPolicy):
+    """UCT on the exact belief MDP, minimising the expected number of steps to localise.
+
+    Each simulation descends from the root choosing ``argmin_a Q(a) - c * scale * sqrt(ln N / n_a)``
+    (untried actions first; ``scale`` = the root's mean cost so far, at least 1), samples the
+    reading from the node's exact predictive distribution ``p(z | b, a)`` and moves to the exact
+    posterior (created on first visit; a localised posterior is terminal with cost 0).  A new node
+    is valued by a rollout of ``rollout`` (``"central"``, ``"greedy"`` (one-step expected
+    entropy), ``"random"`` or ``"none"``) for at most ``rollout_steps`` steps, plus ``leaf`` if it
+    has not localised by then.  Budget: ``simulations`` per decision, or ``time_ms`` if given.
+    The action played is the most visited one (ties: lowest Q, then the seeded generator).
+    """
+
+    name = "mcts"
+
+    def __init__(self, model, *, simulations: int = 200, time_ms: float | None = None, c: float = 1.0,
+                 rollout: str = "greedy", rollout_steps: int = 20, leaf: Any = "one", max_depth: int = 50,
+                 nothing: int | None = None, **kw) -> None:
+        super().__init__(model, **kw)
+        if rollout not in ("central", "greedy", "random", "none"):
+            raise ValueError(f"rollout must be 'central', 'greedy', 'random' or 'none', got {rollout!r}")
+        self.simulations = int(simulations)
+        self.time_ms = None if time_ms is None else float(time_ms)
+        self.c = float(c)
+        self.rollout = rollout
+        self.rollout_steps = int(rollout_steps)
+        self.leaf = load_leaf(leaf)
+        self.max_depth = int(max_depth)
+        if rollout == "central":
+            self.lik_nothing = self.ops.lik[nothing_reading(model, nothing)].reshape(-1)
+        self.sims_done = 0
+
+    # -- node helpers --
+    def _expand(self, node: _Node) -> None:
+        preds = self.ops.predict_all(node.belief[None])
+        pz = self.ops.reading_probs(preds)
+        pz /= pz.sum(axis=1, keepdims=True)
+        node.preds, node.pz = preds, pz
+        node.na = np.zeros(self.n_actions)
+        node.qa = np.zeros(self.n_actions)
+
+    def _sample(self, p: np.ndarray) -> int:
+        return int(min(np.searchsorted(np.cumsum(p), self.rng.random() * p.sum(), side="right"), len(p) - 1))
+
+    def _rollout_action(self, b: np.ndarray, preds: np.ndarray, pz: np.ndarray) -> int:
+        A = self.n_actions
+        if self.rollout == "random":
+            return int(self.rng.integers(A))
+        if self.rollout == "central":
+            return self._break_ties(preds.reshape(A, -1) @ self.lik_nothing)
+        # greedy: expected posterior position entropy E_z[H(b_az)] via H(joint) identity
+        pos = preds.sum(axis=1).reshape(A, -1)  # (A, HW)
+        joint = pos[:, None, :] * self.ops.lik[:, 0].reshape(1, self.ops.Z, -1) if self.ops.shape[0] == 1 else None
+        if joint is None:  # layered: marginalise layers after weighting by the likelihood
+            j = preds[:, None] * self.ops.lik[None]  # (A, Z, L, H, W)
+            joint = j.sum(axis=2).reshape(A, self.ops.Z, -1)
+        jl = joint * np.log2(np.where(joint > 0, joint, 1.0))
+        pzl = pz * np.log2(np.where(pz > 0, pz, 1.0))
+        eh = -jl.sum(axis=(1, 2)) + pzl.sum(axis=1)
+        return self._break_ties(eh)
+
+    def _evaluate(self, b: np.ndarray) -> float:
+        """Rollout cost from a non-localised belief."""
+        if self.rollout == "none" or self.rollout_steps <= 0:
+            return float(self.leaf(self.ops, b[None])[0])
+        cost = 0.0
+        for _ in range(self.rollout_steps):
+            preds = self.ops.predict_all(b[None])
+            pz = self.ops.reading_probs(preds)
+            a = self._rollout_action(b, preds, pz)
+            z = self._sample(pz[a])
+            post = preds[a] * self.ops.lik[z]
+            b = post / post.sum()
+            cost += 1.0
+            if self.ops.max_position(b[None])[0] >= self.ops.threshold:
+                return cost
+        return cost + float(self.leaf(self.ops, b[None])[0])
+
+    def _simulate(self, node: _Node, depth: int, root_scale: float) -> float:
+        if node.preds is None:
+            self._expand(node)
+        untried = np.flatnonzero(node.na == 0)
+        if len(untried):
+            a = int(untried[0]) if len(untried) == 1 else int(self.rng.choice(untried))
+        else:
+            ucb = node.qa - self.c * root_scale * np.sqrt(math.log(node.n) / node.na)
+            a = self._break_ties(ucb)
+        z = self._sample(node.pz[a])
+        key = (a, z)
+        child = node.children.get(key)
+        if child is None:
+            post = node.preds[a] * self.ops.lik[z]
+            post /= post.sum()
+            if self.ops.max_position(post[None])[0] >= self.ops.threshold:
+                child = node.children[key] = "done"
+                cost = 1.0
+            else:
+                child = node.children[key] = _Node(post)
+                cost = 1.0 + self._evaluate(post)
+                child.n = 1  # the rollout counts as its first visit
+        elif isinstance(child, str):
+            cost = 1.0
+        elif depth + 1 >= self.max_depth:
+            cost = 1.0 + float(self.leaf(self.ops, child.belief[None])[0])
+        else:
+            cost = 1.0 + self._simulate(child, depth + 1, root_scale)
+        node.n += 1
+        node.na[a] += 1
+        node.qa[a] += (cost - node.qa[a]) / node.na[a]
+        return cost
+
+    def search(self, b: np.ndarray) -> _Node:
+        root = _Node(b)
+        root.n = 1
+        deadline = None if self.time_ms is None else time.perf_counter() + self.time_ms / 1000.0
+        total, sims = 0.0, 0
+        while True:
+            scale = max(1.0, total / sims) if sims else 1.0
+            total += self._simulate(root, 0, scale)
+            sims += 1
+            if deadline is not None:
+                if time.perf_counter() >= deadline and sims >= self.n_actions:
+                    break
+            elif sims >= self.simulations:
+                break
+        self.sims_done += sims
+        return root
+
+    def values(self, b: np.ndarray) -> np.ndarray:
+        """The most visited actions are best (ties: the lowest mean cost)."""
+        root = self.search(b)
+        return -root.na + 1e-6 * root.qa / max(1.0, float(np.abs(root.qa).max()))
+
+
+class _ENode:
+    __slots__ = ("belief", "q", "na", "n", "kids", "value")
+
+    def __init__(self, belief, value):
+        self.belief = belief
+        self.value = value  # leaf estimate until expanded, then min_a q
+        self.q = None
+        self.na = None
+        self.n = 0
+        self.kids = None  # per action: (probs (k,), children list: _ENode or None for localised)
+
+
+class ExpectedMCTSPolicy(PlannerPolicy):
+    """Monte Carlo tree search with EXACT expectations over readings (an incremental, selective
+    expectimax).  Expanding a node builds, for every action, the posterior of every reading
+    (``p(z | b, a) >= prune``, renormalised) and values each non-localised one with ``leaf``;
+    ``Q(a) = 1 + sum_z p(z) V(child_z)`` with ``V = 0`` for a localised child and ``V(child) =
+    leaf(child)`` until the child is expanded, ``min_a Q(child, a)`` after.  A simulation descends
+    by ``argmin_a Q(a) - c * sqrt(ln N / n_a)`` (untried first) and a reading drawn from
+    ``p(z | b, a)`` among non-localised children, expands the node it reaches and backs the new
+    values up the path.  Budget: ``simulations`` expansions or ``time_ms``.  The action played is
+    ``argmin_a Q(a)`` at the root (ties: seeded generator)."""
+
+    name = "mcts"
+
+    def __init__(self, model, *, simulations: int = 100, time_ms: float | None = None, c: float = 0.3,
+                 leaf: Any = "one", prune: float = 1e-3, max_depth: int = 30, **kw) -> None:
+        """``max_depth``: the deepest level (root = 0) whose nodes may be expanded."""
+        super().__init__(model, **kw)
+        self.simulations = int(simulations)
+        self.time_ms = None if time_ms is None else float(time_ms)
+        self.c = float(c)
+        self.leaf = load_leaf(leaf)
+        self.prune = float(prune)
+        self.max_depth = int(max_depth)
+        self.sims_done = 0
+
+    def _expand(self, node: _ENode) -> None:
+        ops = self.ops
+        preds = ops.predict_all(node.belief[None])
+        pz = ops.reading_probs(preds)
+        keep = pz > 0
+        if self.prune > 0:
+            keep &= pz >= self.prune * pz.sum(axis=1, keepdims=True)
+        ai, zz = np.nonzero(keep)
+        p = pz[ai, zz]
+        post = ops.posteriors(preds, ai, zz, p)
+        loc = ops.localised(post)
+        vals = np.zeros(len(ai))
+        op = np.flatnonzero(~loc)
+        if len(op):
+            vals[op] = self.leaf(ops, post[op])
+        mass = np.bincount(ai, weights=p, minlength=self.n_actions)
+        node.kids = []
+        q = np.empty(self.n_actions)
+        for a in range(self.n_actions):
+            sel = np.flatnonzero(ai == a)
+            w = p[sel] / mass[a]
+            kids = [None if loc[j] else _ENode(post[j], vals[j]) for j in sel]
+            node.kids.append((w, kids))
+            q[a] = 1.0 + float(w @ vals[sel])
+        node.q = q
+        node.na = np.zeros(self.n_actions)
+        node.value = float(q.min())
+
+    def _q(self, node: _ENode, a: int) -> float:
+        w, kids = node.kids[a]
+        return 1.0 + sum(wi * k.value for wi, k in zip(w, kids) if k is not None)
+
+    def search(self, b: np.ndarray) -> _ENode:
+        root = _ENode(b, 0.0)
+        self._expand(root)
+        deadline = None if self.time_ms is None else time.perf_counter() + self.time_ms / 1000.0
+        sims = 0
+        while True:
+            path = []
+            node = root
+            for depth in range(self.max_depth + 1):
+                if node.kids is None:
+                    self._expand(node)
+                    break
+                if depth == self.max_depth:
+                    break
+                untried = np.flatnonzero(node.na == 0)
+                if len(untried):
+                    a = int(untried[0]) if len(untried) == 1 else int(self.rng.choice(untried))
+                else:
+                    a = self._break_ties(node.q - self.c * np.sqrt(math.log(node.n) / node.na))
+                w, kids = node.kids[a]
+                open_ = [i for i, k in enumerate(kids) if k is not None]
+                path.append((node, a))
+                if not open_:
+                    break
+                pw = w[open_]
+                i = open_[self._sample(pw)]
+                node = kids[i]
+            for nd, a in reversed(path):
+                nd.n += 1
+                nd.na[a] += 1
+                nd.q[a] = self._q(nd, a)
+                nd.value = float(nd.q.min())
+            sims += 1
+            if deadline is not None:
+                if time.perf_counter() >= deadline:
+                    break
+            elif sims >= self.simulations:
+                break
+        self.sims_done += sims
+        return root
+
+    def _sample(self, p: np.ndarray) -> int:
+        return int(min(np.searchsorted(np.cumsum(p), self.rng.random() * p.sum(), side="right"), len(p) - 1))
+
+    def values(self, b: np.ndarray) -> np.ndarray:
+        return self.search(b).q

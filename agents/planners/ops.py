@@ -1,0 +1,117 @@
+"""What the planners need of a model (:class:`BeliefOps`), built once from its public interface
+through the engine; merging equal beliefs; the beliefs after the first reading."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gym_gridloc import engine
+from gym_gridloc.core.model import GridModel
+
+
+def predict_batch(model: GridModel, beliefs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    """``b'_i = T_{a_i}^T b_i`` for ``beliefs`` ``(N, L, H, W)`` and ``actions`` ``(N,)`` (the engine's
+    batched prediction; mass kept, kidnapping mixed in)."""
+    return engine.predict(model, np.ascontiguousarray(beliefs, dtype=np.float64), np.asarray(actions, dtype=np.int64))
+
+
+class BeliefOps:
+    """What the planners need of a model, built once from the public interface."""
+
+    def __init__(self, model, threshold: float = 0.9) -> None:
+        self.model = model
+        self.threshold = float(threshold)
+        self.A = int(model.n_actions)
+        self.Z = int(model.sensor.n_readings)
+        self.shape = tuple(model.belief_shape)  # (L, H, W)
+        L, H, W = self.shape
+        if self.Z * L * H * W > 50_000_000:
+            raise ValueError(f"{model!r}: a (readings x cells) likelihood table of {self.Z} x {L * H * W} is too large")
+        table = engine.likelihoods(model, np.arange(self.Z))
+        lik = np.empty((self.Z, L, H, W))
+        lik[:] = table.reshape(self.Z, -1, H, W)  # broadcast over layers for position sensors
+        self.lik = lik
+        self.lik_flat_t = np.ascontiguousarray(lik.reshape(self.Z, -1).T)  # (LHW, Z)
+        # Sensor entropy at each hidden state (bits), for features.
+        p = lik.reshape(self.Z, -1)
+        self.sensor_entropy = -(p * np.log2(np.where(p > 0, p, 1.0))).sum(axis=0).reshape(L, H, W)
+        free = np.asarray(model.grid.free, dtype=bool)
+        self.free = free
+        self.n_free = int(free.sum())
+
+    # -- basic quantities -------------------------------------------------------------------------
+    def full(self, belief: np.ndarray) -> np.ndarray:
+        b = np.asarray(belief, dtype=np.float64)
+        if b.shape == self.shape:
+            pass
+        elif b.shape == self.shape[1:] and self.shape[0] == 1:
+            b = b[None]
+        else:
+            raise ValueError(f"belief must have shape {self.shape}, got {b.shape} (use wrapper.filter.full_belief)")
+        s = b.sum()
+        if not s > 0:
+            raise ValueError("belief has no mass")
+        return b / s
+
+    @staticmethod
+    def position(beliefs: np.ndarray) -> np.ndarray:
+        """(N, L, H, W) -> (N, H, W)."""
+        return beliefs.sum(axis=1)
+
+    def max_position(self, beliefs: np.ndarray) -> np.ndarray:
+        n = beliefs.shape[0]
+        return self.position(beliefs).reshape(n, -1).max(axis=1)
+
+    def localised(self, beliefs: np.ndarray, slack: float = 0.0) -> np.ndarray:
+        return self.max_position(beliefs) >= self.threshold - slack
+
+    def predict_all(self, beliefs: np.ndarray) -> np.ndarray:
+        """Every action for every belief: (N, L, H, W) -> (N * A, L, H, W), node-major."""
+        n = beliefs.shape[0]
+        return predict_batch(self.model, np.repeat(beliefs, self.A, axis=0), np.tile(np.arange(self.A), n))
+
+    def reading_probs(self, preds: np.ndarray) -> np.ndarray:
+        """P(z) (unnormalised by the predictions' mass) for (M, L, H, W) -> (M, Z)."""
+        return preds.reshape(preds.shape[0], -1) @ self.lik_flat_t
+
+    def posteriors(self, preds: np.ndarray, idx: np.ndarray, z: np.ndarray, pz: np.ndarray) -> np.ndarray:
+        return preds[idx] * self.lik[z] / pz[:, None, None, None]
+
+    def entropy(self, beliefs: np.ndarray) -> np.ndarray:
+        p = self.position(beliefs).reshape(beliefs.shape[0], -1)
+        return -(p * np.log2(np.where(p > 0, p, 1.0))).sum(axis=1)
+
+
+def _dedupe(beliefs: np.ndarray, decimals: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Unique beliefs and the inverse index.  Two beliefs are merged when their projections on two
+    fixed random directions agree after rounding to ``decimals`` (a hash of the rounded belief;
+    unequal beliefs colliding on both is vanishingly unlikely, and equal ones always merge unless
+    a projection falls on a rounding boundary, which only costs a repeated evaluation)."""
+    n = beliefs.shape[0]
+    if n <= 1:
+        return beliefs, np.zeros(n, dtype=np.int64)
+    flat = beliefs.reshape(n, -1)
+    proj = _projections(flat.shape[1])
+    keys = np.round(flat @ proj, decimals) + 0.0  # (n, 2)
+    _, first, inv = np.unique(keys[:, 0] * np.pi + keys[:, 1], return_index=True, return_inverse=True)
+    return beliefs[first], inv.reshape(-1)
+
+
+_PROJ: dict = {}
+
+
+def _projections(d: int) -> np.ndarray:
+    p = _PROJ.get(d)
+    if p is None:
+        p = _PROJ[d] = np.random.default_rng(12345).uniform(0.5, 1.5, (d, 2))
+    return p
+
+
+def initial_beliefs(ops: BeliefOps) -> tuple[np.ndarray, np.ndarray]:
+    """The beliefs after the first reading from the uniform prior, and the readings' probabilities."""
+    free = np.broadcast_to(ops.free, ops.shape).astype(np.float64)
+    prior = free / free.sum()
+    pz = ops.reading_probs(prior[None])[0]
+    zs = np.flatnonzero(pz > 0)
+    posts = prior[None] * ops.lik[zs] / pz[zs, None, None, None]
+    return posts, pz[zs]
