@@ -31,6 +31,21 @@ def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, err
         raise error(f"{what}: {env_id} is not a gym_gridloc environment (allowed: {', '.join(gym_gridloc.ENV_IDS)})")
 
 
+def default_kwargs(env_id: str) -> dict[str, Any]:
+    """The keyword arguments a gym_gridloc environment is built with when none are given: its
+    class's defaults, then its registration's (empty for another package's environment)."""
+    import inspect
+
+    from gymnasium.envs.registration import load_env_creator
+
+    entry = gym.registry[env_id].entry_point
+    if not isinstance(entry, str) or not entry.startswith("gym_gridloc."):
+        return {}
+    params = inspect.signature(load_env_creator(entry)).parameters.values()
+    out = {p.name: p.default for p in params if p.default is not p.empty and p.name != "render_mode"}
+    return {**out, **dict(gym.registry[env_id].kwargs or {})}
+
+
 def _keywords(env_id: str) -> set[str]:
     """The keyword arguments a gym_gridloc environment's class takes (empty: not one of ours, or
     it takes ``**kwargs``)."""

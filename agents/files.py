@@ -187,7 +187,8 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
         raise ValueError(f"{path} holds a {meta['algo']} model, not {algo}")
     if env_id is not None and meta.get("env_id") not in (None, env_id):
         raise ValueError(f"{path} was trained for {meta['env_id']}, not {env_id}; train one for {env_id} or pick its model")
-    if env_kwargs is not None and "env_kwargs" in meta and _canonical(meta["env_kwargs"]) != _canonical(env_kwargs):
+    if (env_kwargs is not None and "env_kwargs" in meta
+            and model_kwargs(meta.get("env_id") or env_id, meta["env_kwargs"]) != model_kwargs(meta.get("env_id") or env_id, env_kwargs)):
         raise ValueError(
             f"{path} was trained for {meta.get('env_id', 'its environment')} with env_kwargs {meta['env_kwargs']}, "
             f"not {dict(env_kwargs)}: pass the same keyword arguments, or a model trained for these "
@@ -240,6 +241,19 @@ def expand_models(items: Sequence[str | Path]) -> list[Path]:
             raise ValueError(f"--ppo-model: {m} is given twice (each model is one seed)")
         seen.add(m.resolve())
     return models
+
+
+def model_kwargs(env_id: str | None, kwargs: dict) -> str:
+    """The keyword arguments that define ``env_id``'s model, in one comparable form: the
+    environment's defaults filled in (so ``{}`` and ``{"size": 7}`` are the same DepthMaze-v0),
+    :data:`EPISODE_KWARGS` left out."""
+    import gymnasium as gym
+
+    import gym_gridloc  # noqa: F401 - registers the environments
+    from gym_gridloc_agents.envs import default_kwargs
+
+    defaults = default_kwargs(env_id) if env_id in gym.registry else {}
+    return _canonical({**defaults, **dict(kwargs)})
 
 
 def _canonical(kwargs: dict) -> str:

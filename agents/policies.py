@@ -214,21 +214,26 @@ class RecurrentPolicy(PPOPolicy):
 
 def default_model_path(env_id: str, algo: str = "ppo", env_kwargs: dict[str, Any] | None = None) -> Path:
     """The shipped model file for ``env_id``, ``algo`` (``ppo`` or ``recurrent_ppo``) and the
-    environment's keyword arguments: the model in :data:`POLICY_DIR` whose metadata names them
-    (episode keywords such as ``episode_length`` may differ); ``<env_id>.zip`` (or
-    ``-recurrent.zip``) for the default environment."""
-    suffix = "" if algo == "ppo" else "-recurrent"
-    if env_kwargs:
-        from gym_gridloc_agents.files import _canonical, read_metadata
+    environment's keyword arguments: ``<env_id>.zip`` (or ``-recurrent.zip``) when it was trained
+    for them, else the model in :data:`POLICY_DIR` whose metadata names them (defaults filled in,
+    so ``DepthMaze-v0`` with no keywords finds the model trained with ``size=7``; episode keywords
+    such as ``episode_length`` may differ)."""
+    from gym_gridloc_agents.files import model_kwargs, read_metadata
 
-        want = _canonical(env_kwargs)
-        for meta_path in sorted(POLICY_DIR.glob(f"{env_id}*.json")):
-            meta = read_metadata(meta_path.with_suffix(".zip"))
-            if meta.get("env_id") == env_id and meta.get("algo") == algo and _canonical(meta.get("env_kwargs", {})) == want:
-                return meta_path.with_suffix(".zip")
-        raise FileNotFoundError(f"no shipped {algo} model for {env_id} with {dict(env_kwargs)} in {POLICY_DIR}; "
-                                "train one (gridloc train CONFIG) and pass --ppo-model PATH")
-    return POLICY_DIR / f"{env_id}{suffix}.zip"
+    suffix = "" if algo == "ppo" else "-recurrent"
+    plain = POLICY_DIR / f"{env_id}{suffix}.zip"
+    want = model_kwargs(env_id, env_kwargs or {})
+    candidates = [plain] + [p.with_suffix(".zip") for p in sorted(POLICY_DIR.glob(f"{env_id}*.json")) if p.with_suffix(".zip") != plain]
+    for path in candidates:
+        if not path.with_suffix(".json").is_file():
+            continue
+        meta = read_metadata(path)
+        if meta.get("env_id") == env_id and meta.get("algo") == algo and model_kwargs(env_id, meta.get("env_kwargs", {})) == want:
+            return path
+    if not env_kwargs:
+        return plain  # (missing: the caller's load says how to make it)
+    raise FileNotFoundError(f"no shipped {algo} model for {env_id} with {dict(env_kwargs)} in {POLICY_DIR}; "
+                            "train one (gridloc train CONFIG) and pass --ppo-model PATH")
 
 
 def make_policy(

@@ -193,6 +193,21 @@ def test_ppo_for_another_environment_fails_clearly(tmp_path):
         PPOPolicy(colour, path=junk)
 
 
+def test_models_are_matched_by_the_environment_their_keywords_build():
+    # DepthMaze-v0 without keywords is the 7x7 maze: the model trained with size=7 is its default;
+    # episode keywords (episode_length, reward) may differ
+    assert default_model_path("DepthMaze-v0").name == "DepthMaze-v0-size7.zip"
+    assert default_model_path("DepthMaze-v0", env_kwargs={"size": 7, "episode_length": 30}).name == "DepthMaze-v0-size7.zip"
+    with pytest.raises(FileNotFoundError, match=r"no shipped ppo model for DepthMaze-v0 with \{'size': 11\}"):
+        default_model_path("DepthMaze-v0", env_kwargs={"size": 11})
+    assert default_model_path("WindyMaze-v0", env_kwargs={"drift": 0.1}).name == "WindyMaze-v0.zip"  # the default drift
+    # a model for other keywords is refused, naming them
+    model = gym_gridloc.windy_maze_model(drift=0.2)
+    with pytest.raises(ValueError, match=r"trained for WindyMaze-v0 with env_kwargs \{\}, not \{'drift': 0.2\}"):
+        PPOPolicy(model, env_id="WindyMaze-v0", env_kwargs={"drift": 0.2}, path=default_model_path("WindyMaze-v0"))
+    PPOPolicy(gym_gridloc.windy_maze_model(), env_id="WindyMaze-v0", env_kwargs={"drift": 0.1})
+
+
 def test_ppo_encoding_matches_the_wrapper():
     env = gym_gridloc.HMMBeliefWrapper(gym.make("ColourGrid-v0"), flatten=True)
     inner = env.env
