@@ -65,6 +65,8 @@ PRETRAIN_KEYS = {
     "dagger_rounds": "DAgger rounds after the cloning (0: none): the student plays, the expert labels",
     "dagger_episodes": "episodes the student plays per DAgger round",
     "dagger_epochs": "passes over all the data after each DAgger round (default: epochs)",
+    "episode_batches": "true: minibatches of whole episodes (the episodes are shuffled, not the samples), so that a "
+                       "batch holds few maps (faster for pose_pool_cnn, which convolves each map once); default false",
 }
 
 WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool}
@@ -294,9 +296,11 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             raise ConfigError(f"{source}: pretrain.expert_kwargs must map names to numbers, strings or booleans, got {ek!r}")
         pre["dagger_rounds"] = _num(source, "pretrain.dagger_rounds", pre.get("dagger_rounds", 0), integer=True, minimum=0)
         pre["dagger_episodes"] = _num(source, "pretrain.dagger_episodes", pre.get("dagger_episodes", 200), integer=True, minimum=1)
+        pre["epochs"] = _num(source, "pretrain.epochs", pre.get("epochs", 10), integer=True, minimum=1)
         pre["dagger_epochs"] = _num(source, "pretrain.dagger_epochs", pre.get("dagger_epochs", pre["epochs"]), integer=True, minimum=1)
         pre["episodes"] = _num(source, "pretrain.episodes", pre.get("episodes", 1000), integer=True, minimum=1)
-        pre["epochs"] = _num(source, "pretrain.epochs", pre.get("epochs", 10), integer=True, minimum=1)
         pre["batch_size"] = _num(source, "pretrain.batch_size", pre.get("batch_size", 256), integer=True, minimum=1)
         pre["learning_rate"] = _num(source, "pretrain.learning_rate", pre.get("learning_rate", 1e-3), integer=False, minimum=0)
+        if not isinstance(pre.setdefault("episode_batches", False), bool):
+            raise ConfigError(f"{source}: pretrain.episode_batches must be true or false, got {pre['episode_batches']!r}")
     return cfg

@@ -6,11 +6,20 @@ stable-baselines3's ``NatureCNN`` needs images of at least 36 x 36; the maps her
 few 3 x 3 convolutions that keep the size (padding 1), flattens, and appends the reading
 (stable-baselines3 one-hot encodes a ``Discrete`` reading before it gets here).
 
-Configs name it (never evaluate it): ``policy_kwargs: {features_extractor: belief_map_cnn,
-features_extractor_kwargs: {channels: 32, layers: 3, features: 256}}``.
+The flattened image and its linear layer tie every feature to one place of the map.
+:class:`PosePoolCNN` (for DepthMaze's pose beliefs) does not: it computes egocentric features of
+every pose from the maze alone (turned per heading, depths included, receptive field the whole
+maze) and pools them over the poses the belief holds, so what it learns on one part of one maze
+applies anywhere on any maze (on 15 x 15 random mazes, accuracy 0.95-0.97 at 20 steps on the
+validation mazes after cloning the optimal policy, where BeliefMapCNN reached 0.61).
+
+Configs name them (never evaluate them): ``policy_kwargs: {features_extractor: belief_map_cnn,
+features_extractor_kwargs: {channels: 32, layers: 3, features: 256}}`` (or ``pose_pool_cnn``).
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 from gymnasium import spaces
@@ -51,5 +60,91 @@ class BeliefMapCNN(BaseFeaturesExtractor):
         return torch.cat([self.cnn(image), obs["observation"].flatten(1)], dim=1)
 
 
+# -- pooling over the belief's poses -------------------------------------------------------------
+def _shifted(x: torch.Tensor, dy: int, dx: int) -> torch.Tensor:
+    """``out[..., y, x] = x[..., y + dy, x + dx]``, zero outside the grid (outside is a wall)."""
+    h, w = x.shape[-2:]
+    pad = torch.nn.functional.pad(x, (max(-dx, 0), max(dx, 0), max(-dy, 0), max(dy, 0)))
+    y0, x0 = max(dy, 0), max(dx, 0)
+    return pad[..., y0 : y0 + h, x0 : x0 + w]
+
+
+def depth_channels(free: torch.Tensor) -> torch.Tensor:
+    """The depth each cell reads facing N, E, S, W: ``(N, 1, H, W)`` free cells -> ``(N, 4, H, W)``,
+    ``1 +`` the free cells in a row before the first wall (0 on walls), as DepthMaze reads it."""
+    out = []
+    for dy, dx in ((-1, 0), (0, 1), (1, 0), (0, -1)):
+        run, depth = free, free.clone()
+        for k in range(1, max(free.shape[-2:])):
+            run = run * _shifted(free, k * dy, k * dx)
+            depth = depth + run
+        out.append(depth)
+    return torch.cat(out, dim=1)
+
+
+class PosePoolCNN(BaseFeaturesExtractor):
+    """Egocentric map features of every pose, averaged (and max-pooled) over the belief's poses.
+
+    For heading h the maze is turned so that h points up and a convolution stack (shared by the
+    four headings; dilations 1, 2, 4, ... cycled, residual) computes per-cell features in the
+    robot's own frame from the free cells and the depths ahead, right, behind and left.  Pose
+    (h, cell) gets the features of its cell in the turn of h.  The features are pooled with the
+    belief as weights (the hypotheses' mean) and by a max over the belief's support; with the
+    support's log-size and the reading they go through a linear layer.  The maze's features do
+    not depend on the belief: the maps of a batch are convolved once each (a batch of one
+    episode's steps shares one maze).  Square maps only (``full_state`` belief + ``map``).
+
+    Parameters: ``channels`` (32), ``layers`` (6), ``features`` out (256), ``max_dilation`` (8).
+    """
+
+    def __init__(self, observation_space: spaces.Dict, channels: int = 32, layers: int = 6, features: int = 256,
+                 max_dilation: int = 8) -> None:
+        for key in ("observation", "belief", "map"):
+            if key not in observation_space.spaces:
+                raise ValueError(f"PosePoolCNN reads Dict observations with 'observation', 'belief' and 'map'; got {observation_space}")
+        belief = observation_space["belief"].shape
+        if len(belief) != 3 or belief[0] != 4 or belief[1] != belief[2]:
+            raise ValueError(f"PosePoolCNN needs a square pose belief (4, N, N) (full_state=True, four headings); got {belief}")
+        reading = get_flattened_obs_dim(observation_space["observation"])
+        super().__init__(observation_space, features_dim=features + reading)
+        self.first = nn.Conv2d(5, channels, 3, padding=1)
+        dilations, d = [], 1
+        for _ in range(layers - 1):
+            dilations.append(d)
+            d = 1 if d * 2 > max_dilation else d * 2
+        self.convs = nn.ModuleList(nn.Conv2d(channels, channels, 3, padding=k, dilation=k) for k in dilations)
+        self.head = nn.Sequential(nn.Linear(2 * channels + 1, features), nn.ReLU())
+        self.n_states = 4 * belief[1] * belief[2]
+
+    def pose_features(self, free: torch.Tensor) -> torch.Tensor:
+        """``(M, 1, H, W)`` mazes -> ``(M, 4, C, H, W)`` features of every pose."""
+        depth = depth_channels(free) / max(free.shape[-1] - 2, 1)
+        turned = torch.cat([torch.rot90(torch.cat([free, depth[:, [h, (h + 1) % 4, (h + 2) % 4, (h + 3) % 4]]], dim=1),
+                                        h, dims=(2, 3)) for h in range(4)])
+        x = torch.relu(self.first(turned))
+        for conv in self.convs:
+            x = x + torch.relu(conv(x))
+        m = free.shape[0]
+        return torch.stack([torch.rot90(x[h * m : (h + 1) * m], -h, dims=(2, 3)) for h in range(4)], dim=1)
+
+    def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        belief, free = obs["belief"], obs["map"][:, :1]
+        mazes, which = torch.unique(free.flatten(1), dim=0, return_inverse=True)
+        feats = self.pose_features(mazes.view(-1, *free.shape[1:]))  # (M, 4, C, H, W)
+        m, _, c = feats.shape[:3]
+        feats = feats.permute(0, 1, 3, 4, 2).reshape(m, -1, c)  # (M, poses, C)
+        b = belief.flatten(1)
+        support = (b >= 0.01 * b.amax(dim=1, keepdim=True)).to(b.dtype)
+        mean, top = [], []
+        order = torch.argsort(which)
+        for k in range(m):  # the samples of each maze, pooled over its poses' features
+            rows = order[which[order] == k]
+            mean.append(b[rows] @ feats[k])
+            top.append((support[rows].unsqueeze(2) * feats[k]).amax(dim=1))
+        pooled = torch.cat([torch.cat(mean), torch.cat(top)], dim=1)[torch.argsort(order)]
+        size = torch.log(support.sum(dim=1, keepdim=True).clamp(min=1)) / math.log(self.n_states)
+        return torch.cat([self.head(torch.cat([pooled, size], dim=1)), obs["observation"].flatten(1)], dim=1)
+
+
 #: Features extractors a config may name.
-EXTRACTORS = {"belief_map_cnn": BeliefMapCNN}
+EXTRACTORS = {"belief_map_cnn": BeliefMapCNN, "pose_pool_cnn": PosePoolCNN}

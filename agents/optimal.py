@@ -67,8 +67,7 @@ class BeliefSetSearch:
 
     def bound(self, B: np.ndarray, r: int) -> int:
         """How many states of B could at best be isolated within r steps."""
-        _, counts = np.unique(self._classes(r)[B], return_counts=True)
-        return int((counts == 1).sum())
+        return int(np.count_nonzero(np.bincount(self._classes(r)[B]) == 1))
 
     def value(self, B: tuple[int, ...], r: int) -> int:
         if len(B) == 1:
@@ -92,7 +91,10 @@ class BeliefSetSearch:
         """States of B isolated within r steps when the first action is ``a`` (then optimally)."""
         nxt = self.next[a][B]
         z = self.reading[nxt]
-        return sum(self.value(tuple(np.sort(nxt[z == zz]).tolist()), r - 1) for zz in np.unique(z))
+        order = np.lexsort((nxt, z))  # by reading, then by state: each reading's successors, sorted
+        nxt, z = nxt[order].tolist(), z[order]
+        cuts = [0, *(np.flatnonzero(z[1:] != z[:-1]) + 1).tolist(), len(nxt)]
+        return sum(self.value(tuple(nxt[i:j]), r - 1) for i, j in zip(cuts[:-1], cuts[1:]))
 
     def best_actions(self, B: np.ndarray, r: int) -> np.ndarray:
         """The actions optimal within r steps, narrowed by optimality within r-1, r-2, ... steps."""

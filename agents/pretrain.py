@@ -233,6 +233,18 @@ def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = 
 
 
 # -- fitting ---------------------------------------------------------------------------------------
+def _epoch_order(n: int, lengths, gen):
+    """The samples' order for one epoch: shuffled, or (``lengths``: the episodes' sample counts, in
+    order) whole episodes shuffled, so that a minibatch holds the steps of a few episodes."""
+    import torch
+
+    if lengths is None:
+        return torch.randperm(n, generator=gen)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    episodes = torch.randperm(len(lengths), generator=gen).numpy()
+    return torch.from_numpy(np.concatenate([np.arange(starts[e], starts[e] + lengths[e]) for e in episodes]))
+
+
 def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, progress: bool, label: str) -> int:
     """Fit the actor to the expert's action distributions (cross-entropy) and the critic to the
     returns for ``epochs`` (a range: the
@@ -249,13 +261,14 @@ def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, pro
     optimiser = torch.optim.Adam(policy.parameters(), lr=pre["learning_rate"])
     gen = torch.Generator().manual_seed(int(cfg["seed"]))
     n = len(targets)
+    lengths = data["sizes"] if pre.get("episode_batches") else None
     for _ in range(epochs.start):
-        torch.randperm(n, generator=gen)
+        _epoch_order(n, lengths, gen)
     policy.set_training_mode(True)
     done = epochs.start
     try:
         for _ in tqdm(epochs, desc=label, disable=not progress, leave=False, initial=epochs.start, total=epochs.stop):
-            order = torch.randperm(n, generator=gen)
+            order = _epoch_order(n, lengths, gen)
             for k in range(0, n, pre["batch_size"]):
                 idx = order[k : k + pre["batch_size"]]
                 batch = {key: v[idx] for key, v in obs.items()} if isinstance(obs, dict) else obs[idx]
@@ -287,7 +300,8 @@ def _agreement(model, data: dict[str, Any]) -> float:
 
 def _merge(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     return {"obs": _concat([e["obs"] for e in episodes]), "targets": np.concatenate([e["targets"] for e in episodes]),
-            "returns": np.concatenate([e["returns"] for e in episodes]), "lengths": np.asarray([e["length"] for e in episodes])}
+            "returns": np.concatenate([e["returns"] for e in episodes]), "lengths": np.asarray([e["length"] for e in episodes]),
+            "sizes": np.asarray([len(e["targets"]) for e in episodes])}
 
 
 def behaviour_cloning(model, cfg: dict[str, Any], progress: bool = True, *, cache: Path | None = None,

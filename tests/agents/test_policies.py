@@ -171,6 +171,29 @@ def test_shipped_models_have_metadata():
             assert path.stat().st_size < 2_000_000
 
 
+@pytest.mark.parametrize("size", [7, 15])
+def test_shipped_depthmaze_models_are_found_by_size_and_act(size):
+    import json
+
+    from gym_gridloc.maps import test_set
+
+    path = default_model_path("DepthMaze-v0", "ppo", {"size": size})
+    assert path.name == f"DepthMaze-v0-size{size}.zip" and path.stat().st_size < 2_000_000
+    m = json.loads(path.with_suffix(".json").read_text())
+    assert m["env_id"] == "DepthMaze-v0" and m["algo"] == "ppo" and m["env_kwargs"]["size"] == size
+    assert m["num_timesteps"] >= m["total_timesteps"]
+    assert {"config", "seed", "versions", "wall_time_seconds", "evaluations"} <= set(m)
+    held = test_set("DepthMaze-v0", size, 1)[0]
+    env = gym_gridloc.HMMBeliefWrapper(gym.make("DepthMaze-v0", size=size, episode_length=4), full_state=True)
+    obs, _ = env.reset(seed=0, options={"map": held.grid, "state": held.state})
+    policy = make_policy("ppo", env.unwrapped.model, env_id="DepthMaze-v0", env_kwargs={"size": size})
+    policy.reset(seed=0, model=env.unwrapped.model)
+    for _ in range(4):
+        action = policy.act(obs["observation"], env.filter.full_belief)
+        assert env.action_space.contains(action)
+        obs, *_ = env.step(action)
+
+
 def test_ppo_for_another_environment_fails_clearly(tmp_path):
     colour = gym_gridloc.colour_grid_model()
     # By metadata: the shipped WindyMaze model named for ColourGrid.

@@ -1,0 +1,120 @@
+"""Features extractors: the depths they compute are the sensor's, pooling over poses turns with the
+maze, a batch of mixed mazes gives what each sample gives alone, and configs name them."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+
+import gym_gridloc
+from gym_gridloc import engine
+from gym_gridloc_agents.config import ConfigError, validate_config
+from gym_gridloc_agents.features import EXTRACTORS, BeliefMapCNN, PosePoolCNN, depth_channels
+
+
+def _maze(size: int, seed: int):
+    env = gym.make("DepthMaze-v0", size=size, map_seed=seed)
+    return env.unwrapped.model
+
+
+def _space(n: int, belief=(4,), reading: int = 14) -> spaces.Dict:
+    return spaces.Dict({"observation": spaces.Box(0, 1, (reading,)), "belief": spaces.Box(0, 1, (*belief, n, n)),
+                        "map": spaces.Box(0, 1, (1, n, n))})
+
+
+@pytest.mark.parametrize("size,seed", [(7, 0), (9, 3), (15, 5)])
+def test_depth_channels_are_the_readings_of_every_pose(size, seed):
+    model = _maze(size, seed)
+    free = torch.tensor(model.grid.free, dtype=torch.float32)[None, None]
+    depth = depth_channels(free)[0].numpy()
+    states = engine.states_of(model, np.arange(model.n_states))
+    for i, (h, r, c) in enumerate(states):
+        assert depth[h, r, c] == model.likelihood_vector(int(depth[h, r, c]))[i] * depth[h, r, c] > 0
+    assert np.all(depth[:, ~model.grid.free] == 0)
+
+
+def _observation(model, belief):
+    free = torch.tensor(model.grid.free, dtype=torch.float32)[None, None]
+    return {"observation": torch.zeros(1, 14), "belief": belief, "map": free}
+
+
+def _random_belief(model, seed):
+    g = torch.Generator().manual_seed(seed)
+    free = torch.tensor(model.grid.free, dtype=torch.float32)
+    b = torch.rand(1, 4, *free.shape, generator=g) * free
+    b[b < 0.6] = 0
+    return b / b.sum()
+
+
+def test_pose_pooling_turns_with_the_maze_and_batches_mixed_mazes():
+    torch.manual_seed(0)
+    net = PosePoolCNN(_space(9), channels=8, layers=3, features=16)
+    model = _maze(9, 1)
+    obs = _observation(model, _random_belief(model, 1))
+    # The maze turned a quarter counterclockwise: heading h becomes h - 1 (east points north).
+    turned = {"observation": obs["observation"], "map": torch.rot90(obs["map"], 1, dims=(2, 3)),
+              "belief": torch.stack([torch.rot90(obs["belief"][0, (h + 1) % 4], 1, dims=(0, 1)) for h in range(4)])[None]}
+    with torch.no_grad():
+        a, b = net(obs), net(turned)
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+        other = _maze(9, 2)
+        third = _observation(other, _random_belief(other, 3))
+        batch = {k: torch.cat([obs[k], third[k], turned[k], obs[k]]) for k in obs}
+        out = net(batch)
+        for row, alone in zip(out, [a, net(third), b, a]):
+            torch.testing.assert_close(row, alone[0], atol=1e-5, rtol=1e-5)
+    assert out.shape == (4, net.features_dim) and net.features_dim == 16 + 14
+    # The belief weighs the poses: another belief on the same maze gives other features.
+    assert not torch.allclose(net(_observation(model, _random_belief(model, 7))), a)
+
+
+def test_pose_pooling_refuses_what_it_cannot_read():
+    with pytest.raises(ValueError, match="'observation', 'belief' and 'map'"):
+        PosePoolCNN(spaces.Dict({"observation": spaces.Box(0, 1, (3,)), "belief": spaces.Box(0, 1, (4, 5, 5))}))
+    with pytest.raises(ValueError, match="square pose belief"):
+        PosePoolCNN(_space(5, belief=(1,)))
+
+
+def test_belief_map_cnn_shapes():
+    net = BeliefMapCNN(_space(7), channels=4, layers=2, features=8)
+    model = _maze(7, 0)
+    assert net(_observation(model, _random_belief(model, 0))).shape == (1, 8 + 14)
+
+
+def _cfg(**policy_kwargs):
+    return {"algo": "ppo", "env_id": "DepthMaze-v0", "env_kwargs": {"size": 7, "episode_length": 5},
+            "wrapper": {"belief": True, "flatten": False, "full_state": True, "map": True}, "total_timesteps": 64,
+            "policy_kwargs": policy_kwargs, "output": "x.zip",
+            "pretrain": {"expert": "optimal", "episodes": 2, "episode_batches": True}}
+
+
+def test_configs_name_the_extractors():
+    assert set(EXTRACTORS) == {"belief_map_cnn", "pose_pool_cnn"}
+    cfg = validate_config(_cfg(features_extractor="pose_pool_cnn", features_extractor_kwargs={"channels": 8, "max_dilation": 4}))
+    assert cfg["pretrain"]["episode_batches"] is True
+    with pytest.raises(ConfigError, match="features_extractor must be one of belief_map_cnn, pose_pool_cnn"):
+        validate_config(_cfg(features_extractor="pose_pool"))
+    bad = _cfg(features_extractor="pose_pool_cnn")
+    bad["pretrain"]["episode_batches"] = "yes"
+    with pytest.raises(ConfigError, match="pretrain.episode_batches must be true or false"):
+        validate_config(bad)
+
+
+def test_episode_batches_shuffle_whole_episodes():
+    from gym_gridloc_agents.pretrain import _epoch_order
+
+    sizes = np.array([3, 1, 4, 2])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    order = _epoch_order(int(sizes.sum()), sizes, torch.Generator().manual_seed(0)).numpy()
+    assert sorted(order.tolist()) == list(range(10))
+    pieces, k = [], 0
+    while k < len(order):  # the order is a sequence of whole episodes, each in its own order
+        e = int(np.searchsorted(starts, order[k], side="right") - 1)
+        assert order[k : k + sizes[e]].tolist() == list(range(starts[e], starts[e] + sizes[e]))
+        pieces.append(e)
+        k += sizes[e]
+    assert sorted(pieces) == [0, 1, 2, 3]
+    assert len(_epoch_order(10, None, torch.Generator().manual_seed(0))) == 10
