@@ -230,13 +230,19 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
 
         if pk["features_extractor"] not in EXTRACTORS:
             raise ConfigError(f"{source}: policy_kwargs.features_extractor must be one of {', '.join(EXTRACTORS)}, got {pk['features_extractor']!r}")
-        if cfg["policy"] != POLICIES[algo][1]:
-            raise ConfigError(f"{source}: policy_kwargs.features_extractor reads Dict observations: use policy {POLICIES[algo][1]} (wrapper.flatten: false)")
+        if EXTRACTORS[pk["features_extractor"]].dict_observations and cfg["policy"] != POLICIES[algo][1]:
+            raise ConfigError(f"{source}: policy_kwargs.features_extractor {pk['features_extractor']} reads Dict observations: use policy {POLICIES[algo][1]} (wrapper.flatten: false)")
+        if not EXTRACTORS[pk["features_extractor"]].dict_observations and cfg["policy"] != POLICIES[algo][0]:
+            raise ConfigError(f"{source}: policy_kwargs.features_extractor {pk['features_extractor']} reads flat observations: use policy {POLICIES[algo][0]} (wrapper.flatten: true)")
     fek = pk.get("features_extractor_kwargs", {})
     if not isinstance(fek, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v > 0 for k, v in fek.items()):
         raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs must map names to positive integers, got {fek!r}")
     if fek and "features_extractor" not in pk:
         raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs needs policy_kwargs.features_extractor")
+    if fek:
+        names = [k for k in inspect.signature(EXTRACTORS[pk["features_extractor"]]).parameters if k != "observation_space"]
+        if set(fek) - set(names):
+            raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs for {pk['features_extractor']} takes {', '.join(names)}, got {', '.join(sorted(fek))}")
     if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
         raise ConfigError(f"{source}: policy_kwargs.activation_fn must be one of {', '.join(ACTIVATIONS)}, got {pk['activation_fn']!r}")
     if "net_arch" in pk:
