@@ -65,6 +65,9 @@ PRETRAIN_KEYS = {
     "dagger_rounds": "DAgger rounds after the cloning (0: none): the student plays, the expert labels",
     "dagger_episodes": "episodes the student plays per DAgger round",
     "dagger_epochs": "passes over all the data after each DAgger round (default: epochs)",
+    "temperature": "0 (default): imitate the expert's tied best actions; > 0 (planner experts): "
+                   "softmax(-(Q - min Q) / temperature) of its action values Q",
+    "learning_rate_final": "if set, each fit lowers the learning rate along a cosine to this",
 }
 
 WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool}
@@ -305,4 +308,10 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         pre["epochs"] = _num(source, "pretrain.epochs", pre.get("epochs", 10), integer=True, minimum=1)
         pre["batch_size"] = _num(source, "pretrain.batch_size", pre.get("batch_size", 256), integer=True, minimum=1)
         pre["learning_rate"] = _num(source, "pretrain.learning_rate", pre.get("learning_rate", 1e-3), integer=False, minimum=0)
+        pre["temperature"] = _num(source, "pretrain.temperature", pre.get("temperature", 0.0), integer=False, minimum=0)
+        if pre["temperature"] > 0 and pre["expert"] not in ("central", "expectimax", "mcts"):
+            raise ConfigError(f"{source}: pretrain.temperature needs a planner's action values: expert central, expectimax or mcts, not {pre['expert']!r}")
+        if pre.get("learning_rate_final") is not None:
+            pre["learning_rate_final"] = _num(source, "pretrain.learning_rate_final", pre["learning_rate_final"], integer=False,
+                                              minimum=0, maximum=pre["learning_rate"])
     return cfg
