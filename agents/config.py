@@ -67,6 +67,9 @@ PRETRAIN_KEYS = {
     "dagger_epochs": "passes over all the data after each DAgger round (default: epochs)",
     "episode_batches": "true: minibatches of whole episodes (the episodes are shuffled, not the samples), so that a "
                        "batch holds few maps (faster for pose_pool_cnn, which convolves each map once); default false",
+    "temperature": "0 (default): imitate the expert's tied best actions; > 0 (planner experts): "
+                   "softmax(-(Q - min Q) / temperature) of its action values Q",
+    "learning_rate_final": "if set, each fit lowers the learning rate along a cosine to this",
 }
 
 WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool}
@@ -232,13 +235,19 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
 
         if pk["features_extractor"] not in EXTRACTORS:
             raise ConfigError(f"{source}: policy_kwargs.features_extractor must be one of {', '.join(EXTRACTORS)}, got {pk['features_extractor']!r}")
-        if cfg["policy"] != POLICIES[algo][1]:
-            raise ConfigError(f"{source}: policy_kwargs.features_extractor reads Dict observations: use policy {POLICIES[algo][1]} (wrapper.flatten: false)")
+        if EXTRACTORS[pk["features_extractor"]].dict_observations and cfg["policy"] != POLICIES[algo][1]:
+            raise ConfigError(f"{source}: policy_kwargs.features_extractor {pk['features_extractor']} reads Dict observations: use policy {POLICIES[algo][1]} (wrapper.flatten: false)")
+        if not EXTRACTORS[pk["features_extractor"]].dict_observations and cfg["policy"] != POLICIES[algo][0]:
+            raise ConfigError(f"{source}: policy_kwargs.features_extractor {pk['features_extractor']} reads flat observations: use policy {POLICIES[algo][0]} (wrapper.flatten: true)")
     fek = pk.get("features_extractor_kwargs", {})
     if not isinstance(fek, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v > 0 for k, v in fek.items()):
         raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs must map names to positive integers, got {fek!r}")
     if fek and "features_extractor" not in pk:
         raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs needs policy_kwargs.features_extractor")
+    if fek:
+        names = [k for k in inspect.signature(EXTRACTORS[pk["features_extractor"]]).parameters if k != "observation_space"]
+        if set(fek) - set(names):
+            raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs for {pk['features_extractor']} takes {', '.join(names)}, got {', '.join(sorted(fek))}")
     if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
         raise ConfigError(f"{source}: policy_kwargs.activation_fn must be one of {', '.join(ACTIVATIONS)}, got {pk['activation_fn']!r}")
     if "net_arch" in pk:
@@ -303,4 +312,10 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         pre["learning_rate"] = _num(source, "pretrain.learning_rate", pre.get("learning_rate", 1e-3), integer=False, minimum=0)
         if not isinstance(pre.setdefault("episode_batches", False), bool):
             raise ConfigError(f"{source}: pretrain.episode_batches must be true or false, got {pre['episode_batches']!r}")
+        pre["temperature"] = _num(source, "pretrain.temperature", pre.get("temperature", 0.0), integer=False, minimum=0)
+        if pre["temperature"] > 0 and pre["expert"] not in ("central", "expectimax", "mcts"):
+            raise ConfigError(f"{source}: pretrain.temperature needs a planner's action values: expert central, expectimax or mcts, not {pre['expert']!r}")
+        if pre.get("learning_rate_final") is not None:
+            pre["learning_rate_final"] = _num(source, "pretrain.learning_rate_final", pre["learning_rate_final"], integer=False,
+                                              minimum=0, maximum=pre["learning_rate"])
     return cfg

@@ -1,4 +1,4 @@
-"""Features extractors for stable-baselines3 policies that read the map.
+"""Features extractors for stable-baselines3 policies: over the map (CNNs) and over the flat belief.
 
 stable-baselines3's ``NatureCNN`` needs images of at least 36 x 36; the maps here are 5 x 5 to
 21 x 21.  :class:`BeliefMapCNN` stacks the belief's channels (one per heading with
@@ -15,6 +15,13 @@ validation mazes after cloning the optimal policy, where BeliefMapCNN reached 0.
 
 Configs name them (never evaluate them): ``policy_kwargs: {features_extractor: belief_map_cnn,
 features_extractor_kwargs: {channels: 32, layers: 3, features: 256}}`` (or ``pose_pool_cnn``).
+
+:class:`BeliefLogFeatures` is for flat belief observations (``wrapper.flatten: true``, policy
+``MlpPolicy``): an MLP on raw probabilities hardly tells 1e-4 from 1e-2, yet a planner's choice
+often turns on such small probabilities; it appends ``log(belief + eps)``, scaled to [0, 1], to
+the raw observation (``policy_kwargs: {features_extractor: belief_log,
+features_extractor_kwargs: {readings: 4}}``: the first ``readings`` entries, the encoded sensor
+reading, are passed on raw only).
 """
 
 from __future__ import annotations
@@ -34,6 +41,9 @@ class BeliefMapCNN(BaseFeaturesExtractor):
     Parameters: ``channels`` per convolution (32), ``layers`` of convolution (3), ``features``
     out of the linear layer (256).
     """
+
+    #: Reads Dict observations (``MultiInputPolicy``).
+    dict_observations = True
 
     def __init__(self, observation_space: spaces.Dict, channels: int = 32, layers: int = 3, features: int = 256) -> None:
         for key in ("observation", "belief"):
@@ -97,6 +107,9 @@ class PosePoolCNN(BaseFeaturesExtractor):
     Parameters: ``channels`` (32), ``layers`` (6), ``features`` out (256), ``max_dilation`` (8).
     """
 
+    #: Reads Dict observations (``MultiInputPolicy``).
+    dict_observations = True
+
     def __init__(self, observation_space: spaces.Dict, channels: int = 32, layers: int = 6, features: int = 256,
                  max_dilation: int = 8) -> None:
         for key in ("observation", "belief", "map"):
@@ -146,5 +159,36 @@ class PosePoolCNN(BaseFeaturesExtractor):
         return torch.cat([self.head(torch.cat([pooled, size], dim=1)), obs["observation"].flatten(1)], dim=1)
 
 
+
+class BeliefLogFeatures(BaseFeaturesExtractor):
+    """The flat observation ``[reading, belief]`` followed by ``1 + log(belief + eps) / log(1 / eps)``
+    (0 for a zero probability, 1 for certainty), ``eps = 10 ** -eps_exponent``.
+
+    Parameters: ``readings``, how many leading entries are the encoded reading (no logarithm:
+    the belief follows them; 0 takes the logarithm of every entry), and ``eps_exponent`` (6).
+    """
+
+    #: Reads flat ``Box`` observations (``MlpPolicy``), not Dict ones.
+    dict_observations = False
+
+    def __init__(self, observation_space: spaces.Box, readings: int = 0, eps_exponent: int = 6) -> None:
+        if not isinstance(observation_space, spaces.Box) or len(observation_space.shape) != 1:
+            raise ValueError(f"BeliefLogFeatures reads flat Box observations (wrapper.flatten: true); got {observation_space}")
+        n = observation_space.shape[0]
+        if not 0 <= readings < n:
+            raise ValueError(f"BeliefLogFeatures: readings must be in [0, {n}) for {observation_space}, got {readings}")
+        if eps_exponent < 1:
+            raise ValueError(f"BeliefLogFeatures: eps_exponent must be >= 1, got {eps_exponent}")
+        super().__init__(observation_space, features_dim=2 * n - readings)
+        self.readings = int(readings)
+        self.eps = 10.0 ** -int(eps_exponent)
+        self.scale = 1.0 / (int(eps_exponent) * math.log(10.0))
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        obs = obs.flatten(1).float()
+        logs = 1.0 + torch.log(obs[:, self.readings :].clamp(min=0.0) + self.eps) * self.scale
+        return torch.cat([obs, logs], dim=1)
+
+
 #: Features extractors a config may name.
-EXTRACTORS = {"belief_map_cnn": BeliefMapCNN, "pose_pool_cnn": PosePoolCNN}
+EXTRACTORS = {"belief_map_cnn": BeliefMapCNN, "pose_pool_cnn": PosePoolCNN, "belief_log": BeliefLogFeatures}

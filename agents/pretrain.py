@@ -10,6 +10,12 @@ it would have done in every belief the student reached, adds those labels (and t
 returns) to the data and fits again: the student learns to recover from its own mistakes.  PPO
 then trains on the environment's reward.  Only the PPO policy's weights are changed.
 
+With ``temperature > 0`` (planner experts), the actor imitates ``softmax(-(Q - min Q) /
+temperature)`` of the planner's action values ``Q`` (expected steps to localise) instead of its
+tied best actions: how much worse each other action is, not only which one is best (the values
+are cached with the episodes).  ``learning_rate_final`` lowers the learning rate of every fit
+along a cosine from ``learning_rate`` to it.
+
 Nothing is lost to Ctrl-C: the expert's episodes (and each DAgger round's labels) are kept in
 cache files in the checkpoint directory, and the epochs and rounds already done are counted;
 :class:`WarmStartInterrupted` says how far it got, and a resumed training continues from there.
@@ -20,6 +26,7 @@ are siblings (the seeds of a sweep) share them.
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -71,30 +78,47 @@ def _concat(parts: list[Any]) -> Any:
     return np.concatenate(parts)
 
 
-def _episode_samples(ep, targets: list[np.ndarray], wrapper: dict[str, Any], gamma: float) -> dict[str, Any]:
+def _episode_samples(ep, targets: list[np.ndarray], wrapper: dict[str, Any], gamma: float,
+                     values: list[np.ndarray] | None = None) -> dict[str, Any]:
     """One episode's samples: the observations PPO sees, the expert's action distributions to
-    imitate (one-hot, or even over a planner's tied best actions), the returns."""
+    imitate (one-hot, or even over a planner's tied best actions), the returns, and the
+    planner's action values where they are asked for."""
     from gym_gridloc_agents.policies import wrapped_observation
 
     obs = [wrapped_observation(ep.model, o, b, flatten=wrapper["flatten"], full_state=wrapper["full_state"],
                                map=wrapper["map"]) for o, b in zip(ep.observations, ep.beliefs)]
-    return {"obs": _stack(obs), "targets": np.asarray(targets, dtype=np.float32),
-            "returns": _discounted(ep.rewards, gamma, ep.truncated and not ep.terminated), "length": ep.steps}
+    out = {"obs": _stack(obs), "targets": np.asarray(targets, dtype=np.float32),
+           "returns": _discounted(ep.rewards, gamma, ep.truncated and not ep.terminated), "length": ep.steps}
+    if values is not None:
+        out["values"] = np.asarray(values, dtype=np.float32)
+    return out
+
+
+def _label(expert, observation, belief, values: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """The expert's action distribution here and, with ``values``, a planner's action values."""
+    if not values:
+        return expert.probabilities(observation, belief), None
+    q = np.asarray(expert.values(expert.ops.full(belief)), dtype=np.float64)
+    p = np.zeros(len(q))
+    ties = expert.best(q)
+    p[ties] = 1.0 / len(ties)
+    return p, q
 
 
 class _Recorded:
     """An expert that plays and records its action distribution at every step."""
 
-    def __init__(self, expert) -> None:
-        self.expert, self.targets = expert, []
+    def __init__(self, expert, values: bool = False) -> None:
+        self.expert, self.values, self.targets, self.q = expert, values, [], []
 
     def reset(self, seed=None, model=None) -> None:
         self.expert.reset(seed=seed, model=model)
-        self.targets = []
+        self.targets, self.q = [], []
 
     def act(self, observation, belief) -> int:
-        p = self.expert.probabilities(observation, belief)
+        p, q = _label(self.expert, observation, belief, self.values)
         self.targets.append(p)
+        self.q.append(q)
         return self.expert.choose(p)
 
 
@@ -102,10 +126,15 @@ class _Recorded:
 def _cache_key(cfg: dict[str, Any], what: str) -> str:
     pre = cfg["pretrain"]
     # "labels": the targets are the expert's action distributions (a cache of one-hot indices from
-    # an older version is collected again)
+    # an older version is collected again); "values": the planner's action values are kept too
     return json.dumps({"what": what, "labels": "distribution", "env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"], "wrapper": cfg["wrapper"],
                        "expert": pre["expert"], "expert_kwargs": pre.get("expert_kwargs", {}),
-                       "gamma": float(cfg["hyperparams"].get("gamma", 0.99))}, sort_keys=True, default=str)
+                       "gamma": float(cfg["hyperparams"].get("gamma", 0.99)), **({"values": True} if _wants_values(cfg) else {})},
+                      sort_keys=True, default=str)
+
+
+def _wants_values(cfg: dict[str, Any]) -> bool:
+    return float(cfg["pretrain"].get("temperature", 0.0)) > 0.0
 
 
 def _load_cache(cache: Path | None, key: str) -> list[dict[str, Any]]:
@@ -124,7 +153,7 @@ def _load_cache(cache: Path | None, key: str) -> list[dict[str, Any]]:
         for a, b, n in zip(bounds[:-1], bounds[1:], lengths):
             obs = {k: arrays[f"obs.{k}"][a:b].copy() for k in obs_keys} if obs_keys else arrays["obs"][a:b].copy()
             out.append({"obs": obs, "targets": arrays["targets"][a:b].copy(), "returns": arrays["returns"][a:b].copy(),
-                        "length": int(n)})
+                        "length": int(n), **({"values": arrays["values"][a:b].copy()} if "values" in arrays else {})})
         return out
     except (OSError, KeyError, ValueError):
         return []  # an unreadable cache is collected again
@@ -156,6 +185,8 @@ def _save_cache(cache: Path, key: str, episodes: list[dict[str, Any]]) -> None:
     sizes = [len(e["targets"]) for e in episodes]
     obs = _concat([e["obs"] for e in episodes])
     arrays = {f"obs.{k}": v for k, v in obs.items()} if isinstance(obs, dict) else {"obs": obs}
+    if "values" in episodes[0]:
+        arrays["values"] = np.concatenate([e["values"] for e in episodes])
     with atomic_path(cache) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, key=np.array(key), bounds=np.concatenate([[0], np.cumsum(sizes)]),
                  lengths=np.array([e["length"] for e in episodes]), targets=np.concatenate([e["targets"] for e in episodes]),
@@ -189,12 +220,13 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
         if others and others[0][0] > len(episodes):
             episodes = _load_cache(others[0][1], key)[: pre["episodes"]]
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
-    expert = _Recorded(_expert(cfg, env))
+    expert = _Recorded(_expert(cfg, env), values=_wants_values(cfg))
     try:
         for i in tqdm(range(len(episodes), pre["episodes"]), desc=f"expert {pre['expert']} episodes",
                       disable=not progress, leave=False, initial=len(episodes), total=pre["episodes"]):
             ep = rollout(env, expert, PRETRAIN_SEED_BASE + i, keep=True)
-            episodes.append(_episode_samples(ep, expert.targets, cfg["wrapper"], gamma))
+            episodes.append(_episode_samples(ep, expert.targets, cfg["wrapper"], gamma,
+                                             expert.q if expert.values else None))
     except KeyboardInterrupt:
         if cache is not None:
             _save_cache(cache, key, episodes)
@@ -226,8 +258,9 @@ def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = 
         seed = DAGGER_SEED_BASE + round_index * n + i
         ep = rollout(env, student, seed, keep=True)
         expert.reset(seed=seed, model=ep.model)
-        labels = [expert.probabilities(o, b) for o, b in zip(ep.observations, ep.beliefs)]
-        out.append(_episode_samples(ep, labels, cfg["wrapper"], gamma))
+        labels = [_label(expert, o, b, _wants_values(cfg)) for o, b in zip(ep.observations, ep.beliefs)]
+        out.append(_episode_samples(ep, [p for p, _ in labels], cfg["wrapper"], gamma,
+                                    [q for _, q in labels] if _wants_values(cfg) else None))
     env.close()
     return out
 
@@ -246,8 +279,9 @@ def _epoch_order(n: int, lengths, gen):
 
 
 def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, progress: bool, label: str) -> int:
-    """Fit the actor to the expert's action distributions (cross-entropy) and the critic to the
-    returns for ``epochs`` (a range: the
+    """Fit the actor to the expert's action distributions (cross-entropy; with a ``temperature``,
+    the softmax of the planner's action values) and the critic to the returns for ``epochs`` (a
+    range: the
     shuffles of earlier epochs are drawn first, so a resumed fit continues the same sequence).
     Returns the number of epochs done; Ctrl-C raises :class:`_FitInterrupted` with that number."""
     import torch
@@ -256,9 +290,11 @@ def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, pro
     pre = cfg["pretrain"]
     policy = model.policy
     obs = policy.obs_to_tensor(data["obs"])[0] if isinstance(data["obs"], dict) else torch.as_tensor(data["obs"])
-    targets = torch.as_tensor(data["targets"])
+    targets = torch.as_tensor(soft_targets(data, float(pre.get("temperature", 0.0))))
     returns = torch.as_tensor(data["returns"])
     optimiser = torch.optim.Adam(policy.parameters(), lr=pre["learning_rate"])
+    lr_final = pre.get("learning_rate_final")
+    batches = -(-len(targets) // pre["batch_size"])
     gen = torch.Generator().manual_seed(int(cfg["seed"]))
     n = len(targets)
     lengths = data["sizes"] if pre.get("episode_batches") else None
@@ -267,9 +303,13 @@ def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, pro
     policy.set_training_mode(True)
     done = epochs.start
     try:
-        for _ in tqdm(epochs, desc=label, disable=not progress, leave=False, initial=epochs.start, total=epochs.stop):
+        for epoch in tqdm(epochs, desc=label, disable=not progress, leave=False, initial=epochs.start, total=epochs.stop):
             order = _epoch_order(n, lengths, gen)
-            for k in range(0, n, pre["batch_size"]):
+            for j, k in enumerate(range(0, n, pre["batch_size"])):
+                if lr_final is not None:  # cosine from learning_rate to learning_rate_final over the fit
+                    frac = (epoch * batches + j) / max(1, epochs.stop * batches - 1)
+                    for group in optimiser.param_groups:
+                        group["lr"] = lr_final + 0.5 * (pre["learning_rate"] - lr_final) * (1.0 + math.cos(math.pi * frac))
                 idx = order[k : k + pre["batch_size"]]
                 batch = {key: v[idx] for key, v in obs.items()} if isinstance(obs, dict) else obs[idx]
                 logits = policy.get_distribution(batch).distribution.logits
@@ -287,6 +327,18 @@ def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, pro
     return done
 
 
+def soft_targets(data: dict[str, Any], temperature: float) -> np.ndarray:
+    """The targets to imitate: the expert's action distributions, or with ``temperature > 0``
+    ``softmax(-(Q - min Q) / temperature)`` of the planner's action values ``data["values"]``."""
+    if temperature <= 0.0:
+        return np.asarray(data["targets"], dtype=np.float32)
+    if "values" not in data:
+        raise ValueError("a temperature needs the planner's action values, and these samples have none")
+    z = -(data["values"] - data["values"].min(axis=1, keepdims=True)) / temperature
+    e = np.exp(z - z.max(axis=1, keepdims=True))
+    return (e / e.sum(axis=1, keepdims=True)).astype(np.float32)
+
+
 def _agreement(model, data: dict[str, Any]) -> float:
     """How often the policy's most probable action is one of the expert's."""
     import torch
@@ -299,9 +351,12 @@ def _agreement(model, data: dict[str, Any]) -> float:
 
 
 def _merge(episodes: list[dict[str, Any]]) -> dict[str, Any]:
-    return {"obs": _concat([e["obs"] for e in episodes]), "targets": np.concatenate([e["targets"] for e in episodes]),
-            "returns": np.concatenate([e["returns"] for e in episodes]), "lengths": np.asarray([e["length"] for e in episodes]),
-            "sizes": np.asarray([len(e["targets"]) for e in episodes])}
+    out = {"obs": _concat([e["obs"] for e in episodes]), "targets": np.concatenate([e["targets"] for e in episodes]),
+           "returns": np.concatenate([e["returns"] for e in episodes]), "lengths": np.asarray([e["length"] for e in episodes]),
+           "sizes": np.asarray([len(e["targets"]) for e in episodes])}
+    if episodes and all("values" in e for e in episodes):
+        out["values"] = np.concatenate([e["values"] for e in episodes])
+    return out
 
 
 def behaviour_cloning(model, cfg: dict[str, Any], progress: bool = True, *, cache: Path | None = None,
