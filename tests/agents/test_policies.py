@@ -171,7 +171,7 @@ def test_shipped_models_have_metadata():
             assert path.stat().st_size < 2_000_000
 
 
-@pytest.mark.parametrize("size", [7, 15])
+@pytest.mark.parametrize("size", [7, 15, 21])
 def test_shipped_depthmaze_models_are_found_by_size_and_act(size):
     import json
 
