@@ -86,7 +86,7 @@ def _available_defaults(envs: list[str], policies: list[str], env_kwargs: dict, 
 
 def bench_main(args) -> int:
     """``gridloc bench``: every argument checked before the first episode, then the run and its outputs."""
-    from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, run_benchmark
+    from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, add_gaps, run_benchmark
     from gym_gridloc_agents.envs import check_environment
     from gym_gridloc_agents.files import OutputError, atomic_write_json, expand_models, rescue_write, writable_file
     from gym_gridloc_agents.policies import POLICY_NAMES
@@ -151,8 +151,8 @@ def bench_main(args) -> int:
         return _fail("bench", str(exc))
     for note in notes:  # e.g. a policy that does not apply to an environment: one line each
         print(f"gridloc bench: {note.message}", file=sys.stderr)
-    if args.update:
-        rows = merge_rows(old_rows, rows)
+    if args.update:  # the gaps are recomputed over the merged rows: a planner run earlier still counts
+        rows = add_gaps(merge_rows(old_rows, rows))
     print(markdown_table(rows))
     try:  # the rows are computed: a failing write puts them elsewhere and says where
         if json_path:

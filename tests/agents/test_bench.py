@@ -142,6 +142,16 @@ def test_cli_update_merges_rows(tmp_path, capsys):
     assert [r["policy"] for r in json.loads(js.read_text())] == ["random"]
 
 
+def test_cli_update_recomputes_the_gap_to_a_planner_of_an_earlier_run(tmp_path):
+    js = tmp_path / "b.json"
+    base = ["bench", "--env", "ColourGrid-v0", "--episodes", "3", "--no-progress", "--json", str(js)]
+    assert main([*base, "--policies", "expectimax"]) == 0
+    assert main([*base, "--policies", "random", "--update"]) == 0
+    rows = {r["policy"]: r for r in json.loads(js.read_text())}
+    assert rows["expectimax"]["gap_to_best_planner"] == 1.0
+    assert rows["random"]["gap_to_best_planner"] == rows["random"]["mean_steps"] / rows["expectimax"]["mean_steps"]
+
+
 def test_wilson_interval_matches_known_values():
     from gym_gridloc_agents.stats import wilson_ci95
 
