@@ -10,11 +10,9 @@ it would have done in every belief the student reached, adds those labels (and t
 returns) to the data and fits again: the student learns to recover from its own mistakes.  PPO
 then trains on the environment's reward.  Only the PPO policy's weights are changed.
 
-With ``temperature > 0`` (planner experts), the actor imitates ``softmax(-(Q - min Q) /
-temperature)`` of the planner's action values ``Q`` (expected steps to localise) instead of its
-tied best actions: how much worse each other action is, not only which one is best (the values
-are cached with the episodes).  ``learning_rate_final`` lowers the learning rate of every fit
-along a cosine from ``learning_rate`` to it.
+With ``temperature > 0`` (planner experts) the actor imitates ``softmax(-(Q - min Q) / temperature)``
+of the planner's action values ``Q`` (cached with the episodes), not only its tied best actions;
+``learning_rate_final`` lowers each fit's learning rate along a cosine.
 
 Nothing is lost to Ctrl-C: the expert's episodes (and each DAgger round's labels) are kept in
 cache files in the checkpoint directory, and the epochs and rounds already done are counted;
