@@ -91,7 +91,7 @@ def main(argv=None) -> None:
         from stable_baselines3.common.env_util import make_vec_env
         from stable_baselines3.common.vec_env import DummyVecEnv
 
-        from gym_gridloc.vector import SB3VecEnv
+        from gym_gridloc_agents.envs import SB3VecEnv
 
         torch.set_num_threads(1)
         n = args.ppo_envs

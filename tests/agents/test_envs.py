@@ -57,3 +57,16 @@ def test_make_env_and_check_environment():
         check_environment("WindyMaze-v0", {"slip": 0.1}, what="env", error=ValueError)
     with pytest.raises(ValueError, match=r"does not build with \{'drift': 0.7\}: drift"):
         check_environment("WindyMaze-v0", {"drift": 0.7}, what="env", error=ValueError)
+
+
+def test_bench_vector_script_runs_its_ppo_comparison():
+    """scripts/bench_vector.py end to end on tiny settings: its PPO part builds the SB3 adapter."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "scripts" / "bench_vector.py"
+    out = subprocess.run([sys.executable, str(script), "--num-envs", "2", "--seconds", "0.05", "--ppo-envs", "2",
+                          "--ppo-steps", "128"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "native / sync" in out.stdout and "native / DummyVecEnv" in out.stdout
