@@ -235,10 +235,10 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
 
         if pk["features_extractor"] not in EXTRACTORS:
             raise ConfigError(f"{source}: policy_kwargs.features_extractor must be one of {', '.join(EXTRACTORS)}, got {pk['features_extractor']!r}")
-        if EXTRACTORS[pk["features_extractor"]].dict_observations and cfg["policy"] != POLICIES[algo][1]:
-            raise ConfigError(f"{source}: policy_kwargs.features_extractor {pk['features_extractor']} reads Dict observations: use policy {POLICIES[algo][1]} (wrapper.flatten: false)")
-        if not EXTRACTORS[pk["features_extractor"]].dict_observations and cfg["policy"] != POLICIES[algo][0]:
-            raise ConfigError(f"{source}: policy_kwargs.features_extractor {pk['features_extractor']} reads flat observations: use policy {POLICIES[algo][0]} (wrapper.flatten: true)")
+        reads_dict = EXTRACTORS[pk["features_extractor"]].dict_observations
+        if cfg["policy"] != POLICIES[algo][int(reads_dict)]:  # POLICIES[algo]: (flat policy, Dict policy)
+            raise ConfigError(f"{source}: policy_kwargs.features_extractor {pk['features_extractor']} reads {'Dict' if reads_dict else 'flat'} "
+                              f"observations: use policy {POLICIES[algo][int(reads_dict)]} (wrapper.flatten: {str(not reads_dict).lower()})")
     fek = pk.get("features_extractor_kwargs", {})
     if not isinstance(fek, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v > 0 for k, v in fek.items()):
         raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs must map names to positive integers, got {fek!r}")

@@ -159,7 +159,6 @@ class PosePoolCNN(BaseFeaturesExtractor):
         return torch.cat([self.head(torch.cat([pooled, size], dim=1)), obs["observation"].flatten(1)], dim=1)
 
 
-
 class BeliefLogFeatures(BaseFeaturesExtractor):
     """The flat observation ``[reading, belief]`` followed by ``1 + log(belief + eps) / log(1 / eps)``
     (0 for a zero probability, 1 for certainty), ``eps = 10 ** -eps_exponent``.

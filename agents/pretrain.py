@@ -96,11 +96,7 @@ def _label(expert, observation, belief, values: bool) -> tuple[np.ndarray, np.nd
     """The expert's action distribution here and, with ``values``, a planner's action values."""
     if not values:
         return expert.probabilities(observation, belief), None
-    q = np.asarray(expert.values(expert.ops.full(belief)), dtype=np.float64)
-    p = np.zeros(len(q))
-    ties = expert.best(q)
-    p[ties] = 1.0 / len(ties)
-    return p, q
+    return expert.probabilities_and_values(observation, belief)
 
 
 class _Recorded:
@@ -248,7 +244,7 @@ def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = 
     pre = cfg["pretrain"]
     gamma = float(cfg["hyperparams"].get("gamma", 0.99))
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
-    expert = _expert(cfg, env)
+    expert, values = _expert(cfg, env), _wants_values(cfg)
     student = PPOPolicy(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"], deterministic=False)
     out = []
     n = pre["dagger_episodes"]
@@ -256,9 +252,9 @@ def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = 
         seed = DAGGER_SEED_BASE + round_index * n + i
         ep = rollout(env, student, seed, keep=True)
         expert.reset(seed=seed, model=ep.model)
-        labels = [_label(expert, o, b, _wants_values(cfg)) for o, b in zip(ep.observations, ep.beliefs)]
+        labels = [_label(expert, o, b, values) for o, b in zip(ep.observations, ep.beliefs)]
         out.append(_episode_samples(ep, [p for p, _ in labels], cfg["wrapper"], gamma,
-                                    [q for _, q in labels] if _wants_values(cfg) else None))
+                                    [q for _, q in labels] if values else None))
     env.close()
     return out
 
@@ -295,7 +291,7 @@ def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, pro
     batches = -(-len(targets) // pre["batch_size"])
     gen = torch.Generator().manual_seed(int(cfg["seed"]))
     n = len(targets)
-    lengths = data["sizes"] if pre.get("episode_batches") else None
+    lengths = data["lengths"] if pre.get("episode_batches") else None  # one sample per step
     for _ in range(epochs.start):
         _epoch_order(n, lengths, gen)
     policy.set_training_mode(True)
@@ -350,8 +346,7 @@ def _agreement(model, data: dict[str, Any]) -> float:
 
 def _merge(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     out = {"obs": _concat([e["obs"] for e in episodes]), "targets": np.concatenate([e["targets"] for e in episodes]),
-           "returns": np.concatenate([e["returns"] for e in episodes]), "lengths": np.asarray([e["length"] for e in episodes]),
-           "sizes": np.asarray([len(e["targets"]) for e in episodes])}
+           "returns": np.concatenate([e["returns"] for e in episodes]), "lengths": np.asarray([e["length"] for e in episodes])}
     if episodes and all("values" in e for e in episodes):
         out["values"] = np.concatenate([e["values"] for e in episodes])
     return out

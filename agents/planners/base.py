@@ -38,10 +38,16 @@ class PlannerPolicy(Policy):
         return self.choose(self.probabilities(observation, belief))
 
     def probabilities(self, observation: Any, belief: np.ndarray) -> np.ndarray:
+        return self.probabilities_and_values(observation, belief)[0]
+
+    def probabilities_and_values(self, observation: Any, belief: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The action distribution (even over the tied best actions) and the actions' costs
+        (:meth:`values`) it was chosen from: a warm start imitates either."""
         t = time.perf_counter()
-        ties = self.best(self.values(self.ops.full(belief)))
+        q = np.asarray(self.values(self.ops.full(belief)), dtype=np.float64)
+        ties = self.best(q)
         self.seconds += time.perf_counter() - t
         self.decisions += 1
         out = np.zeros(self.n_actions)
         out[ties] = 1.0 / len(ties)
-        return out
+        return out, q
