@@ -43,7 +43,9 @@ Rules:
 Interrupted sweeps (Ctrl-C, a killed process, a lost node) continue with ``--resume``: Tune
 restores its experiment, finished trials are kept, an unfinished trial continues from its latest
 training checkpoint (``checkpoint_freq``) or restarts.  A trial whose model is already complete
-(finished after Tune last saved its state) is not trained again: its metadata is reported.
+(finished after Tune last saved its state) is not trained again: its metadata is reported.  A kill
+while Tune copied its state to ``--output`` can leave a file cut short: ``--resume`` then keeps
+that experiment directory as ``tune.unreadable-N`` and runs Tune again (the same reuse).
 
 Ray and Optuna are imported here only, when a sweep runs (the ``sweep`` extra).
 """
@@ -54,6 +56,7 @@ import contextlib
 import json
 import os
 import re
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -165,6 +168,44 @@ def _trial_dirname(trial) -> str:
     return trial.trial_id
 
 
+#: Tune's saved state in its experiment directory: the newest file of each pattern is what
+#: ``Tuner.restore`` loads (JSON or a pickle).
+_TUNE_STATE = {"tuner.pkl": "pickle", "trainable.pkl": "pickle", "experiment_state-*.json": "json",
+               "basic-variant-state-*.json": "pickle", "search_gen_state-*.json": "pickle"}
+
+
+def unreadable_state(exp_dir: Path) -> list[Path]:
+    """The state files in Tune's experiment directory that ``Tuner.restore`` would fail to load.
+
+    Tune writes its state atomically in a staging directory, then copies it to the storage path
+    file by file: a sweep killed during that copy leaves a truncated (often empty) file there."""
+    import ray.cloudpickle as cloudpickle
+
+    bad = []
+    for pattern, kind in _TUNE_STATE.items():
+        found = sorted(Path(exp_dir).glob(pattern))
+        if not found:
+            continue
+        newest = found[-1]
+        try:
+            with open(newest, "rb") as fh:
+                state = json.load(fh) if kind == "json" else cloudpickle.load(fh)
+            if state is None:
+                raise ValueError("empty")
+        except Exception:  # noqa: BLE001 - any failure to load is what restore would hit
+            bad.append(newest)
+    return bad
+
+
+def _set_aside(exp_dir: Path) -> Path:
+    """Rename Tune's experiment directory to the first free ``<name>.unreadable-N`` beside it."""
+    n = 1
+    while (aside := exp_dir.with_name(f"{exp_dir.name}.unreadable-{n}")).exists():
+        n += 1
+    exp_dir.rename(aside)
+    return aside
+
+
 # -- running it --------------------------------------------------------------------------------------
 def param_space(spec: dict[str, Any]) -> dict[str, Any]:
     """Tune's parameter space: each --grid value as JSON text (any YAML value, also for Optuna's
@@ -253,6 +294,12 @@ def run(spec: dict[str, Any], *, address: str | None = None, cpus: int | None = 
         if not resume:  # written once Ray is up: a sweep that could not start leaves no sweep behind
             atomic_write_json(stored_path, spec)
         trainable = tune.with_resources(tune.with_parameters(trial_fn, spec=spec), {"cpu": 1})
+        if resume and exp_dir.exists() and (torn := unreadable_state(exp_dir)):
+            aside = _set_aside(exp_dir)
+            print(f"--resume: Tune's saved state does not load ({', '.join(p.name for p in torn)}: the sweep was "
+                  f"killed while Tune wrote it); the experiment directory is kept as {aside}. The sweep starts Tune "
+                  "again: finished models are reused, not trained again, and unfinished trainings continue from "
+                  "their checkpoints.", file=sys.stderr)
         if resume and tune.Tuner.can_restore(str(exp_dir)):
             tuner = tune.Tuner.restore(str(exp_dir), trainable=trainable, resume_unfinished=True, resume_errored=True)
         else:  # a fresh sweep, or one killed before Tune saved anything (finished models are reused)

@@ -260,6 +260,25 @@ def test_sweep_two_configurations_two_seeds(tmp_path, monkeypatch, capsys, embed
                  "--resume"]) == 2
     assert "same arguments" in capsys.readouterr().err
 
+    # A sweep killed while Tune copied its state to --output leaves a truncated file there, which
+    # Tune's restore cannot load: --resume keeps that directory aside and runs Tune again, and
+    # every finished model is reused, not trained again.
+    from gym_gridloc_agents.sweep import unreadable_state
+
+    assert unreadable_state(out / "tune") == []
+    state = max((out / "tune").glob("basic-variant-state-*.json"))
+    state.write_bytes(b"")
+    assert unreadable_state(out / "tune") == [state]
+    models = {Path(r["model"]): snapshot(Path(r["model"])) for c in s["configurations"] for r in c["seeds"]}
+    assert main(["sweep", str(cfg), "--seeds", "2", "--grid", "hyperparams.learning_rate=1e-3,3e-4", "--cpus", "2",
+                 "--output", str(out), "--resume"]) == 0
+    err = capsys.readouterr().err
+    assert state.name in err and "tune.unreadable-1" in err
+    assert len(list((out / "tune.unreadable-1").glob("*/params.json"))) == 4
+    again = _results(out)
+    assert again["statuses"] == {"done": 4} and again["best"] == s["best"]
+    assert {m: snapshot(m) for m in models} == models
+
 
 def _finished_trials(exp: Path) -> dict[str, Path]:
     """Trials whose last line in Tune's result.json is the sweep's final report: their model paths."""
