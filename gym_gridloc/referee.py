@@ -30,9 +30,10 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     pflat = flat if L == 1 else beliefs.sum(axis=1).reshape(n, -1)
     tested = flat if pose else pflat
     k = tested.argmax(axis=1)
-    confidence = tested.max(axis=1)
+    confidence = tested[np.arange(n), k]
     layer, cell = np.divmod(k, h * w)
-    estimate = np.stack(np.divmod(cell, w), axis=1)
+    estimate = np.empty((n, 2), dtype=k.dtype)
+    np.divmod(cell, w, out=(estimate[:, 0], estimate[:, 1]))
     truth = states[:, 1:3]
     error = np.abs(estimate - truth).sum(axis=1)
     localised = confidence >= threshold

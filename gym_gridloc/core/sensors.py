@@ -231,6 +231,8 @@ class WallSensor(TableSensor):
     ORDER = (3, 0, 1, 2)
     _BITS = np.array([8, 4, 2, 1], dtype=np.int64)
     _SHIFTS = np.array([3, 2, 1, 0], dtype=np.int64)
+    #: The reading of each of the 16 observations, keyed by the observation's int8 bytes.
+    _CODES = dict(zip(map(np.ndarray.tobytes, ((np.arange(16)[:, None] >> _SHIFTS) & 1).astype(np.int8)), range(16)))
 
     def __init__(self, grid: GridMap, p_detect: float = 0.85, p_false_alarm: float = 0.10) -> None:
         super().__init__(grid)
@@ -259,6 +261,13 @@ class WallSensor(TableSensor):
 
     def to_observation(self, reading: int) -> np.ndarray:
         return self.observations(np.array([reading]))[0]
+
+    def to_reading(self, observation: Any) -> int:
+        if type(observation) is np.ndarray and observation.dtype == np.int8 and observation.shape == (4,):  # fast path
+            reading = self._CODES.get(observation.tobytes())
+            if reading is not None:
+                return reading
+        return super().to_reading(observation)
 
     def observations(self, readings: np.ndarray) -> np.ndarray:
         r = np.asarray(readings, dtype=np.int64).reshape(-1)

@@ -137,6 +137,16 @@ def test_readings_of_bad_observations_name_the_belief():
     with pytest.raises(ValueError, match=r"^observation \[0, 2, 0, 0\] is not in the sensor's space MultiBinary\(4\)$"):
         wall.to_reading([0, 2, 0, 0])
     np.testing.assert_array_equal(wall.readings(np.array([[True, False, False, True]]), 1), [9])
+    # The environment's own int8 observations take a table lookup; other forms the checked path:
+    # the same readings, and the same errors.
+    for k in range(16):
+        obs = wall.to_observation(k)
+        assert type(wall.to_reading(obs)) is int and wall.to_reading(obs) == k == wall.to_reading(obs.tolist())
+        assert wall.to_reading(obs.astype(np.int64)) == k == wall.to_reading(obs.astype(bool))
+    with pytest.raises(ValueError, match=r"observation array\(\[0, 2, 0, 0\], dtype=int8\) is not in the sensor's space"):
+        wall.to_reading(np.array([0, 2, 0, 0], dtype=np.int8))
+    with pytest.raises(ValueError, match=r"must be 4 bits"):
+        wall.to_reading(np.zeros((2, 4), dtype=np.int8))
 
 
 def test_observation_text_says_what_a_reading_means():
