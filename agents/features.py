@@ -14,7 +14,9 @@ applies anywhere on any maze (on 15 x 15 random mazes, accuracy 0.95-0.97 at 20 
 validation mazes after cloning the optimal policy, where BeliefMapCNN reached 0.61).
 
 Configs name them (never evaluate them): ``policy_kwargs: {features_extractor: belief_map_cnn,
-features_extractor_kwargs: {channels: 32, layers: 3, features: 256}}`` (or ``pose_pool_cnn``).
+features_extractor_kwargs: {channels: 32, layers: 3, features: 256}}`` (or ``pose_pool_cnn``,
+``cell_pool_cnn``).  :class:`CellPoolCNN` is PosePoolCNN's idea for position beliefs on maps
+with colours or walls: features of every cell from the map alone, pooled over the belief.
 
 :class:`BeliefLogFeatures` is for flat belief observations (``wrapper.flatten: true``, policy
 ``MlpPolicy``): an MLP on raw probabilities hardly tells 1e-4 from 1e-2, yet a planner's choice
@@ -159,6 +161,64 @@ class PosePoolCNN(BaseFeaturesExtractor):
         return torch.cat([self.head(torch.cat([pooled, size], dim=1)), obs["observation"].flatten(1)], dim=1)
 
 
+class CellPoolCNN(BaseFeaturesExtractor):
+    """Map features of every cell, pooled over the position belief: mean, spread and maximum.
+
+    A convolution stack over the map's channels alone (free cells, and the colours where the map
+    has them; dilations 1, 2, 4, ... cycled, residual; outside the grid is a wall) computes
+    features of every cell's surroundings.  The position belief (summed over layers) weighs them:
+    their mean over the hypotheses, their standard deviation (how much the hypotheses'
+    surroundings differ: what a move could tell apart) and their maximum over the belief's
+    support; with the support's log-size and the reading they go through a linear layer.  Nothing
+    is tied to a place of the map, so what it learns on one map applies on any (the position
+    counterpart of :class:`PosePoolCNN`, for ``ColourGrid-v0`` and ``WindyMaze-v0`` maps).
+
+    Parameters: ``channels`` (32), ``layers`` (4), ``features`` out (256), ``max_dilation`` (4).
+    """
+
+    #: Reads Dict observations (``MultiInputPolicy``).
+    dict_observations = True
+
+    def __init__(self, observation_space: spaces.Dict, channels: int = 32, layers: int = 4, features: int = 256,
+                 max_dilation: int = 4) -> None:
+        for key in ("observation", "belief", "map"):
+            if key not in observation_space.spaces:
+                raise ValueError(f"CellPoolCNN reads Dict observations with 'observation', 'belief' and 'map'; got {observation_space}")
+        belief, maps = observation_space["belief"].shape, observation_space["map"].shape
+        if belief[-2:] != maps[-2:]:
+            raise ValueError(f"CellPoolCNN: the belief {belief} and the map {maps} must cover the same grid")
+        reading = get_flattened_obs_dim(observation_space["observation"])
+        super().__init__(observation_space, features_dim=features + reading)
+        self.first = nn.Conv2d(maps[0], channels, 3, padding=1)
+        dilations, d = [], 1
+        for _ in range(layers - 1):
+            dilations.append(d)
+            d = 1 if d * 2 > max_dilation else d * 2
+        self.convs = nn.ModuleList(nn.Conv2d(channels, channels, 3, padding=k, dilation=k) for k in dilations)
+        self.head = nn.Sequential(nn.Linear(3 * channels + 1, features), nn.ReLU())
+        self.n_cells = belief[-1] * belief[-2]
+
+    def cell_features(self, maps: torch.Tensor) -> torch.Tensor:
+        """``(B, K, H, W)`` map channels -> ``(B, C, H*W)`` features of every cell."""
+        x = torch.relu(self.first(maps))
+        for conv in self.convs:
+            x = x + torch.relu(conv(x))
+        return x.flatten(2)
+
+    def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        belief = obs["belief"]
+        b = (belief.sum(dim=1) if belief.dim() == 4 else belief).flatten(1)
+        b = b / b.sum(dim=1, keepdim=True).clamp(min=1e-12)
+        f = self.cell_features(obs["map"])  # (B, C, cells)
+        mean = torch.einsum("bcs,bs->bc", f, b)
+        spread = torch.sqrt((torch.einsum("bcs,bs->bc", f * f, b) - mean * mean).clamp(min=0.0) + 1e-6)
+        support = (b >= 0.01 * b.amax(dim=1, keepdim=True)).to(b.dtype)
+        top = (f * support.unsqueeze(1)).amax(dim=2)
+        size = torch.log(support.sum(dim=1, keepdim=True).clamp(min=1)) / math.log(max(self.n_cells, 2))
+        pooled = torch.cat([mean, spread, top, size], dim=1)
+        return torch.cat([self.head(pooled), obs["observation"].flatten(1)], dim=1)
+
+
 class BeliefLogFeatures(BaseFeaturesExtractor):
     """The flat observation ``[reading, belief]`` followed by ``1 + log(belief + eps) / log(1 / eps)``
     (0 for a zero probability, 1 for certainty), ``eps = 10 ** -eps_exponent``.
@@ -190,4 +250,5 @@ class BeliefLogFeatures(BaseFeaturesExtractor):
 
 
 #: Features extractors a config may name.
-EXTRACTORS = {"belief_map_cnn": BeliefMapCNN, "pose_pool_cnn": PosePoolCNN, "belief_log": BeliefLogFeatures}
+EXTRACTORS = {"belief_map_cnn": BeliefMapCNN, "pose_pool_cnn": PosePoolCNN, "cell_pool_cnn": CellPoolCNN,
+              "belief_log": BeliefLogFeatures}

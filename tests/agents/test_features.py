@@ -15,7 +15,7 @@ from gymnasium import spaces
 import gym_gridloc
 from gym_gridloc import engine
 from gym_gridloc_agents.config import ConfigError, validate_config
-from gym_gridloc_agents.features import EXTRACTORS, BeliefLogFeatures, BeliefMapCNN, PosePoolCNN, depth_channels
+from gym_gridloc_agents.features import EXTRACTORS, BeliefLogFeatures, BeliefMapCNN, CellPoolCNN, PosePoolCNN, depth_channels
 from gym_gridloc_agents.files import load_model
 from gym_gridloc_agents.policies import PPOPolicy
 from gym_gridloc_agents.train import train
@@ -86,6 +86,64 @@ def test_pose_pooling_refuses_what_it_cannot_read():
         PosePoolCNN(_space(5, belief=(1,)))
 
 
+def _colour_observation(model, belief) -> dict[str, torch.Tensor]:
+    from gym_gridloc.wrappers import map_channels
+
+    return {"observation": torch.zeros(1, 4), "belief": torch.as_tensor(belief, dtype=torch.float32)[None],
+            "map": torch.as_tensor(map_channels(model))[None]}
+
+
+def test_cell_pooling_moves_with_the_map_and_reads_colour_maps():
+    """Nothing is tied to a place: a map and belief moved together (obstacles all round, farther
+    from the hypotheses than the convolutions see) give the same features; a batch gives what each sample gives alone;
+    the belief and the colours both matter."""
+    from gym_gridloc.generators import colour_map
+
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    rows = np.array(list("RGBY"))[rng.integers(0, 4, (5, 5))]
+    rows[1, 3] = "."  # an obstacle
+
+    def placed(r0: int, c0: int):
+        layout = np.full((15, 15), ".")
+        layout[r0 : r0 + 5, c0 : c0 + 5] = rows
+        model = gym_gridloc.colour_grid_model(layout)
+        belief = np.zeros((15, 15))
+        belief[r0 + 2, c0 + 1], belief[r0 + 4, c0 + 4], belief[r0, c0] = 0.5, 0.3, 0.2
+        return model, belief
+
+    (m1, b1), (m2, b2) = placed(4, 4), placed(6, 5)
+    space = spaces.Dict({"observation": spaces.Box(0, 1, (4,)), "belief": spaces.Box(0, 1, (15, 15)),
+                         "map": spaces.Box(0, 1, (5, 15, 15))})
+    net = CellPoolCNN(space, channels=8, layers=3, features=16, max_dilation=2)  # sees 4 cells away
+    with torch.no_grad():
+        a, b = net(_colour_observation(m1, b1)), net(_colour_observation(m2, b2))
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+        other = gym_gridloc.colour_grid_model(colour_map((15, 15), obstacle_density=0.2, seed=4))
+        b3 = other.prior()[0]
+        first, second = _colour_observation(m1, b1), _colour_observation(other, b3)
+        out = net({k: torch.cat([first[k], second[k]]) for k in first})
+        torch.testing.assert_close(out[0], a[0], atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(out[1], net(second)[0], atol=1e-5, rtol=1e-5)
+        # A full-state belief (L, H, W) is summed over its layers.
+        layered = torch.as_tensor(np.stack([b1 / 2, b1 / 2]), dtype=torch.float32)[None]
+        torch.testing.assert_close(net({**first, "belief": layered}), a)
+        moved = b1.copy()
+        moved[4, 4], moved[5, 4] = 0.0, 0.2  # one hypothesis on another cell
+        assert not torch.allclose(net(_colour_observation(m1, moved)), a)
+        recoloured = m1.grid.labels.copy()
+        layout = np.where(m1.grid.free, np.array(list("RGBY"))[np.clip(recoloured, 0, 3)], ".")
+        layout[6, 6] = "R" if layout[6, 6] != "R" else "G"  # a cell next to a hypothesis
+        m3 = gym_gridloc.colour_grid_model(layout)
+        assert not torch.allclose(net(_colour_observation(m3, b1)), a)
+    assert out.shape == (2, 16 + 4)
+    with pytest.raises(ValueError, match="'observation', 'belief' and 'map'"):
+        CellPoolCNN(spaces.Dict({"observation": spaces.Box(0, 1, (4,)), "belief": spaces.Box(0, 1, (9, 9))}))
+    with pytest.raises(ValueError, match="must cover the same grid"):
+        CellPoolCNN(spaces.Dict({"observation": spaces.Box(0, 1, (4,)), "belief": spaces.Box(0, 1, (9, 9)),
+                                 "map": spaces.Box(0, 1, (5, 7, 7))}))
+
+
 def test_belief_map_cnn_shapes():
     net = BeliefMapCNN(_space(7), channels=4, layers=2, features=8)
     model = _maze(7, 0)
@@ -100,7 +158,7 @@ def _cfg(**policy_kwargs):
 
 
 def test_configs_name_the_extractors():
-    assert set(EXTRACTORS) == {"belief_map_cnn", "pose_pool_cnn", "belief_log"}
+    assert set(EXTRACTORS) == {"belief_map_cnn", "pose_pool_cnn", "cell_pool_cnn", "belief_log"}
     cfg = validate_config(_cfg(features_extractor="pose_pool_cnn", features_extractor_kwargs={"channels": 8, "max_dilation": 4}))
     assert cfg["pretrain"]["episode_batches"] is True
     with pytest.raises(ConfigError, match="features_extractor must be one of belief_map_cnn, pose_pool_cnn"):
