@@ -173,7 +173,7 @@ def test_shipped_models_have_metadata():
 
 #: The shipped models trained on random maps of one size: (env_id, size, HMMBeliefWrapper options).
 SIZED_MODELS = [("DepthMaze-v0", 7, {"full_state": True}), ("DepthMaze-v0", 15, {"full_state": True}),
-                ("DepthMaze-v0", 21, {"full_state": True}), ("WindyMaze-v0", 9, {})]
+                ("DepthMaze-v0", 21, {"full_state": True}), ("WindyMaze-v0", 9, {}), ("WindyMaze-v0", 15, {})]
 
 
 @pytest.mark.parametrize("env_id,size,options", SIZED_MODELS)
