@@ -173,16 +173,14 @@ class CellPoolCNN(BaseFeaturesExtractor):
     is tied to a place of the map, so what it learns on one map applies on any (the position
     counterpart of :class:`PosePoolCNN`, for ``ColourGrid-v0`` and ``WindyMaze-v0`` maps).
 
-    Parameters: ``channels`` (32), ``layers`` (4), ``features`` out (256), ``max_dilation`` (4),
-    ``expand`` (0: none): a last 1 x 1 convolution to that many channels before pooling (cheap
-    capacity for conjunctions, e.g. the colours two moves apart that a two-step lookahead weighs).
+    Parameters: ``channels`` (32), ``layers`` (4), ``features`` out (256), ``max_dilation`` (4).
     """
 
     #: Reads Dict observations (``MultiInputPolicy``).
     dict_observations = True
 
     def __init__(self, observation_space: spaces.Dict, channels: int = 32, layers: int = 4, features: int = 256,
-                 max_dilation: int = 4, expand: int = 0) -> None:
+                 max_dilation: int = 4) -> None:
         for key in ("observation", "belief", "map"):
             if key not in observation_space.spaces:
                 raise ValueError(f"CellPoolCNN reads Dict observations with 'observation', 'belief' and 'map'; got {observation_space}")
@@ -197,11 +195,7 @@ class CellPoolCNN(BaseFeaturesExtractor):
             dilations.append(d)
             d = 1 if d * 2 > max_dilation else d * 2
         self.convs = nn.ModuleList(nn.Conv2d(channels, channels, 3, padding=k, dilation=k) for k in dilations)
-        if expand < 0:
-            raise ValueError(f"CellPoolCNN: expand must be >= 0, got {expand}")
-        self.expand = nn.Conv2d(channels, expand, 1) if expand else None
-        pooled = expand or channels
-        self.head = nn.Sequential(nn.Linear(3 * pooled + 1, features), nn.ReLU())
+        self.head = nn.Sequential(nn.Linear(3 * channels + 1, features), nn.ReLU())
         self.n_cells = belief[-1] * belief[-2]
 
     def cell_features(self, maps: torch.Tensor) -> torch.Tensor:
@@ -209,8 +203,6 @@ class CellPoolCNN(BaseFeaturesExtractor):
         x = torch.relu(self.first(maps))
         for conv in self.convs:
             x = x + torch.relu(conv(x))
-        if self.expand is not None:
-            x = torch.relu(self.expand(x))
         return x.flatten(2)
 
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:

@@ -137,13 +137,6 @@ def test_cell_pooling_moves_with_the_map_and_reads_colour_maps():
         m3 = gym_gridloc.colour_grid_model(layout)
         assert not torch.allclose(net(_colour_observation(m3, b1)), a)
     assert out.shape == (2, 16 + 4)
-    # expand: a last 1 x 1 convolution, the same properties.
-    wide = CellPoolCNN(space, channels=8, layers=3, features=16, max_dilation=2, expand=24)
-    with torch.no_grad():
-        torch.testing.assert_close(wide(_colour_observation(m1, b1)), wide(_colour_observation(m2, b2)), atol=1e-5, rtol=1e-5)
-    assert wide.cell_features(_colour_observation(m1, b1)["map"]).shape == (1, 24, 225)
-    with pytest.raises(ValueError, match="expand must be >= 0"):
-        CellPoolCNN(space, expand=-1)
     with pytest.raises(ValueError, match="'observation', 'belief' and 'map'"):
         CellPoolCNN(spaces.Dict({"observation": spaces.Box(0, 1, (4,)), "belief": spaces.Box(0, 1, (9, 9))}))
     with pytest.raises(ValueError, match="must cover the same grid"):
