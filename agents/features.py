@@ -73,6 +73,36 @@ class BeliefMapCNN(BaseFeaturesExtractor):
 
 
 # -- pooling over the belief's poses -------------------------------------------------------------
+def _require_keys(space: spaces.Dict, name: str) -> None:
+    for key in ("observation", "belief", "map"):
+        if key not in space.spaces:
+            raise ValueError(f"{name} reads Dict observations with 'observation', 'belief' and 'map'; got {space}")
+
+
+def _dilated_convs(channels: int, layers: int, max_dilation: int) -> nn.ModuleList:
+    """``layers - 1`` residual 3 x 3 convolutions with dilations 1, 2, 4, ... (back to 1 past
+    ``max_dilation``), keeping the size."""
+    dilations, d = [], 1
+    for _ in range(layers - 1):
+        dilations.append(d)
+        d = 1 if d * 2 > max_dilation else d * 2
+    return nn.ModuleList(nn.Conv2d(channels, channels, 3, padding=k, dilation=k) for k in dilations)
+
+
+def _residual_stack(first: nn.Module, convs: nn.ModuleList, x: torch.Tensor) -> torch.Tensor:
+    x = torch.relu(first(x))
+    for conv in convs:
+        x = x + torch.relu(conv(x))
+    return x
+
+
+def _support(b: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The belief's support (entries >= 1% of its largest) as 0/1, and its log-size scaled by
+    ``log n`` (0 for one hypothesis, 1 for all ``n``)."""
+    support = (b >= 0.01 * b.amax(dim=1, keepdim=True)).to(b.dtype)
+    return support, torch.log(support.sum(dim=1, keepdim=True).clamp(min=1)) / math.log(max(n, 2))
+
+
 def _shifted(x: torch.Tensor, dy: int, dx: int) -> torch.Tensor:
     """``out[..., y, x] = x[..., y + dy, x + dx]``, zero outside the grid (outside is a wall)."""
     h, w = x.shape[-2:]
@@ -114,20 +144,14 @@ class PosePoolCNN(BaseFeaturesExtractor):
 
     def __init__(self, observation_space: spaces.Dict, channels: int = 32, layers: int = 6, features: int = 256,
                  max_dilation: int = 8) -> None:
-        for key in ("observation", "belief", "map"):
-            if key not in observation_space.spaces:
-                raise ValueError(f"PosePoolCNN reads Dict observations with 'observation', 'belief' and 'map'; got {observation_space}")
+        _require_keys(observation_space, "PosePoolCNN")
         belief = observation_space["belief"].shape
         if len(belief) != 3 or belief[0] != 4 or belief[1] != belief[2]:
             raise ValueError(f"PosePoolCNN needs a square pose belief (4, N, N) (full_state=True, four headings); got {belief}")
         reading = get_flattened_obs_dim(observation_space["observation"])
         super().__init__(observation_space, features_dim=features + reading)
         self.first = nn.Conv2d(5, channels, 3, padding=1)
-        dilations, d = [], 1
-        for _ in range(layers - 1):
-            dilations.append(d)
-            d = 1 if d * 2 > max_dilation else d * 2
-        self.convs = nn.ModuleList(nn.Conv2d(channels, channels, 3, padding=k, dilation=k) for k in dilations)
+        self.convs = _dilated_convs(channels, layers, max_dilation)
         self.head = nn.Sequential(nn.Linear(2 * channels + 1, features), nn.ReLU())
         self.n_states = 4 * belief[1] * belief[2]
 
@@ -136,9 +160,7 @@ class PosePoolCNN(BaseFeaturesExtractor):
         depth = depth_channels(free) / max(free.shape[-1] - 2, 1)
         turned = torch.cat([torch.rot90(torch.cat([free, depth[:, [h, (h + 1) % 4, (h + 2) % 4, (h + 3) % 4]]], dim=1),
                                         h, dims=(2, 3)) for h in range(4)])
-        x = torch.relu(self.first(turned))
-        for conv in self.convs:
-            x = x + torch.relu(conv(x))
+        x = _residual_stack(self.first, self.convs, turned)
         m = free.shape[0]
         return torch.stack([torch.rot90(x[h * m : (h + 1) * m], -h, dims=(2, 3)) for h in range(4)], dim=1)
 
@@ -149,7 +171,7 @@ class PosePoolCNN(BaseFeaturesExtractor):
         m, _, c = feats.shape[:3]
         feats = feats.permute(0, 1, 3, 4, 2).reshape(m, -1, c)  # (M, poses, C)
         b = belief.flatten(1)
-        support = (b >= 0.01 * b.amax(dim=1, keepdim=True)).to(b.dtype)
+        support, size = _support(b, self.n_states)
         mean, top = [], []
         order = torch.argsort(which)
         for k in range(m):  # the samples of each maze, pooled over its poses' features
@@ -157,7 +179,6 @@ class PosePoolCNN(BaseFeaturesExtractor):
             mean.append(b[rows] @ feats[k])
             top.append((support[rows].unsqueeze(2) * feats[k]).amax(dim=1))
         pooled = torch.cat([torch.cat(mean), torch.cat(top)], dim=1)[torch.argsort(order)]
-        size = torch.log(support.sum(dim=1, keepdim=True).clamp(min=1)) / math.log(self.n_states)
         return torch.cat([self.head(torch.cat([pooled, size], dim=1)), obs["observation"].flatten(1)], dim=1)
 
 
@@ -181,29 +202,20 @@ class CellPoolCNN(BaseFeaturesExtractor):
 
     def __init__(self, observation_space: spaces.Dict, channels: int = 32, layers: int = 4, features: int = 256,
                  max_dilation: int = 4) -> None:
-        for key in ("observation", "belief", "map"):
-            if key not in observation_space.spaces:
-                raise ValueError(f"CellPoolCNN reads Dict observations with 'observation', 'belief' and 'map'; got {observation_space}")
+        _require_keys(observation_space, "CellPoolCNN")
         belief, maps = observation_space["belief"].shape, observation_space["map"].shape
         if belief[-2:] != maps[-2:]:
             raise ValueError(f"CellPoolCNN: the belief {belief} and the map {maps} must cover the same grid")
         reading = get_flattened_obs_dim(observation_space["observation"])
         super().__init__(observation_space, features_dim=features + reading)
         self.first = nn.Conv2d(maps[0], channels, 3, padding=1)
-        dilations, d = [], 1
-        for _ in range(layers - 1):
-            dilations.append(d)
-            d = 1 if d * 2 > max_dilation else d * 2
-        self.convs = nn.ModuleList(nn.Conv2d(channels, channels, 3, padding=k, dilation=k) for k in dilations)
+        self.convs = _dilated_convs(channels, layers, max_dilation)
         self.head = nn.Sequential(nn.Linear(3 * channels + 1, features), nn.ReLU())
         self.n_cells = belief[-1] * belief[-2]
 
     def cell_features(self, maps: torch.Tensor) -> torch.Tensor:
         """``(B, K, H, W)`` map channels -> ``(B, C, H*W)`` features of every cell."""
-        x = torch.relu(self.first(maps))
-        for conv in self.convs:
-            x = x + torch.relu(conv(x))
-        return x.flatten(2)
+        return _residual_stack(self.first, self.convs, maps).flatten(2)
 
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         belief = obs["belief"]
@@ -212,9 +224,8 @@ class CellPoolCNN(BaseFeaturesExtractor):
         f = self.cell_features(obs["map"])  # (B, C, cells)
         mean = torch.einsum("bcs,bs->bc", f, b)
         spread = torch.sqrt((torch.einsum("bcs,bs->bc", f * f, b) - mean * mean).clamp(min=0.0) + 1e-6)
-        support = (b >= 0.01 * b.amax(dim=1, keepdim=True)).to(b.dtype)
+        support, size = _support(b, self.n_cells)
         top = (f * support.unsqueeze(1)).amax(dim=2)
-        size = torch.log(support.sum(dim=1, keepdim=True).clamp(min=1)) / math.log(max(self.n_cells, 2))
         pooled = torch.cat([mean, spread, top, size], dim=1)
         return torch.cat([self.head(pooled), obs["observation"].flatten(1)], dim=1)
 

@@ -183,16 +183,15 @@ def unreadable_state(exp_dir: Path) -> list[Path]:
 
     bad = []
     for pattern, kind in _TUNE_STATE.items():
-        found = sorted(Path(exp_dir).glob(pattern))
-        if not found:
+        newest = max(Path(exp_dir).glob(pattern), default=None)  # the one Tune loads
+        if newest is None:
             continue
-        newest = found[-1]
         try:
             with open(newest, "rb") as fh:
-                state = json.load(fh) if kind == "json" else cloudpickle.load(fh)
-            if state is None:
-                raise ValueError("empty")
+                loads = (json.load(fh) if kind == "json" else cloudpickle.load(fh)) is not None
         except Exception:  # noqa: BLE001 - any failure to load is what restore would hit
+            loads = False
+        if not loads:
             bad.append(newest)
     return bad
 
