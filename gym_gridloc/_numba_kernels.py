@@ -14,7 +14,10 @@ _CHUNK = 2048
 def stencil_update(b, w, meta, lik, layered, out, n_layers, mode):  # pragma: no cover - compiled
     """``out = T^T b`` over flat arrays in cache-sized chunks (one pass over memory); mode 0:
     predict only; 1: times ``lik``, normalised; 2: times ``lik``.  Returns the sum (modes 1, 2).
-    ``lik`` holds one (H*W) likelihood, or one per layer when ``layered`` is 1."""
+    ``lik`` holds one (H*W) likelihood, or one per layer when ``layered`` is 1.  ``b`` and ``out``
+    may be (L, H, W): C-contiguous arrays are read flat (no reshape in Python)."""
+    b = b.reshape(b.size)
+    out = out.reshape(out.size)
     K = w.shape[0]
     hw = out.shape[0] // n_layers
     src, dst, off, lo, hi = meta[0], meta[1], meta[2], meta[3], meta[4]

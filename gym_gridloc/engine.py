@@ -46,7 +46,7 @@ __all__ = [
 class _Derived:
     """What the engine derives from one model, built on first use."""
 
-    __slots__ = ("transitions", "_plan", "_liks", "_lik_bytes", "layered", "_steppers", "__weakref__")
+    __slots__ = ("transitions", "_plan", "_moves", "_liks", "_lik_bytes", "layered", "_steppers", "__weakref__")
 
     #: At most this many bytes of single-reading likelihoods are kept per model.
     LIK_CACHE_BYTES = 32 * 2**20
@@ -56,6 +56,7 @@ class _Derived:
         # of the plan, as large as one action's terms on a 512 x 512 map).
         self.transitions = None
         self._plan = None
+        self._moves = None
         self._liks: dict[int, np.ndarray] = {}
         self._lik_bytes = 0
         self.layered = int(model.sensor.layered)
@@ -82,6 +83,23 @@ class _Derived:
         if self.transitions is None:
             self.transitions = (*model.transitions, mean_transition(model.transitions))
         return self.transitions
+
+    def moves(self, model: GridModel) -> tuple[np.ndarray, np.ndarray]:
+        """The sampler's tables, every action's terms in their order padded to ``K`` (zero weight):
+        ``weights`` ``(A + 1, H*W, K)`` and ``keys`` ``(A + 1, 4, K)`` (source layer, destination
+        layer, row shift, column shift; a padding term's source is -1)."""
+        if self._moves is None:
+            ts = self.all_transitions(model)
+            k = max(1, max(len(terms) for terms in ts))
+            weights = np.zeros((len(ts), model.shape[0] * model.shape[1], k))
+            keys = np.zeros((len(ts), 4, k), dtype=np.int64)
+            keys[:, 0] = -1
+            for a, terms in enumerate(ts):
+                for i, t in enumerate(terms):
+                    weights[a, :, i] = t.weight.reshape(-1)
+                    keys[a, :, i] = (t.src, t.dst, t.dr, t.dc)
+            self._moves = (weights, keys)
+        return self._moves
 
     def plan(self, model: GridModel):
         if self._plan is None:
@@ -265,7 +283,15 @@ def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
     rs = np.asarray(readings, dtype=np.int64).reshape(-1)
     if rs.size != n:
         raise ValueError(f"update() needs one reading per belief: {n} beliefs, {rs.size} readings")
-    lik = _derived(model).lik(model, int(rs[0]))[None] if n == 1 else likelihoods(model, rs)
+    if single:  # one belief: the same numbers, with fewer array operations
+        lik = _derived(model).lik(model, int(rs[0]))
+        post = flat[0] * lik if lik.size == flat.shape[1] else (flat.reshape(model.n_layers, -1) * lik).reshape(-1)
+        z1 = float(post.sum())
+        if not (z1 > 0.0 and z1 < math.inf):
+            raise impossible(model, int(rs[0]))
+        np.divide(post, z1, out=flat[0])
+        return np.array([z1])
+    lik = likelihoods(model, rs)
     if lik.shape[1] == flat.shape[1]:
         post = flat * lik
     else:
@@ -290,7 +316,7 @@ def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out
     flat, single = _flat(model, beliefs)
     if single:
         res = _out(out, flat, model.belief_shape)
-        return res, stepper(model, normalise=normalise)(flat.reshape(model.belief_shape), actions, int(readings), res)
+        return res, stepper(model, normalise=normalise)(flat, actions, int(readings), res)
     d, n = _derived(model), flat.shape[0]
     acts = action_indices(model, actions, n)
     rs = np.asarray(readings, dtype=np.int64).reshape(-1)
@@ -332,8 +358,9 @@ def _mixed_step(model: GridModel, d: _Derived, flat: np.ndarray, acts: np.ndarra
 
 def stepper(model: GridModel, *, normalise: bool = True) -> Callable[[np.ndarray, Any, int, np.ndarray], float]:
     """:func:`step` for one belief as a bound function ``(belief, action, reading, out) -> z``,
-    for hot loops (the single filter): ``belief`` and ``out`` C-contiguous float64 ``(L, H, W)``
-    arrays (not checked), ``action`` an int or None, ``reading`` an int."""
+    for hot loops (the single filter): ``belief`` and ``out`` C-contiguous float64 arrays of the
+    belief's ``L*H*W`` values, ``(L, H, W)`` or flat (not checked), ``action`` an int or None,
+    ``reading`` an int."""
     return _derived(model).stepper(model, normalise)
 
 
@@ -344,20 +371,20 @@ def _make_stepper(model: GridModel, d: _Derived, normalise: bool):
     mixed = model.kidnap_prob > 0.0
 
     def step_one(belief: np.ndarray, action: Any, reading: int, out: np.ndarray) -> float:
-        if action is None:
-            a = n_actions
-        elif type(action) is int and 0 <= action < n_actions:
+        if type(action) is int and 0 <= action < n_actions:
             a = action
+        elif action is None:
+            a = n_actions
         else:
             a = check_action(action)
         lik = liks.get(reading)
         if lik is None:
             lik = lik_of(model, int(reading))
-        b, o = belief.reshape(-1), out.reshape(-1)
         if mixed:
-            z = float(_mixed_step(model, d, b[None], np.array([a]), lik[None], o[None], normalise, _all(1))[0])
+            z = float(_mixed_step(model, d, belief.reshape(1, -1), np.array([a]), lik[None], out.reshape(1, -1),
+                                  normalise, _all(1))[0])
         else:
-            z = run_one(b, a, lik, layered, o, mode)
+            z = run_one(belief, a, lik, layered, out, mode)
         if not (z > 0.0 and z < math.inf):
             raise impossible(model, int(reading))
         return z
@@ -390,8 +417,10 @@ def states_of(model: GridModel, indices: np.ndarray) -> np.ndarray:
     """State indices (layer-major over free cells, as :meth:`GridModel.to_vector` orders them)
     as ``(N, 3)`` states (layer, row, col)."""
     layer, cell = np.divmod(np.asarray(indices, dtype=np.int64).reshape(-1), model.grid.n_free)
-    cells = model.grid.free_cells[cell]
-    return np.column_stack([layer, cells[:, 0], cells[:, 1]]).astype(np.int64)
+    out = np.empty((layer.size, 3), dtype=np.int64)
+    out[:, 0] = layer
+    out[:, 1:] = model.grid.free_cells[cell]
+    return out
 
 
 def sample_initial(model: GridModel, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -432,31 +461,27 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     if moving.size == 0:
         return out
     u = rng.random(moving.size)
-    w = model.shape[1]
-    for a in np.unique(acts[moving]):
-        pos = np.flatnonzero(acts[moving] == a)
-        sub, uu = moving[pos], u[pos]
-        layer, cell = st[sub, 0], st[sub, 1] * w + st[sub, 2]
-        ts = transitions[a]
-        p = np.empty((sub.size, len(ts)))
-        for k, t in enumerate(ts):
-            p[:, k] = np.where(layer == t.src, t.weight.reshape(-1)[cell], 0.0)
-        cum = np.cumsum(p, axis=1)
-        below = (uu * cum[:, -1])[:, None] < cum
-        k = np.argmax(below, axis=1)
-        none = ~below.any(axis=1)
-        if none.any():  # u * total rounded up to the total: the last possible outcome
-            k[none] = len(ts) - 1 - np.argmax((p[none] > 0)[:, ::-1], axis=1)
-        moves = np.array([(t.dst, t.dr, t.dc) for t in ts], dtype=np.int64)[k]
-        out[sub, 0] = moves[:, 0]
-        out[sub, 1] += moves[:, 1]
-        out[sub, 2] += moves[:, 2]
+    weights, keys = _derived(model).moves(model)
+    acts, st_m = acts[moving], st[moving]
+    p = weights[acts, st_m[:, 1] * model.shape[1] + st_m[:, 2]]  # (n, K): each state's action's terms
+    key = keys[acts]  # (n, 4, K)
+    p[key[:, 0] != st_m[:, :1]] = 0.0  # terms of another source layer
+    cum = np.cumsum(p, axis=1)
+    below = (u * cum[:, -1])[:, None] < cum
+    k = np.argmax(below, axis=1)
+    none = ~below.any(axis=1)
+    if none.any():  # u * total rounded up to the total: the last possible outcome
+        k[none] = p.shape[1] - 1 - np.argmax((p[none] > 0)[:, ::-1], axis=1)
+    chosen = np.take_along_axis(key, k[:, None, None], axis=2)[:, :, 0]  # (n, 4)
+    out[moving, 0] = chosen[:, 1]
+    out[moving, 1] += chosen[:, 2]
+    out[moving, 2] += chosen[:, 3]
     return out
 
 
 def _next_one(ts: tuple[Term, ...], layer: int, r: int, c: int, rng: np.random.Generator) -> tuple[int, int, int]:
     """:func:`sample_next` for one moving state (the same uniform and arithmetic, on scalars)."""
-    x = float(rng.random(1)[0])
+    x = rng.random()
     p = [float(t.weight[r, c]) if t.src == layer else 0.0 for t in ts]
     total = 0.0
     for q in p:

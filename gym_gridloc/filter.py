@@ -72,6 +72,7 @@ class ForwardFilter:
             model = model.with_kidnapping(kidnap_prob)
         self.model = model
         self._step = engine.stepper(model, normalise=False)
+        self._to_reading = model.sensor.to_reading
         self._f: np.ndarray | None = None
         self._spare: np.ndarray | None = None  # the other buffer: steps alternate between the two
         self._scale = 1.0  # the belief is self._f * self._scale (see step)
@@ -109,11 +110,13 @@ class ForwardFilter:
     def step(self, action: int | None, observation: Any) -> "ForwardFilter":
         """Predict with ``action``, then update with ``observation``.  On an impossible
         observation the belief is left as it was before the step."""
-        reading = self.model.sensor.to_reading(observation)
+        reading = self._to_reading(observation)
         before = self._f
         if before is None:
             raise RuntimeError("call ForwardFilter.reset() before using the filter")
-        out = self._buffer(before)
+        out = self._spare
+        if out is None or out is before:
+            out = np.empty_like(before)
         zz = self._step(before, action, reading, out)
         # Normalised lazily: the next read (or step) multiplies by 1/z, a pass that a loop of
         # steps without reads never pays; the log likelihood carries the deferred scale.
@@ -125,12 +128,13 @@ class ForwardFilter:
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
-        del state["_step"]  # a bound engine function: rebuilt on load
+        del state["_step"], state["_to_reading"]  # bound functions: rebuilt on load
         return state
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         self._step = engine.stepper(self.model, normalise=False)
+        self._to_reading = self.model.sensor.to_reading
 
     def _buffer(self, f: np.ndarray) -> np.ndarray:
         spare = self._spare

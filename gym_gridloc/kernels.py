@@ -115,7 +115,7 @@ class NumbaPlan:
         per_action = [(self.w[a], self.meta[a]) for a in range(len(transitions))]
 
         def run_one(belief, action: int, lik, layered: int, out, mode: int) -> float:
-            """One flat belief with one action (see the module docstring)."""
+            """One belief (flat, or C-contiguous (L, H, W)) with one action (see the module docstring)."""
             w, meta = per_action[action]
             return one(belief, w, meta, lik, layered, out, n, mode)
 
@@ -168,7 +168,8 @@ class NumpyPlan:
             _dia_matvec(hw, hw, 1, hw, offsets, rows, b[src * hw : (src + 1) * hw], out[dst * hw : (dst + 1) * hw])
 
     def run_one(self, belief, action: int, lik, layered: int, out, mode: int) -> float:
-        """One flat belief with one action (see the module docstring)."""
+        """One belief (flat, or C-contiguous (L, H, W)) with one action (see the module docstring)."""
+        belief, out = belief.reshape(-1), out.reshape(-1)
         self.predict_one(belief, action, out)
         if mode == 0:
             return 1.0

@@ -1,7 +1,8 @@
 """The referee: what an episode reports, and when it ends, from the exact posterior.
 
 The single environment and the native vector environment build ``info``, the reward and the
-termination with these functions, for a batch of N (the single environment's N is 1).
+termination with these functions: :func:`summarise` for a batch of N, :func:`summary` for one
+belief (the same numbers, on scalars; a test holds them equal).
 """
 
 from __future__ import annotations
@@ -9,6 +10,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from scipy.special import entr
+
+_LN2 = float(np.log(2.0))
 
 #: Reward kinds: ``"step"`` is -1 per step; ``"belief"`` is the referee's confidence (the largest
 #: posterior probability it tests: the research protocol's reward).
@@ -31,7 +35,7 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     tested = flat if pose else pflat
     k = tested.argmax(axis=1)
     confidence = tested[np.arange(n), k]
-    layer, cell = np.divmod(k, h * w)
+    cell = k % (h * w) if pose and L > 1 else k
     estimate = np.empty((n, 2), dtype=k.dtype)
     np.divmod(cell, w, out=(estimate[:, 0], estimate[:, 1]))
     truth = states[:, 1:3]
@@ -39,9 +43,8 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     localised = confidence >= threshold
     right = error == 0
     if pose:
-        right &= layer == states[:, 0]
-    safe = pflat + (pflat <= 0.0)  # log2(1) = 0 where p = 0
-    entropy = -np.einsum("ij,ij->i", pflat, np.log2(safe))
+        right &= k // (h * w) == states[:, 0]
+    entropy = entr(pflat).sum(axis=1) / _LN2  # -p log2 p, 0 where p = 0
     info = {
         "position": truth.copy(),
         "estimate": estimate,
@@ -49,23 +52,46 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
         "error": error,
         "localised": localised,
         "success": localised & right,
-        "entropy": np.maximum(entropy, 0.0),
+        "entropy": entropy,
     }
     if L > 1:
         info["heading"] = states[:, 0].copy()
     if pose:
-        info["estimate_heading"] = layer
+        info["estimate_heading"] = k // (h * w)
     return info
 
 
-def single(info: dict[str, np.ndarray]) -> dict[str, Any]:
-    """Row 0 of :func:`summarise`'s arrays as the single environment reports it: tuples for
-    positions, Python ``int``/``float``/``bool`` for the rest."""
-    out: dict[str, Any] = {}
-    for key, value in info.items():
-        v = value[0].tolist()  # Python scalars (bool, int, float), or a list for a position
-        out[key] = tuple(v) if isinstance(v, list) else v
-    return out
+def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bool = False) -> dict[str, Any]:
+    """:func:`summarise` for one belief ``(L, H, W)`` and its true state ``(3,)``, as the single
+    environment reports it: tuples for positions, Python ``int``/``float``/``bool`` for the rest.
+    The same numbers as row 0 of :func:`summarise` (a test holds them equal), computed on scalars:
+    the single environment pays this on every step."""
+    L, h, w = belief.shape
+    flat = belief.reshape(-1)
+    pos = flat if L == 1 else belief.sum(axis=0).reshape(-1)
+    tested = flat if pose else pos
+    k = int(tested.argmax())
+    confidence = float(tested[k])
+    layer, cell = divmod(k, h * w)
+    estimate = divmod(cell, w)
+    truth_layer, row, col = (int(v) for v in state)
+    error = abs(estimate[0] - row) + abs(estimate[1] - col)
+    localised = confidence >= threshold
+    right = error == 0 and (not pose or layer == truth_layer)
+    info = {
+        "position": (row, col),
+        "estimate": estimate,
+        "confidence": confidence,
+        "error": error,
+        "localised": localised,
+        "success": localised and right,
+        "entropy": float(entr(pos).sum() / _LN2),
+    }
+    if L > 1:
+        info["heading"] = truth_layer
+    if pose:
+        info["estimate_heading"] = layer
+    return info
 
 
 def rewards(kind: str, info: dict[str, np.ndarray]) -> np.ndarray:

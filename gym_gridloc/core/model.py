@@ -267,7 +267,8 @@ class GridModel:
 
     def prior(self) -> np.ndarray:
         """Uniform over free states, (L, H, W)."""
-        return np.where(self.state_mask, 1.0 / self.n_states, 0.0)
+        layer = self.grid.free * (1.0 / self.n_states)
+        return layer[None] if self.n_layers == 1 else np.repeat(layer[None], self.n_layers, axis=0)
 
     def check_action(self, action: Any) -> int:
         """``action`` as an int in ``0..n_actions-1``, or a clear error."""

@@ -11,6 +11,8 @@ state.
 
 from __future__ import annotations
 
+import bisect
+
 from abc import ABC, abstractmethod
 from typing import Any
 
@@ -84,8 +86,8 @@ class Sensor(ABC):
         a uniform draw times the row's total (one uniform per row)."""
         if probs.shape[0] == 1:  # the same numbers, with fewer array operations
             row = probs[0]
-            x = rng.random(1)[0] * row.sum()
-            return np.array([min(int(np.searchsorted(np.cumsum(row), x, side="right")), row.size - 1)])
+            x = rng.random() * row.sum()
+            return np.array([min(bisect.bisect_right(np.cumsum(row).tolist(), x), row.size - 1)])
         cum = np.cumsum(probs, axis=1)
         x = rng.random(probs.shape[0]) * probs.sum(axis=1)
         return np.minimum((cum <= x[:, None]).sum(axis=1), probs.shape[1] - 1)
@@ -231,8 +233,9 @@ class WallSensor(TableSensor):
     ORDER = (3, 0, 1, 2)
     _BITS = np.array([8, 4, 2, 1], dtype=np.int64)
     _SHIFTS = np.array([3, 2, 1, 0], dtype=np.int64)
-    #: The reading of each of the 16 observations, keyed by the observation's int8 bytes.
-    _CODES = dict(zip(map(np.ndarray.tobytes, ((np.arange(16)[:, None] >> _SHIFTS) & 1).astype(np.int8)), range(16)))
+    #: The observation of each of the 16 readings, and each reading keyed by its observation's bytes.
+    _OBSERVATIONS = ((np.arange(16)[:, None] >> _SHIFTS) & 1).astype(np.int8)
+    _CODES = dict(zip(map(np.ndarray.tobytes, _OBSERVATIONS), range(16)))
 
     def __init__(self, grid: GridMap, p_detect: float = 0.85, p_false_alarm: float = 0.10) -> None:
         super().__init__(grid)
@@ -260,6 +263,8 @@ class WallSensor(TableSensor):
         return bits.astype(np.int64) @ self._BITS
 
     def to_observation(self, reading: int) -> np.ndarray:
+        if type(reading) is int and 0 <= reading < 16:
+            return self._OBSERVATIONS[reading].copy()
         return self.observations(np.array([reading]))[0]
 
     def to_reading(self, observation: Any) -> int:

@@ -166,8 +166,7 @@ class GridLocEnv(gym.Env):
         return self.model.sensor.to_observation(reading)
 
     def _info(self) -> dict[str, Any]:
-        f = self._referee.full_belief
-        return referee.single(referee.summarise(f[None], self._states, self.localise_threshold, pose=self.referee_pose))
+        return referee.summary(self._referee.full_belief, self._states[0], self.localise_threshold, pose=self.referee_pose)
 
     # Exposed for renderers and tests: the true hidden state and the referee's posterior.
     @property
