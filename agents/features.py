@@ -194,39 +194,23 @@ class CellPoolCNN(BaseFeaturesExtractor):
     is tied to a place of the map, so what it learns on one map applies on any (the position
     counterpart of :class:`PosePoolCNN`, for ``ColourGrid-v0`` and ``WindyMaze-v0`` maps).
 
-    ``lookahead=2`` (maps with labels, such as colours) adds what two moves could read: for every
-    cell and every pair of moves (N, E, S, W; a blocked move stays) the labels of the two cells
-    reached, as one-hot pairs (``16 K^2`` features for ``K`` labels), averaged over the belief.
-    That average is the joint distribution of the next two true labels under each pair of
-    commanded moves; slips and sensor noise mix it linearly, so the head can weigh moves the way a
-    two-step lookahead does.  With it the pooled vector also carries the belief's largest
-    probability and its entropy (scaled by ``log n``).  ``lookahead=0`` (default) leaves it out.
-
-    Parameters: ``channels`` (32), ``layers`` (4), ``features`` out (256), ``max_dilation`` (4),
-    ``lookahead`` (0 or 2).
+    Parameters: ``channels`` (32), ``layers`` (4), ``features`` out (256), ``max_dilation`` (4).
     """
 
     #: Reads Dict observations (``MultiInputPolicy``).
     dict_observations = True
 
     def __init__(self, observation_space: spaces.Dict, channels: int = 32, layers: int = 4, features: int = 256,
-                 max_dilation: int = 4, lookahead: int = 0) -> None:
+                 max_dilation: int = 4) -> None:
         _require_keys(observation_space, "CellPoolCNN")
         belief, maps = observation_space["belief"].shape, observation_space["map"].shape
         if belief[-2:] != maps[-2:]:
             raise ValueError(f"CellPoolCNN: the belief {belief} and the map {maps} must cover the same grid")
-        if lookahead not in (0, 2):
-            raise ValueError(f"CellPoolCNN: lookahead must be 0 or 2, got {lookahead!r}")
-        if lookahead and maps[0] < 2:
-            raise ValueError(f"CellPoolCNN: lookahead reads the map's labels (channels after the free cells); "
-                             f"this map has only {maps[0]} channel")
         reading = get_flattened_obs_dim(observation_space["observation"])
         super().__init__(observation_space, features_dim=features + reading)
-        self.lookahead = lookahead
-        pairs = 16 * (maps[0] - 1) ** 2 + 2 if lookahead else 0
         self.first = nn.Conv2d(maps[0], channels, 3, padding=1)
         self.convs = _dilated_convs(channels, layers, max_dilation)
-        self.head = nn.Sequential(nn.Linear(3 * channels + 1 + pairs, features), nn.ReLU())
+        self.head = nn.Sequential(nn.Linear(3 * channels + 1, features), nn.ReLU())
         self.n_cells = belief[-1] * belief[-2]
 
     def cell_features(self, maps: torch.Tensor) -> torch.Tensor:
@@ -242,34 +226,8 @@ class CellPoolCNN(BaseFeaturesExtractor):
         spread = torch.sqrt((torch.einsum("bcs,bs->bc", f * f, b) - mean * mean).clamp(min=0.0) + 1e-6)
         support, size = _support(b, self.n_cells)
         top = (f * support.unsqueeze(1)).amax(dim=2)
-        pooled = [mean, spread, top, size]
-        if self.lookahead:
-            entropy = -(b * torch.log(b.clamp(min=1e-12))).sum(dim=1, keepdim=True) / math.log(max(self.n_cells, 2))
-            pairs = torch.einsum("bps,bs->bp", two_move_labels(obs["map"]), b)
-            pooled += [b.amax(dim=1, keepdim=True), entropy, pairs]
-        return torch.cat([self.head(torch.cat(pooled, dim=1)), obs["observation"].flatten(1)], dim=1)
-
-
-def two_move_labels(maps: torch.Tensor) -> torch.Tensor:
-    """``(B, 1 + K, H, W)`` maps (free cells, then ``K`` label channels) -> ``(B, 16 K^2, H*W)``:
-    for every cell and every pair of moves (d1, d2) in N, E, S, W (a move into a wall or off the
-    grid stays), the outer product of the one-hot labels of the cell reached by d1 and of the cell
-    reached by d1 then d2."""
-    free, labels = maps[:, 0], maps[:, 1:].flatten(2)  # (B, H, W), (B, K, cells)
-    bsz, k, cells = labels.shape
-    w = free.shape[-1]
-    here = torch.arange(cells, device=maps.device).expand(bsz, cells)
-    step = []  # the cell each move reaches from every cell, (B, cells) per move
-    for dy, dx in ((-1, 0), (0, 1), (1, 0), (0, -1)):
-        open_ = _shifted(free, dy, dx).flatten(1) > 0.5
-        step.append(torch.where(open_, here + dy * w + dx, here))
-    first = [torch.gather(labels, 2, s.unsqueeze(1).expand(-1, k, -1)) for s in step]
-    out = []
-    for d1, s1 in enumerate(step):
-        for s2 in step:
-            second = torch.gather(labels, 2, torch.gather(s2, 1, s1).unsqueeze(1).expand(-1, k, -1))
-            out.append((first[d1].unsqueeze(2) * second.unsqueeze(1)).flatten(1, 2))
-    return torch.cat(out, dim=1)
+        pooled = torch.cat([mean, spread, top, size], dim=1)
+        return torch.cat([self.head(pooled), obs["observation"].flatten(1)], dim=1)
 
 
 class BeliefLogFeatures(BaseFeaturesExtractor):

@@ -144,51 +144,6 @@ def test_cell_pooling_moves_with_the_map_and_reads_colour_maps():
                                  "map": spaces.Box(0, 1, (5, 7, 7))}))
 
 
-def test_two_move_labels_are_the_joint_distribution_of_two_readings():
-    """Averaged over a belief, the lookahead features are the joint distribution of the next two
-    readings under each pair of moves, as the engine computes it for a robot that never slips and
-    reads without error (obstacles and the border block moves)."""
-    from gym_gridloc import engine
-    from gym_gridloc.generators import colour_map
-    from gym_gridloc.wrappers import map_channels
-
-    from gym_gridloc_agents.features import two_move_labels
-
-    model = gym_gridloc.colour_grid_model(colour_map((6, 7), obstacle_density=0.25, seed=3), slip=0.0, accuracy=1.0)
-    rng = np.random.default_rng(1)
-    belief = rng.random(model.grid.shape) * model.grid.free
-    belief /= belief.sum()
-    pairs = torch.einsum("bps,bs->bp", two_move_labels(torch.as_tensor(map_channels(model))[None]),
-                         torch.as_tensor(belief.ravel(), dtype=torch.float32)[None])[0].numpy().reshape(4, 4, 4, 4)
-    for a1 in range(4):
-        after1 = engine.predict(model, belief[None], a1)
-        for r1 in range(4):
-            seen = after1 * engine.likelihood(model, r1)
-            for a2 in range(4):
-                after2 = engine.predict(model, seen, a2)
-                for r2 in range(4):
-                    assert pairs[a1, a2, r1, r2] == pytest.approx(float((after2 * engine.likelihood(model, r2)).sum()), abs=1e-6)
-    assert pairs.sum(axis=(2, 3)) == pytest.approx(np.ones((4, 4)), abs=1e-6)
-
-
-def test_cell_pooling_lookahead():
-    from gym_gridloc.generators import colour_map
-
-    model = gym_gridloc.colour_grid_model(colour_map((9, 9), obstacle_density=0.2, seed=0))
-    space = spaces.Dict({"observation": spaces.Box(0, 1, (4,)), "belief": spaces.Box(0, 1, (9, 9)),
-                         "map": spaces.Box(0, 1, (5, 9, 9))})
-    net = CellPoolCNN(space, channels=8, layers=3, features=16, lookahead=2)
-    assert net.head[0].in_features == 3 * 8 + 1 + 16 * 16 + 2
-    belief = model.prior()[0]
-    out = net(_colour_observation(model, belief))
-    assert out.shape == (1, 16 + 4) and torch.isfinite(out).all()
-    with pytest.raises(ValueError, match="lookahead must be 0 or 2"):
-        CellPoolCNN(space, lookahead=1)
-    with pytest.raises(ValueError, match="lookahead reads the map's labels"):
-        CellPoolCNN(spaces.Dict({"observation": spaces.Box(0, 1, (4,)), "belief": spaces.Box(0, 1, (9, 9)),
-                                 "map": spaces.Box(0, 1, (1, 9, 9))}), lookahead=2)
-
-
 def test_belief_map_cnn_shapes():
     net = BeliefMapCNN(_space(7), channels=4, layers=2, features=8)
     model = _maze(7, 0)
