@@ -32,9 +32,6 @@ class BeliefOps:
         lik[:] = table.reshape(self.Z, -1, H, W)  # broadcast over layers for position sensors
         self.lik = lik
         self.lik_flat_t = np.ascontiguousarray(lik.reshape(self.Z, -1).T)  # (LHW, Z)
-        # Sensor entropy at each hidden state (bits), for features.
-        p = lik.reshape(self.Z, -1)
-        self.sensor_entropy = -(p * np.log2(np.where(p > 0, p, 1.0))).sum(axis=0).reshape(L, H, W)
         free = np.asarray(model.grid.free, dtype=bool)
         self.free = free
         self.n_free = int(free.sum())

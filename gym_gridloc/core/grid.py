@@ -17,7 +17,6 @@ from gym_gridloc.core.errors import MapError
 
 #: Directions and actions: 0 = N (row-1), 1 = E (col+1), 2 = S (row+1), 3 = W (col-1).
 DIRECTIONS = np.array([(-1, 0), (0, 1), (1, 0), (0, -1)], dtype=np.int64)
-DIRECTION_NAMES = ("N", "E", "S", "W")
 
 
 @dataclass(frozen=True, eq=False)

@@ -349,7 +349,7 @@ class DepthSensor(TableSensor):
         eps = self.p_depth_error
         for z in range(1, self.n_readings):
             table[z] += np.where(depth == z, 1.0 - eps, 0.0)
-            for other, sign in ((z - 1, -1), (z + 1, 1)):
+            for other in (z - 1, z + 1):
                 # P(read z | true depth `other`): the error that lands on z from `other`
                 if 1 <= other <= self.max_depth:
                     two_sided = (other - 1 >= 1) & (other + 1 <= self.max_depth)
