@@ -49,7 +49,7 @@ class _Derived:
     __slots__ = ("transitions", "_plan", "_moves", "_liks", "_lik_bytes", "layered", "_steppers", "__weakref__")
 
     #: At most this many bytes of single-reading likelihoods are kept per model.
-    LIK_CACHE_BYTES = 32 * 2**20
+    LIK_CACHE_BYTES = 8 * 2**20
 
     def __init__(self, model: GridModel) -> None:
         # Index n_actions is the unknown action: the average of the others (built on first use

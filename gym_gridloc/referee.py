@@ -10,13 +10,15 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.special import entr
-
-_LN2 = float(np.log(2.0))
 
 #: Reward kinds: ``"step"`` is -1 per step; ``"belief"`` is the referee's confidence (the largest
 #: posterior probability it tests: the research protocol's reward).
 REWARDS = ("step", "belief")
+
+
+def _entropy(p: np.ndarray) -> np.ndarray:
+    """Entropy in bits along the last axis (``0 log 0 = 0``); the same sums for one row or N."""
+    return -(p * np.log2(p + (p <= 0.0))).sum(axis=-1) + 0.0  # + 0.0: no -0.0 for a sure belief
 
 
 def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose: bool = False) -> dict[str, np.ndarray]:
@@ -44,7 +46,7 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     right = error == 0
     if pose:
         right &= k // (h * w) == states[:, 0]
-    entropy = entr(pflat).sum(axis=1) / _LN2  # -p log2 p, 0 where p = 0
+    entropy = _entropy(pflat)
     info = {
         "position": truth.copy(),
         "estimate": estimate,
@@ -85,7 +87,7 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
         "error": error,
         "localised": localised,
         "success": localised and right,
-        "entropy": float(entr(pos).sum() / _LN2),
+        "entropy": float(_entropy(pos)),
     }
     if L > 1:
         info["heading"] = truth_layer

@@ -220,7 +220,7 @@ def main(argv=None) -> None:
                 base, peak, loaded = memory(env_id, kwargs, numba)
                 note = f", numba {'loaded' if loaded else 'not loaded'}" if numba else ""
                 cols.append(f"{peak * 1.048576:4.0f} MB (imports {base * 1.048576:3.0f}){note}")
-            name = env_id + (" seed dynamics" if kwargs.get("dynamics") == "seed" else "")
+            name = env_id + (" passive dynamics" if kwargs.get("dynamics") == "passive" else "")
             print(f"  {name:<32} {cols[0]:>38} {cols[1]:>24}")
 
 
