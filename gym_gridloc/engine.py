@@ -18,8 +18,9 @@ Kidnapping (``model.kidnap_prob``: after a move, the robot is teleported to a un
 state) is mixed in here and nowhere else: :func:`predict` and :func:`backward` mix it into the
 beliefs, :func:`sample_next` draws it.
 
-What the engine derives from a model (the plan of its kernel, the average transition) is cached
-here, per model object, never stored on the model: a :class:`GridModel` is frozen data.
+What the engine derives from a model (the plan of its kernel, the average transition, the batched
+sampler's table of every action's terms) is cached here, per model object, never stored on the
+model: a :class:`GridModel` is frozen data.
 
 This module is longer than 400 lines on purpose: it is the one place where a model's numbers are
 applied, so that no caller writes a prediction, an update or a sampler again.
