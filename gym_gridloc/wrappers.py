@@ -74,9 +74,10 @@ def batch_observation(model: GridModel, observations: Any, readings: np.ndarray,
     """N observations with their beliefs appended, as :func:`belief_observation_space` lays
     them out: ``observations`` are the N sensor observations (a batch, or a dict of batches),
     ``readings`` their reading indices, ``beliefs`` float32 ``(N, ...)``, ``maps`` ``(N, C, H, W)``
-    map channels or None."""
-    n = readings.shape[0]
+    map channels or None.  Without ``flatten`` the layout does not depend on N: one observation,
+    its belief and its map (no batch axis) give the single observation (``readings`` unused)."""
     if flatten:
+        n = readings.shape[0]
         parts = [model.sensor.encode(readings), beliefs.reshape(n, -1)]
         if maps is not None:
             parts.append(maps.reshape(n, -1))
@@ -248,12 +249,10 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         return b
 
     def observation(self, observation: Any) -> dict[str, Any] | np.ndarray:
-        sensor_obs = self._sensor_obs(observation)
-        reading = np.array([self.model.sensor.to_reading(sensor_obs)]) if self.flatten else None
-        maps = map_channels(self.model)[None] if self.map else None
-        batched = {k: [v] for k, v in observation.items()} if isinstance(observation, dict) else [observation]
-        out = batch_observation(self.model, batched, reading if reading is not None else np.zeros(1, dtype=np.int64),
-                                self.belief_array()[None], flatten=self.flatten, key=self.key, maps=maps)
-        if self.flatten:
-            return out[0]
-        return {k: (v[0] if isinstance(v, (list, np.ndarray)) else v) for k, v in out.items()}
+        maps = map_channels(self.model) if self.map else None
+        if not self.flatten:
+            return batch_observation(self.model, observation, None, self.belief_array(), flatten=False, key=self.key,
+                                     maps=maps)
+        reading = np.array([self.model.sensor.to_reading(self._sensor_obs(observation))])
+        return batch_observation(self.model, None, reading, self.belief_array()[None], flatten=True,
+                                 maps=None if maps is None else maps[None])[0]
