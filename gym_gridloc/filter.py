@@ -114,7 +114,7 @@ class ForwardFilter:
         before = self._f
         if before is None:
             raise RuntimeError("call ForwardFilter.reset() before using the filter")
-        out = self._spare
+        out = self._spare  # _buffer() inlined: this is the filter's hot path (same shapes here)
         if out is None or out is before:
             out = np.empty_like(before)
         zz = self._step(before, action, reading, out)

@@ -45,7 +45,8 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     localised = confidence >= threshold
     right = error == 0
     if pose:
-        right &= k // (h * w) == states[:, 0]
+        layer = k // (h * w)
+        right &= layer == states[:, 0]
     entropy = _entropy(pflat)
     info = {
         "position": truth.copy(),
@@ -59,7 +60,7 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     if L > 1:
         info["heading"] = states[:, 0].copy()
     if pose:
-        info["estimate_heading"] = k // (h * w)
+        info["estimate_heading"] = layer
     return info
 
 
