@@ -3,7 +3,6 @@
 
 - :mod:`~gym_gridloc_agents.policies`: ``random``, ``greedy``, ``greedy2``, ``ppo``, ``recurrent``
   behind one interface, ``policy.reset(seed, model)`` then ``policy.act(observation, belief)``;
-- :mod:`~gym_gridloc_agents.lookahead`: the exact expectations the lookahead policies compute;
 - :mod:`~gym_gridloc_agents.rollout`: one episode of a policy (used by everything below);
 - :mod:`~gym_gridloc_agents.envs`: environment factories and the SB3 adapter of the vector env;
 - :mod:`~gym_gridloc_agents.files`: atomic writes, model metadata, safe model loading (model zips

@@ -37,7 +37,7 @@ TOP_KEYS = {
     "algo": "ppo or recurrent_ppo",
     "env_id": "a registered environment id",
     "env_kwargs": "keyword arguments of gym.make",
-    "wrapper": "HMMBeliefWrapper options: belief, flatten, full_state",
+    "wrapper": "HMMBeliefWrapper options: belief, flatten, full_state, map, lookahead",
     "n_envs": "number of parallel environments (DummyVecEnv)",
     "seed": "the seed of environments, numpy and torch",
     "total_timesteps": "environment steps to train for",
@@ -72,7 +72,7 @@ PRETRAIN_KEYS = {
     "learning_rate_final": "if set, each fit lowers the learning rate along a cosine to this",
 }
 
-WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool}
+WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool, "lookahead": int}
 
 POLICIES = {
     "ppo": ("MlpPolicy", "MultiInputPolicy"),
@@ -195,10 +195,13 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     wrapper.setdefault("full_state", False)
     wrapper.setdefault("map", False)
     for k, v in wrapper.items():
-        if not isinstance(v, bool):
+        if k == "lookahead":
+            if not isinstance(v, int) or isinstance(v, bool) or v not in (0, 1, 2):
+                raise ConfigError(f"{source}: wrapper.lookahead must be 0, 1 or 2, got {v!r}")
+        elif not isinstance(v, bool):
             raise ConfigError(f"{source}: wrapper.{k} must be true or false, got {v!r}")
-    if not wrapper["belief"] and (wrapper["flatten"] or wrapper["full_state"] or wrapper["map"]):
-        raise ConfigError(f"{source}: wrapper.flatten / wrapper.full_state / wrapper.map need wrapper.belief: true")
+    if not wrapper["belief"] and (wrapper["flatten"] or wrapper["full_state"] or wrapper["map"] or wrapper.get("lookahead")):
+        raise ConfigError(f"{source}: wrapper.flatten / wrapper.full_state / wrapper.map / wrapper.lookahead need wrapper.belief: true")
     cfg["vec_env"] = cfg.get("vec_env", "dummy")
     if cfg["vec_env"] not in ("dummy", "native"):
         raise ConfigError(f"{source}: vec_env must be dummy or native, got {cfg['vec_env']!r}")

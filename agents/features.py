@@ -194,6 +194,12 @@ class CellPoolCNN(BaseFeaturesExtractor):
     is tied to a place of the map, so what it learns on one map applies on any (the position
     counterpart of :class:`PosePoolCNN`, for ``ColourGrid-v0`` and ``WindyMaze-v0`` maps).
 
+    With a ``"lookahead"`` observation (``HMMBeliefWrapper(lookahead=...)``: the expected
+    entropies after each first action) these go into the linear layer too, and are passed on
+    beside its output as they are and less their row's minimum (how much worse than the best
+    action each action is expected to leave the belief), so that the policy can rank the actions
+    by them directly.
+
     Parameters: ``channels`` (32), ``layers`` (4), ``features`` out (256), ``max_dilation`` (4).
     """
 
@@ -207,10 +213,12 @@ class CellPoolCNN(BaseFeaturesExtractor):
         if belief[-2:] != maps[-2:]:
             raise ValueError(f"CellPoolCNN: the belief {belief} and the map {maps} must cover the same grid")
         reading = get_flattened_obs_dim(observation_space["observation"])
-        super().__init__(observation_space, features_dim=features + reading)
+        look = observation_space.spaces.get("lookahead")
+        self.n_look = int(math.prod(look.shape)) if look is not None else 0
+        super().__init__(observation_space, features_dim=features + 2 * self.n_look + reading)
         self.first = nn.Conv2d(maps[0], channels, 3, padding=1)
         self.convs = _dilated_convs(channels, layers, max_dilation)
-        self.head = nn.Sequential(nn.Linear(3 * channels + 1, features), nn.ReLU())
+        self.head = nn.Sequential(nn.Linear(3 * channels + 1 + 2 * self.n_look, features), nn.ReLU())
         self.n_cells = belief[-1] * belief[-2]
 
     def cell_features(self, maps: torch.Tensor) -> torch.Tensor:
@@ -227,7 +235,11 @@ class CellPoolCNN(BaseFeaturesExtractor):
         support, size = _support(b, self.n_cells)
         top = (f * support.unsqueeze(1)).amax(dim=2)
         pooled = torch.cat([mean, spread, top, size], dim=1)
-        return torch.cat([self.head(pooled), obs["observation"].flatten(1)], dim=1)
+        if not self.n_look:
+            return torch.cat([self.head(pooled), obs["observation"].flatten(1)], dim=1)
+        look = obs["lookahead"]  # (B, depth, A)
+        look = torch.cat([look, look - look.amin(dim=2, keepdim=True)], dim=1).flatten(1)
+        return torch.cat([self.head(torch.cat([pooled, look], dim=1)), look, obs["observation"].flatten(1)], dim=1)
 
 
 class BeliefLogFeatures(BaseFeaturesExtractor):

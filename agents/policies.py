@@ -28,7 +28,7 @@ from gymnasium import spaces
 
 from gym_gridloc.core.model import GridModel
 from gym_gridloc_agents.base import Policy
-from gym_gridloc_agents.lookahead import Lookahead
+from gym_gridloc.lookahead import Lookahead
 
 #: Names accepted by :func:`make_policy`.
 POLICY_NAMES = ("random", "greedy", "greedy2", "central", "expectimax", "mcts", "optimal", "pomcp", "ppo", "recurrent")
@@ -53,7 +53,7 @@ class GreedyPolicy(Policy):
     """One-step information gain: ``argmin_a E_z[H(position | belief, a, z)]``, exact.
 
     The prediction ``b' = T_a b`` is taken over the full hidden state (headings included), the
-    expectation over every reading the sensor can give (:class:`~gym_gridloc_agents.lookahead.Lookahead`).
+    expectation over every reading the sensor can give (:class:`~gym_gridloc.lookahead.Lookahead`).
     ``pose=True`` (where the referee tests poses) minimises the entropy of the full hidden state
     instead.  Ties (within 1e-9) are broken uniformly with the policy's seeded generator.
     """
@@ -148,27 +148,33 @@ class PPOPolicy(Policy):
 
         w = self.wrapper
         return belief_observation_space(model, model.sensor.observation_space, flatten=w["flatten"],
-                                        full_state=w["full_state"], map=w["map"])
+                                        full_state=w["full_state"], map=w["map"], lookahead=w["lookahead"])
 
     def encode(self, observation: Any, belief: np.ndarray) -> Any:
         """The observation the model's ``HMMBeliefWrapper`` would give."""
-        return wrapped_observation(self.model, observation, self._full_belief(belief), **self.wrapper)
+        look = getattr(self, "_look", None)
+        if self.wrapper["lookahead"] and (look is None or look.model is not self.model):
+            look = self._look = Lookahead(self.model, pose=self.wrapper["full_state"])
+        return wrapped_observation(self.model, observation, self._full_belief(belief), look=look, **self.wrapper)
 
     def act(self, observation: Any, belief: np.ndarray) -> int:
         action, _ = self.sb3.predict(self.encode(observation, belief), deterministic=self.deterministic)
         return int(action)
 
 
-def _wrapper_options(wrapper: dict[str, Any] | None) -> dict[str, bool]:
+def _wrapper_options(wrapper: dict[str, Any] | None) -> dict[str, Any]:
     w = dict(wrapper or {"flatten": True})
     return {"flatten": bool(w.get("flatten", False)), "full_state": bool(w.get("full_state", False)),
-            "map": bool(w.get("map", False))}
+            "map": bool(w.get("map", False)), "lookahead": int(w.get("lookahead", 0))}
 
 
 def wrapped_observation(model: GridModel, observation: Any, belief: np.ndarray, *, flatten: bool = True,
-                        full_state: bool = False, map: bool = False) -> Any:
-    """The observation ``HMMBeliefWrapper(flatten=..., full_state=..., map=...)`` gives for a
-    sensor observation and the hidden-state belief ``(L, H, W)``."""
+                        full_state: bool = False, map: bool = False, lookahead: int = 0,
+                        look: Lookahead | None = None) -> Any:
+    """The observation ``HMMBeliefWrapper(flatten=..., full_state=..., map=..., lookahead=...)``
+    gives for a sensor observation and the hidden-state belief ``(L, H, W)`` (``look``: a
+    :class:`Lookahead` of ``model`` to reuse)."""
+    from gym_gridloc.lookahead import lookahead_features
     from gym_gridloc.wrappers import batch_observation, map_channels
 
     b = np.asarray(belief)
@@ -176,7 +182,12 @@ def wrapped_observation(model: GridModel, observation: Any, belief: np.ndarray, 
     np.clip(b, 0.0, 1.0, out=b)
     reading = np.array([model.sensor.to_reading(observation)])
     maps = map_channels(model)[None] if map else None
-    out = batch_observation(model, [observation], reading, b[None], flatten=flatten, maps=maps)
+    la = None
+    if lookahead:
+        if look is None or look.model is not model:
+            look = Lookahead(model, pose=full_state)
+        la = lookahead_features(look, np.asarray(belief), lookahead)[None]
+    out = batch_observation(model, [observation], reading, b[None], flatten=flatten, maps=maps, lookahead=la)
     return out[0] if flatten else {k: np.asarray(v[0]) for k, v in out.items()}
 
 

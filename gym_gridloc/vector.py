@@ -31,7 +31,9 @@ from gymnasium.vector.utils import batch_space
 
 from gym_gridloc import engine, referee
 from gym_gridloc.envs.base import GridLocEnv
-from gym_gridloc.wrappers import batch_observation, belief_observation_space, check_belief_option, map_channels
+from gym_gridloc.lookahead import Lookahead, lookahead_features
+from gym_gridloc.wrappers import (batch_observation, belief_observation_space, check_belief_option, check_lookahead,
+                                  map_channels)
 
 
 class GridLocVectorEnv(gym.vector.VectorEnv):
@@ -46,7 +48,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     belief:
         ``"exact"`` (default): Dict observations ``observation`` and ``belief`` batched as
         ``HMMBeliefWrapper`` would give them; ``None``: the readings only.
-    flatten, full_state, map:
+    flatten, full_state, map, lookahead:
         As for :class:`HMMBeliefWrapper` (with a belief only).
     max_episode_steps:
         Truncation, as ``TimeLimit`` (``gym.make_vec`` passes the registered value).
@@ -66,6 +68,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         flatten: bool = False,
         full_state: bool = False,
         map: bool = False,
+        lookahead: int = 0,
         max_episode_steps: int | None = None,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         render_mode: str | None = None,
@@ -80,6 +83,10 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         for name, value in (("flatten", flatten), ("full_state", full_state), ("map", map)):
             if not isinstance(value, bool):
                 raise TypeError(f"{name} must be True or False, got {value!r}")
+        self.lookahead = check_lookahead(lookahead)
+        if self.lookahead and self.belief is None:
+            raise ValueError("lookahead needs a belief (belief='exact')")
+        self._looks: dict[int, Lookahead] = {}
         if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
             raise ValueError(f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}")
         self.autoreset_mode = self._mode(autoreset_mode)
@@ -94,7 +101,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self.flatten, self.full_state, self.map = flatten, full_state, map
         if self.belief is not None:
             self.single_observation_space = belief_observation_space(model, template.observation_space, flatten=flatten,
-                                                                     full_state=full_state, map=map)
+                                                                     full_state=full_state, map=map,
+                                                                     lookahead=self.lookahead)
         else:
             self.single_observation_space = template.observation_space
         self.single_action_space = template.action_space
@@ -200,7 +208,19 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         if self.map:
             channels = {id(m): map_channels(m) for m in self.models}
             maps = np.stack([channels[id(m)] for m in self.models])
-        return batch_observation(model, obs, self._readings, b, flatten=self.flatten, maps=maps)
+        return batch_observation(model, obs, self._readings, b, flatten=self.flatten, maps=maps,
+                                 lookahead=self._lookahead_features())
+
+    def _lookahead_features(self) -> np.ndarray | None:
+        """``(N, lookahead, A)`` expected entropies per action (one lookahead per distinct model)."""
+        if not self.lookahead:
+            return None
+        looks = {}
+        for m in self.models:
+            look = self._looks.get(id(m))
+            looks[id(m)] = look if look is not None and look.model is m else Lookahead(m, pose=self.full_state)
+        self._looks = looks  # only the current models' (maps redrawn at reset are let go)
+        return np.stack([lookahead_features(looks[id(m)], b, self.lookahead) for m, b in zip(self.models, self._beliefs)])
 
     def _infos(self) -> dict[str, np.ndarray]:
         t = self.template

@@ -13,6 +13,7 @@ from gym_gridloc.core.errors import ImpossibleObservationError
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.core.validation import check_choice
 from gym_gridloc.filter import ForwardFilter
+from gym_gridloc.lookahead import Lookahead, lookahead_features
 
 
 _RESET_HINT = "pass on_impossible='reset' to HMMBeliefWrapper to restart the belief from the prior instead"
@@ -42,23 +43,36 @@ def map_channels(model: GridModel) -> np.ndarray:
     return out
 
 
+def check_lookahead(lookahead: Any) -> int:
+    """The ``lookahead=`` keyword: 0 (none), 1 or 2 (rows of :func:`lookahead_features`)."""
+    if isinstance(lookahead, (bool, np.bool_)) or not isinstance(lookahead, (int, np.integer)) or lookahead not in (0, 1, 2):
+        raise ValueError(f"lookahead must be 0, 1 or 2 (the rows of expected entropies per action), got {lookahead!r}")
+    return int(lookahead)
+
+
 def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: bool = False,
-                             full_state: bool = False, key: str = "belief", map: bool = False) -> spaces.Space:
+                             full_state: bool = False, key: str = "belief", map: bool = False,
+                             lookahead: int = 0) -> spaces.Space:
     """The observation space of ``inner`` with the belief of ``model`` appended (and the map, with
-    ``map``), as :class:`HMMBeliefWrapper` and the native vector env give it."""
+    ``map``; the expected entropies per action, with ``lookahead``), as :class:`HMMBeliefWrapper`
+    and the native vector env give it."""
     shape = model.belief_shape if full_state else model.shape
     belief_space = spaces.Box(0.0, 1.0, shape=shape, dtype=np.float32)
     map_shape = map_channels(model).shape
+    look_shape = (lookahead, model.n_actions)
     if flatten:
         if isinstance(inner, spaces.Dict):
             raise ValueError("flatten=True needs a non-Dict observation space")
         if inner != model.sensor.observation_space:
             raise ValueError(f"flatten=True encodes the sensor's {model.sensor.observation_space}, but the observations are {inner}")
-        n = model.sensor.encoded_size + int(np.prod(shape)) + (int(np.prod(map_shape)) if map else 0)
+        n = (model.sensor.encoded_size + int(np.prod(shape)) + (int(np.prod(map_shape)) if map else 0)
+             + int(np.prod(look_shape)))
         return spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
     extra = {key: belief_space}
     if map:
         extra["map"] = spaces.Box(0.0, 1.0, shape=map_shape, dtype=np.float32)
+    if lookahead:
+        extra["lookahead"] = spaces.Box(0.0, 1.0, shape=look_shape, dtype=np.float32)
     if isinstance(inner, spaces.Dict):
         clash = sorted(set(extra) & set(inner.spaces))
         if clash:
@@ -70,21 +84,24 @@ def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: 
 
 
 def batch_observation(model: GridModel, observations: Any, readings: np.ndarray, beliefs: np.ndarray, *,
-                      flatten: bool, key: str = "belief", maps: np.ndarray | None = None):
+                      flatten: bool, key: str = "belief", maps: np.ndarray | None = None,
+                      lookahead: np.ndarray | None = None):
     """N observations with their beliefs appended, as :func:`belief_observation_space` lays
     them out: ``observations`` are the N sensor observations (a batch, or a dict of batches),
     ``readings`` their reading indices, ``beliefs`` float32 ``(N, ...)``, ``maps`` ``(N, C, H, W)``
-    map channels or None.  Without ``flatten`` the layout does not depend on N: one observation,
-    its belief and its map (no batch axis) give the single observation (``readings`` unused)."""
+    map channels or None, ``lookahead`` ``(N, depth, A)`` expected entropies or None.  Without
+    ``flatten`` the layout does not depend on N: one observation, its belief, its map and its
+    expected entropies (no batch axis) give the single observation (``readings`` unused)."""
     if flatten:
         n = readings.shape[0]
         parts = [model.sensor.encode(readings), beliefs.reshape(n, -1)]
-        if maps is not None:
-            parts.append(maps.reshape(n, -1))
+        parts += [x.reshape(n, -1) for x in (maps, lookahead) if x is not None]
         return np.concatenate(parts, axis=1)
     extra = {key: beliefs}
     if maps is not None:
         extra["map"] = maps
+    if lookahead is not None:
+        extra["lookahead"] = lookahead
     if isinstance(observations, dict):
         return {**observations, **extra}
     return {"observation": observations, **extra}
@@ -126,6 +143,13 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         ``(C, H, W)`` of :func:`map_channels`: the free cells, and the colours as one channel each
         on a colour grid), for policies that must read the map (random maps); with ``flatten``
         they are appended to the vector.
+    lookahead:
+        0 (default), 1 or 2: the observation also carries ``"lookahead"``, ``(lookahead, A)``
+        float32: the exact expected entropy of the position (of the full state with
+        ``full_state``) after each first action, one step ahead (row 0, what ``greedy``
+        minimises) and with the best second action (row 1, what ``greedy2`` minimises), as a
+        fraction of ``log2`` of the grid's cell (state) count (:func:`gym_gridloc.lookahead.lookahead_features`).
+        Information features for learned policies; with ``flatten`` they are appended to the vector.
     """
 
     def __init__(
@@ -141,10 +165,12 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         n_particles: int = 1000,
         resample_threshold: float = 0.5,
         map: bool = False,
+        lookahead: int = 0,
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
             self, model=model, flatten=flatten, full_state=full_state, key=key, on_impossible=on_impossible,
             belief=belief, n_particles=n_particles, resample_threshold=resample_threshold, map=map,
+            lookahead=lookahead,
         )
         gym.ObservationWrapper.__init__(self, env)
         #: No model given: follow the environment's, also when it redraws its map at reset.
@@ -169,6 +195,8 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.flatten = bool(flatten)
         self.full_state = bool(full_state)
         self.map = bool(map)
+        self.lookahead = check_lookahead(lookahead)
+        self._look: Lookahead | None = None
         self.key = key
         inner = env.observation_space
         if isinstance(env.action_space, spaces.Discrete) and env.action_space.n != model.n_actions:
@@ -183,7 +211,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         if not isinstance(key, str) or not key:
             raise TypeError(f"key must be a non-empty string, got {key!r}")
         self.observation_space = belief_observation_space(model, inner, flatten=self.flatten, full_state=self.full_state,
-                                                          key=key, map=self.map)
+                                                          key=key, map=self.map, lookahead=self.lookahead)
         self._reset_flag = False
 
     # -- filtering -------------------------------------------------------------------------------
@@ -248,11 +276,22 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         np.clip(b, 0.0, 1.0, out=b)
         return b
 
+    def lookahead_array(self) -> np.ndarray | None:
+        """The expected entropies per action of the current belief ``(lookahead, A)`` (None
+        without ``lookahead``)."""
+        if not self.lookahead:
+            return None
+        if self._look is None or self._look.model is not self.model:
+            self._look = Lookahead(self.model, pose=self.full_state)
+        return lookahead_features(self._look, self.filter.full_belief, self.lookahead)
+
     def observation(self, observation: Any) -> dict[str, Any] | np.ndarray:
         maps = map_channels(self.model) if self.map else None
+        look = self.lookahead_array()
         if not self.flatten:
             return batch_observation(self.model, observation, None, self.belief_array(), flatten=False, key=self.key,
-                                     maps=maps)
+                                     maps=maps, lookahead=look)
         reading = np.array([self.model.sensor.to_reading(self._sensor_obs(observation))])
         return batch_observation(self.model, None, reading, self.belief_array()[None], flatten=True,
-                                 maps=None if maps is None else maps[None])[0]
+                                 maps=None if maps is None else maps[None],
+                                 lookahead=None if look is None else look[None])[0]

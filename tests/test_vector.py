@@ -46,6 +46,8 @@ ONE_CASES = [(env_id, {}, {}) for env_id in ENV_IDS] + [
     ("RingSensor8x8-v0", {"max_episode_steps": 7}, {}),
     ("DepthMaze-v0", {"p_turn_fail": 0.1, "p_move_fail": 0.1, "p_depth_error": 0.1, "kidnap_prob": 0.02}, {"map": True}),
     ("DepthMaze-v0", {"episode_length": 12, "reward": "belief"}, {}),
+    ("ColourGrid-v0", {"size": (6, 6), "new_map_each_reset": True}, {"map": True, "lookahead": 2}),
+    ("WindyMaze-v0", {"kidnap_prob": 0.1}, {"flatten": True, "lookahead": 1}),
 ]
 ONE_IDS = [f"{e}-{k}-{o}" for e, k, o in ONE_CASES]
 
@@ -59,11 +61,12 @@ def make_pair(env_id, kwargs, options, n=1):
 
 def assert_same_observation(vobs, i, sobs):
     """Env ``i`` of a batched observation against a single one: readings and maps exactly, the
-    float32 beliefs within 1e-7 (float64 beliefs within 1e-12 may round either way)."""
+    float32 beliefs and expected entropies within 1e-7 (float64 beliefs within 1e-12 may round
+    either way)."""
     if isinstance(sobs, dict):
         assert set(vobs) == set(sobs)
         for key, value in sobs.items():
-            if key == "belief":
+            if key in ("belief", "lookahead"):
                 np.testing.assert_allclose(vobs[key][i], value, rtol=0, atol=1e-7)
             else:
                 np.testing.assert_array_equal(vobs[key][i], np.asarray(value))
@@ -370,6 +373,10 @@ def test_vector_env_arguments_are_checked():
         GridLocVectorEnv(2, env_class=gym_gridloc.ColourGridEnv, render_mode="rgb_array")
     with pytest.raises(TypeError, match="flatten must be True or False"):
         GridLocVectorEnv(2, env_class=gym_gridloc.ColourGridEnv, flatten=1)
+    with pytest.raises(ValueError, match="lookahead must be 0, 1 or 2"):
+        GridLocVectorEnv(2, env_class=gym_gridloc.ColourGridEnv, lookahead=3)
+    with pytest.raises(ValueError, match="lookahead needs a belief"):
+        GridLocVectorEnv(2, env_class=gym_gridloc.ColourGridEnv, belief=None, lookahead=1)
     with pytest.raises(ValueError, match="max_episode_steps must be a positive integer or None"):
         GridLocVectorEnv(2, env_class=gym_gridloc.ColourGridEnv, max_episode_steps=0)
     with pytest.raises(ValueError, match="autoreset_mode must be"):

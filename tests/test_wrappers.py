@@ -442,3 +442,54 @@ def test_env_memory_does_not_grow(env_id, kwargs):
             assert np.all(np.isfinite(b)) and abs(float(b.sum(dtype=np.float64)) - 1.0) < 1e-5
     tracemalloc.stop()
     assert traced[20_000] - traced[5_000] < 16 * 1024, traced
+
+
+# -- the lookahead observation -------------------------------------------------------------------
+@pytest.mark.parametrize("env_id", ["ColourGrid-v0", "WindyMaze-v0", "DepthMaze-v0"])
+def test_lookahead_rows_are_the_greedy_policies_expected_entropies(env_id):
+    """Row 0 is what greedy minimises, row 1 what greedy2 minimises (the Lookahead's exact
+    expectations), as a fraction of log2 of the grid's cells (states with full_state)."""
+    from gym_gridloc.lookahead import Lookahead
+
+    full_state = env_id == "DepthMaze-v0"
+    env = HMMBeliefWrapper(gym.make(env_id), lookahead=2, full_state=full_state)
+    assert env.observation_space["lookahead"] == spaces.Box(0.0, 1.0, (2, env.unwrapped.model.n_actions), np.float32)
+    obs, _ = env.reset(seed=4)
+    for t in range(6):
+        model = env.unwrapped.model
+        look = Lookahead(model, pose=full_state)
+        cells = model.shape[0] * model.shape[1] * (model.n_layers if full_state else 1)
+        b = env.filter.full_belief
+        expected = np.stack([look.one_step(b), look.two_step(b)]) / np.log2(cells)
+        np.testing.assert_allclose(obs["lookahead"], expected, rtol=1e-6, atol=1e-7)
+        assert obs in env.observation_space
+        obs, _, terminated, truncated, _ = env.step(t % model.n_actions)
+        if terminated or truncated:
+            break
+
+
+def test_lookahead_follows_the_map_and_flattens():
+    env = HMMBeliefWrapper(gym.make("ColourGrid-v0", size=(6, 7), new_map_each_reset=True), map=True, lookahead=1)
+    seen = []
+    for seed in (0, 1):
+        obs, _ = env.reset(seed=seed)
+        seen.append(obs["lookahead"])
+        assert obs["lookahead"].shape == (1, 4) and obs in env.observation_space
+    assert not np.array_equal(seen[0], seen[1])  # two maps, two priors' expectations
+    flat = HMMBeliefWrapper(gym.make("WindyMaze-v0"), flatten=True, lookahead=2)
+    plain = HMMBeliefWrapper(gym.make("WindyMaze-v0"), flatten=True)
+    dict_env = HMMBeliefWrapper(gym.make("WindyMaze-v0"), lookahead=2)
+    a, _ = flat.reset(seed=3)
+    b, _ = plain.reset(seed=3)
+    c, _ = dict_env.reset(seed=3)
+    assert a.shape == (b.shape[0] + 8,) and flat.observation_space.contains(a)
+    np.testing.assert_array_equal(a[: b.shape[0]], b)
+    np.testing.assert_array_equal(a[b.shape[0]:], c["lookahead"].ravel())
+    run_check_env(flat)
+    run_check_env(dict_env)
+
+
+@pytest.mark.parametrize("bad", [3, -1, True, 1.5, "2"])
+def test_lookahead_must_be_0_1_or_2(bad):
+    with pytest.raises(ValueError, match="lookahead must be 0, 1 or 2"):
+        HMMBeliefWrapper(gym.make("WindyMaze-v0"), lookahead=bad)

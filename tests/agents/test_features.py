@@ -144,6 +144,24 @@ def test_cell_pooling_moves_with_the_map_and_reads_colour_maps():
                                  "map": spaces.Box(0, 1, (5, 7, 7))}))
 
 
+def test_cell_pooling_reads_the_lookahead_beside_its_features():
+    """The expected entropies enter the head and pass on raw and less their row's minimum."""
+    torch.manual_seed(0)
+    space = spaces.Dict({"observation": spaces.Box(0, 1, (4,)), "belief": spaces.Box(0, 1, (6, 6)),
+                         "map": spaces.Box(0, 1, (5, 6, 6)), "lookahead": spaces.Box(0, 1, (2, 4))})
+    net = CellPoolCNN(space, channels=4, layers=2, features=8, max_dilation=1)
+    assert net.features_dim == 8 + 16 + 4
+    model = gym_gridloc.colour_grid_model(np.array(list("RGBY"))[np.random.default_rng(1).integers(0, 4, (6, 6))])
+    obs = _colour_observation(model, model.prior()[0])
+    look = torch.tensor([[[0.5, 0.4, 0.6, 0.45], [0.3, 0.2, 0.35, 0.25]]])
+    with torch.no_grad():
+        out = net({**obs, "lookahead": look})
+        torch.testing.assert_close(out[0, 8:16], look.flatten())
+        torch.testing.assert_close(out[0, 16:24], (look - look.amin(dim=2, keepdim=True)).flatten())
+        other = net({**obs, "lookahead": look.flip(2)})
+        assert not torch.allclose(other[0, :8], out[0, :8])  # the head reads them too
+
+
 def test_belief_map_cnn_shapes():
     net = BeliefMapCNN(_space(7), channels=4, layers=2, features=8)
     model = _maze(7, 0)

@@ -248,6 +248,24 @@ def test_ppo_encoding_matches_the_wrapper():
     assert p.sb3.observation_space.contains(obs)
 
 
+def test_ppo_encoding_with_the_lookahead_matches_the_wrapper():
+    """With ``lookahead`` (and a map redrawn at each reset) the policy's observation is the
+    wrapper's, map after map: the expected entropies follow the episode's map."""
+    options = {"flatten": False, "full_state": False, "map": True, "lookahead": 2}
+    env = gym_gridloc.HMMBeliefWrapper(gym.make("ColourGrid-v0", size=6, new_map_each_reset=True), **options)
+    p = PPOPolicy(env.unwrapped.model, sb3_model=object(), wrapper=options)
+    assert p.expected_space(env.unwrapped.model) == env.observation_space
+    for seed in (0, 1):
+        obs, _ = env.reset(seed=seed)
+        p.reset(seed=seed, model=env.unwrapped.model)
+        for t in range(3):
+            mine = p.encode(env.unwrapped.last_reading, env.filter.full_belief)
+            assert set(mine) == set(obs)
+            for key in obs:
+                np.testing.assert_array_equal(mine[key], obs[key])
+            obs, *_ = env.step(t)
+
+
 def test_unknown_policy_name():
     with pytest.raises(ValueError, match="unknown policy 'smart'"):
         make_policy("smart", gym_gridloc.colour_grid_model())

@@ -155,6 +155,11 @@ def test_unknown_keys_are_named(tmp_path):
         validate_config(tiny(tmp_path, policy_kwargs={"features_extractor_class": "os.system"}))
     with pytest.raises(ConfigError, match="wrapper: 'flaten'"):
         validate_config(tiny(tmp_path, wrapper={"flaten": True}))
+    for bad in (3, True, 1.0):
+        with pytest.raises(ConfigError, match="wrapper.lookahead must be 0, 1 or 2"):
+            validate_config(tiny(tmp_path, wrapper={"lookahead": bad}))
+    with pytest.raises(ConfigError, match="wrapper.lookahead need wrapper.belief: true"):
+        validate_config(tiny(tmp_path, wrapper={"belief": False, "flatten": False, "lookahead": 1}))
     with pytest.raises(ConfigError, match="missing required key 'env_id'"):
         validate_config({"algo": "ppo"})
     with pytest.raises(ConfigError, match="'Nope-v0' is not a registered"):

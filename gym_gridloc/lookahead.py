@@ -1,4 +1,5 @@
-"""Exact lookahead on the belief: what the entropy-greedy policies and the planners compute.
+"""Exact lookahead on the belief: what the entropy-greedy policies, the planners and the wrapper's
+``lookahead`` observation (:func:`lookahead_features`) compute.
 
 Every prediction goes through :func:`gym_gridloc.engine.predict` (batched, kidnapping included,
 never a dense S x S matrix), and every expectation over readings through the sensor's
@@ -102,3 +103,24 @@ class Lookahead:
         a1, k = joint.shape[:2]
         w = self.weighted_entropy(self.predict_all(joint.reshape(a1 * k, *joint.shape[2:])))  # (A1*K, A2)
         return w.reshape(a1, k, -1).min(axis=-1).sum(axis=-1)
+
+
+def target_size(model: GridModel, pose: bool) -> int:
+    """How many values the lookahead's target variable has on ``model``'s grid (an upper bound,
+    the same for every map of that size): ``L * H * W`` poses, or ``H * W`` positions."""
+    h, w = model.shape
+    return h * w * (model.n_layers if pose or model.sensor.layered else 1)
+
+
+def lookahead_features(look: Lookahead, belief: np.ndarray, depth: int) -> np.ndarray:
+    """The expected entropies of the target after each first action, as a fraction of the largest
+    entropy the grid allows (``log2(target_size)`` bits): ``(depth, A)`` float32 in [0, 1].  Row 0
+    is the one-step expectation (what ``greedy`` minimises), row 1 (``depth=2``) the two-step
+    expectimax over the second action (what ``greedy2`` minimises).  ``belief`` is over the hidden
+    states ``(L, H, W)``."""
+    if depth not in (1, 2):
+        raise ValueError(f"lookahead depth must be 1 or 2, got {depth!r}")
+    b = np.asarray(belief, dtype=float)
+    rows = [look.one_step(b)] + ([look.two_step(b)] if depth == 2 else [])
+    out = np.asarray(rows, dtype=float) / np.log2(max(target_size(look.model, look.pose), 2))
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
