@@ -160,7 +160,10 @@ def _classes() -> dict[str, type]:
         def probability(self, next_state, state, action) -> float:
             m = self.pp.model
             target = next_state.tuple
-            p = sum((q for s2, q in m.outcomes(state.tuple, action.index) if s2 == target), 0.0)
+            p = 0.0
+            for s2, q in m.outcomes(state.tuple, action.index):
+                if s2 == target:
+                    p += q
             if m.kidnap_prob > 0.0:
                 p = (1.0 - m.kidnap_prob) * p + m.kidnap_prob / m.n_states
             return p
