@@ -28,6 +28,7 @@ applied, so that no caller writes a prediction, an update or a sampler again.
 
 from __future__ import annotations
 
+import functools
 import math
 import weakref
 from typing import Any, Callable
@@ -112,9 +113,7 @@ _DERIVED: "weakref.WeakKeyDictionary[GridModel, _Derived]" = weakref.WeakKeyDict
 
 
 def _derived(model: GridModel) -> _Derived:
-    if not isinstance(model, GridModel):  # before the lookup: a str cannot be a weak key
-        raise TypeError(f"expected a GridModel, got {type(model).__name__}")
-    d = _DERIVED.get(model)
+    d = _DERIVED.get(_checked_model(model))  # checked before the lookup: a str cannot be a weak key
     if d is None:
         d = _DERIVED[model] = _Derived(model)
     return d
@@ -394,22 +393,17 @@ def _make_stepper(model: GridModel, d: _Derived, normalise: bool):
 
 
 _NO_LIK = np.zeros(1)
-_NO_LIKS: dict[int, np.ndarray] = {}
-_ALL: dict[int, np.ndarray] = {}
 
 
+@functools.cache
 def _no_liks(n: int) -> np.ndarray:
-    arr = _NO_LIKS.get(n)
-    if arr is None:
-        arr = _NO_LIKS[n] = np.zeros((n, 1))
-    return arr
+    return np.zeros((n, 1))
 
 
+@functools.cache
 def _all(n: int) -> np.ndarray:
-    arr = _ALL.get(n)
-    if arr is None:
-        arr = _ALL[n] = np.ones(n, dtype=bool)
-        arr.setflags(write=False)
+    arr = np.ones(n, dtype=bool)
+    arr.setflags(write=False)
     return arr
 
 
