@@ -23,7 +23,7 @@ def _choose(policy: PlannerPolicy, n: int, na: np.ndarray, q: np.ndarray, c: flo
     """An untried action (drawn among several), else ``argmin_a q(a) - c * sqrt(ln n / na(a))``."""
     untried = np.flatnonzero(na == 0)
     if len(untried):
-        return int(untried[0]) if len(untried) == 1 else int(policy.rng.choice(untried))
+        return policy._one_of(untried)
     return policy._break_ties(q - c * np.sqrt(math.log(n) / na))
 
 
