@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from gym_gridloc.core.sensors import xlogx
 from gym_gridloc_agents.planners.base import PlannerPolicy
 from gym_gridloc_agents.planners.central import nothing_reading
 from gym_gridloc_agents.planners.leaves import load_leaf
@@ -93,10 +94,7 @@ class MCTSPolicy(PlannerPolicy):
         if joint is None:  # layered: marginalise layers after weighting by the likelihood
             j = preds[:, None] * self.ops.lik[None]  # (A, Z, L, H, W)
             joint = j.sum(axis=2).reshape(A, self.ops.Z, -1)
-        jl = joint * np.log2(np.where(joint > 0, joint, 1.0))
-        pzl = pz * np.log2(np.where(pz > 0, pz, 1.0))
-        eh = -jl.sum(axis=(1, 2)) + pzl.sum(axis=1)
-        return self._break_ties(eh)
+        return self._break_ties(-xlogx(joint).sum(axis=(1, 2)) + xlogx(pz).sum(axis=1))
 
     def _evaluate(self, b: np.ndarray) -> float:
         """Rollout cost from a non-localised belief."""
