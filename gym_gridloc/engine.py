@@ -292,10 +292,7 @@ def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
         np.divide(post, z1, out=flat[0])
         return np.array([z1])
     lik = likelihoods(model, rs)
-    if lik.shape[1] == flat.shape[1]:
-        post = flat * lik
-    else:
-        post = (flat.reshape(n, model.n_layers, -1) * lik[:, None, :]).reshape(n, -1)
+    post = flat * lik if lik.shape[1] == flat.shape[1] else (flat.reshape(n, model.n_layers, -1) * lik[:, None, :]).reshape(n, -1)
     z = post.sum(axis=1)
     _check_z(model, z, rs, not single)
     np.divide(post, z[:, None], out=flat)
@@ -323,10 +320,9 @@ def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out
     if rs.size != n:
         raise ValueError(f"step() needs one reading per belief: {n} beliefs, {rs.size} readings")
     sel = _all(n) if mask is None else np.asarray(mask, dtype=bool)
+    rs_used = rs if mask is None else np.where(sel, rs, 0)
     if mask is not None:
-        acts, rs_used = np.where(sel, acts, 0), np.where(sel, rs, 0)
-    else:
-        rs_used = rs
+        acts = np.where(sel, acts, 0)
     res = _out(out, flat, (n, *model.belief_shape))
     res2 = res.reshape(n, -1)
     lik = likelihoods(model, rs_used)
