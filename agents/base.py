@@ -66,10 +66,7 @@ class Policy:
     def choose(self, probabilities: np.ndarray) -> int:
         """An action from an even distribution over tied best actions: the only one without a
         draw, else one uniform choice with the policy's generator (as :meth:`_break_ties`)."""
-        support = np.flatnonzero(probabilities > 0)
-        if len(support) == 1:
-            return int(support[0])
-        return int(self.rng.choice(support))
+        return self._one_of(np.flatnonzero(probabilities > 0))
 
     @staticmethod
     def best(values: np.ndarray) -> np.ndarray:
@@ -78,7 +75,8 @@ class Policy:
         return np.flatnonzero(values <= low + TIE_TOL * max(1.0, abs(low)))
 
     def _break_ties(self, values: np.ndarray) -> int:
-        candidates = self.best(values)
-        if len(candidates) == 1:
-            return int(candidates[0])
-        return int(self.rng.choice(candidates))
+        return self._one_of(self.best(values))
+
+    def _one_of(self, actions: np.ndarray) -> int:
+        """The only action without a draw, else one uniform choice with the policy's generator."""
+        return int(actions[0]) if len(actions) == 1 else int(self.rng.choice(actions))

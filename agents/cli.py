@@ -24,7 +24,7 @@ import argparse
 import sys
 from pathlib import Path
 
-RESULTS = Path("results")
+from gym_gridloc_agents.bench_command import RESULTS, _fail, bench_main, bound_main
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -118,8 +118,7 @@ def _render(args) -> int:
 
     envs = args.env or list(gym_gridloc.ENV_IDS)
     if args.frames < 1:
-        print(f"gridloc render: error: --frames must be at least 1, got {args.frames}", file=sys.stderr)
-        return 2
+        return _fail("render", f"--frames must be at least 1, got {args.frames}")
     episode_strips(envs, args.seed, args.frames, args.out)
     print(f"wrote {args.out}")
     if args.gif:
@@ -168,11 +167,9 @@ def _train(args) -> int:
     from gym_gridloc_agents.train import OutputError, TrainingInterrupted, train
 
     if args.timesteps is not None and args.timesteps < 1:
-        print(f"gridloc train: error: --timesteps must be at least 1, got {args.timesteps}", file=sys.stderr)
-        return 2
+        return _fail("train", f"--timesteps must be at least 1, got {args.timesteps}")
     if args.torch_threads < 1:
-        print(f"gridloc train: error: --torch-threads must be at least 1, got {args.torch_threads}", file=sys.stderr)
-        return 2
+        return _fail("train", f"--torch-threads must be at least 1, got {args.torch_threads}")
     try:
         info = train(
             args.config,
@@ -189,8 +186,7 @@ def _train(args) -> int:
         print(f"gridloc train: {exc}; resume with: gridloc train {args.config} --resume {exc.checkpoint}", file=sys.stderr)
         return 130
     except (ConfigError, OutputError, FileExistsError, FileNotFoundError, ValueError) as exc:
-        print(f"gridloc train: error: {exc}", file=sys.stderr)
-        return 2
+        return _fail("train", str(exc))
     out = info["config"]["output"]
     print(f"saved {out} ({info['num_timesteps']} steps, {info['wall_time_seconds']:.0f} s) and {Path(out).with_suffix('.json')}")
     return 0
@@ -218,32 +214,12 @@ def _sweep(args) -> int:
     return 0 if summary["best"] else 1
 
 
-def _bench(args) -> int:
-    from gym_gridloc_agents.bench_command import bench_main
-
-    return bench_main(args)
-
-
-def _bound(args) -> int:
-    from gym_gridloc_agents.bench_command import bound_main
-
-    return bound_main(args)
-
-
-def _fail(command: str, message: str) -> int:
-    print(f"gridloc {command}: error: {message}", file=sys.stderr)
-    return 2
-
-
 #: What ``gridloc`` needs beyond the core install (the ``rl`` extra), by import name.
 RL_MODULES = ("tqdm", "yaml", "matplotlib", "torch", "stable_baselines3", "sb3_contrib")
 #: The modules each subcommand needs beyond the core install.
 NEEDS = {"train": RL_MODULES, "bench": RL_MODULES, "render": ("matplotlib",), "plot": ("matplotlib",), "reproduce": (),
-         "bound": ("yaml",)}
-NEEDS["sweep"] = (*RL_MODULES, "ray", "optuna")
-COMMANDS = {"train": "_train", "bench": "_bench", "render": "_render", "plot": "_plot"}
-COMMANDS["sweep"] = "_sweep"
-COMMANDS["bound"] = "_bound"
+         "bound": ("yaml",), "sweep": (*RL_MODULES, "ray", "optuna")}
+COMMANDS = {"train": "_train", "bench": "bench_main", "render": "_render", "plot": "_plot", "sweep": "_sweep", "bound": "bound_main"}
 
 
 def missing_modules(command: str) -> list[str]:

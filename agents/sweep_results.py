@@ -131,9 +131,7 @@ def summarise(spec: dict[str, Any], records: list[dict[str, Any]]) -> dict[str, 
     out = Path(spec["output"])
     keys = list(spec["grid"])
     order = configurations(spec["grid"]) if spec["search"] != "optuna" else []
-    groups: dict[str, dict[str, Any]] = {}
-    for o in order:
-        groups[_canonical(o)] = {"overrides": o, "seeds": {}}
+    groups: dict[str, dict[str, Any]] = {_canonical(o): {"overrides": o, "seeds": {}} for o in order}
     for r in sorted(records, key=lambda r: (_PRIORITY[r["status"]], str(r["trial_id"]))):
         g = groups.setdefault(_canonical(r["overrides"]), {"overrides": r["overrides"], "seeds": {}})
         g["seeds"].setdefault(r["index"], r)  # one record per seed: a finished one first (Optuna may repeat a configuration)

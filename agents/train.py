@@ -144,23 +144,30 @@ def _score(cfg: dict[str, Any], entry: dict[str, Any]) -> float:
     return entry["mean_steps"]
 
 
-def _eval_callback(cfg: dict[str, Any], directory: Path, history: list, on_evaluation=None):
+def _every(freq: int, action: Callable[[Any], None]):
+    """An SB3 callback that calls ``action(model)`` at the first step at or past each multiple of
+    ``freq`` after the step where training (or a resumed training) starts."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    freq, episodes = cfg["eval_freq"], cfg["eval_episodes"]
-
-    class Eval(BaseCallback):
+    class Every(BaseCallback):
         next_at = None
 
         def _on_step(self) -> bool:
             if self.next_at is None:
                 self.next_at = (self.num_timesteps // freq + 1) * freq
             if self.num_timesteps >= self.next_at:
-                record_evaluation(self.model, cfg, episodes, directory, history, on_evaluation)
+                action(self.model)
                 self.next_at = (self.num_timesteps // freq + 1) * freq
             return True
 
-    return Eval()
+    return Every()
+
+
+def _eval_callback(cfg: dict[str, Any], directory: Path, history: list, on_evaluation=None):
+    def evaluate_now(model) -> None:
+        record_evaluation(model, cfg, cfg["eval_episodes"], directory, history, on_evaluation)
+
+    return _every(cfg["eval_freq"], evaluate_now)
 
 
 def best_entry(directory: Path) -> dict[str, Any] | None:
@@ -195,26 +202,12 @@ def record_evaluation(model, cfg, episodes, directory: Path, history: list, on_e
 
 # -- training -------------------------------------------------------------------------------------
 def _checkpoint_callback(freq: int, directory: Path, meta: Callable[[], dict[str, Any]]):
-    from stable_baselines3.common.callbacks import BaseCallback
+    def save(model) -> None:
+        path = directory / f"step_{model.num_timesteps}.zip"
+        atomic_save_model(model, path)
+        atomic_write_json(metadata_path(path), {**meta(), "num_timesteps": int(model.num_timesteps)})
 
-    class Checkpoint(BaseCallback):
-        def __init__(self) -> None:
-            super().__init__()
-            self.next_at = None
-            self.saved: list[Path] = []
-
-        def _on_step(self) -> bool:
-            if self.next_at is None:
-                self.next_at = (self.num_timesteps // freq + 1) * freq
-            if self.num_timesteps >= self.next_at:
-                path = directory / f"step_{self.num_timesteps}.zip"
-                atomic_save_model(self.model, path)
-                atomic_write_json(metadata_path(path), {**meta(), "num_timesteps": int(self.num_timesteps)})
-                self.saved.append(path)
-                self.next_at = (self.num_timesteps // freq + 1) * freq
-            return True
-
-    return Checkpoint()
+    return _every(freq, save)
 
 
 def train(

@@ -43,23 +43,18 @@ ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0", "DepthMaze-v0")
 
 
 def _register() -> None:
+    # The entry point, max_episode_steps, kwargs and the native vector env (gym.make_vec(id,
+    # num_envs=N, vectorization_mode="vector_entry_point")) of each id.
     specs = {
-        "ColourGrid-v0": ("gym_gridloc.envs.colour_grid:ColourGridEnv", 100, {}),
-        "RingSensor8x8-v0": ("gym_gridloc.envs.ring_sensor:RingSensorEnv", 400, {"size": (8, 8)}),
-        "WindyMaze-v0": ("gym_gridloc.envs.windy_maze:WindyMazeEnv", 100, {}),
-        "DepthMaze-v0": ("gym_gridloc.envs.depth_maze:DepthMazeEnv", 100, {}),
+        "ColourGrid-v0": ("envs.colour_grid:ColourGridEnv", 100, {}, "vector:ColourGridVectorEnv"),
+        "RingSensor8x8-v0": ("envs.ring_sensor:RingSensorEnv", 400, {"size": (8, 8)}, "vector:RingSensorVectorEnv"),
+        "WindyMaze-v0": ("envs.windy_maze:WindyMazeEnv", 100, {}, "vector:WindyMazeVectorEnv"),
+        "DepthMaze-v0": ("envs.depth_maze:DepthMazeEnv", 100, {}, "vector:DepthMazeVectorEnv"),
     }
-    # Native vector envs: gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point").
-    vector = {
-        "ColourGrid-v0": "gym_gridloc.vector:ColourGridVectorEnv",
-        "RingSensor8x8-v0": "gym_gridloc.vector:RingSensorVectorEnv",
-        "WindyMaze-v0": "gym_gridloc.vector:WindyMazeVectorEnv",
-        "DepthMaze-v0": "gym_gridloc.vector:DepthMazeVectorEnv",
-    }
-    for env_id, (entry_point, steps, kwargs) in specs.items():
+    for env_id, (entry_point, steps, kwargs, vector) in specs.items():
         if env_id not in registry:
-            register(id=env_id, entry_point=entry_point, max_episode_steps=steps, kwargs=kwargs,
-                     vector_entry_point=vector[env_id])
+            register(id=env_id, entry_point=f"gym_gridloc.{entry_point}", max_episode_steps=steps, kwargs=kwargs,
+                     vector_entry_point=f"gym_gridloc.{vector}")
 
 
 _register()

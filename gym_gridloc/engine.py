@@ -28,6 +28,7 @@ applied, so that no caller writes a prediction, an update or a sampler again.
 
 from __future__ import annotations
 
+import functools
 import math
 import weakref
 from typing import Any, Callable
@@ -112,9 +113,7 @@ _DERIVED: "weakref.WeakKeyDictionary[GridModel, _Derived]" = weakref.WeakKeyDict
 
 
 def _derived(model: GridModel) -> _Derived:
-    if not isinstance(model, GridModel):  # before the lookup: a str cannot be a weak key
-        raise TypeError(f"expected a GridModel, got {type(model).__name__}")
-    d = _DERIVED.get(model)
+    d = _DERIVED.get(_checked_model(model))  # checked before the lookup: a str cannot be a weak key
     if d is None:
         d = _DERIVED[model] = _Derived(model)
     return d
@@ -293,10 +292,7 @@ def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
         np.divide(post, z1, out=flat[0])
         return np.array([z1])
     lik = likelihoods(model, rs)
-    if lik.shape[1] == flat.shape[1]:
-        post = flat * lik
-    else:
-        post = (flat.reshape(n, model.n_layers, -1) * lik[:, None, :]).reshape(n, -1)
+    post = flat * lik if lik.shape[1] == flat.shape[1] else (flat.reshape(n, model.n_layers, -1) * lik[:, None, :]).reshape(n, -1)
     z = post.sum(axis=1)
     _check_z(model, z, rs, not single)
     np.divide(post, z[:, None], out=flat)
@@ -324,10 +320,9 @@ def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out
     if rs.size != n:
         raise ValueError(f"step() needs one reading per belief: {n} beliefs, {rs.size} readings")
     sel = _all(n) if mask is None else np.asarray(mask, dtype=bool)
+    rs_used = rs if mask is None else np.where(sel, rs, 0)
     if mask is not None:
-        acts, rs_used = np.where(sel, acts, 0), np.where(sel, rs, 0)
-    else:
-        rs_used = rs
+        acts = np.where(sel, acts, 0)
     res = _out(out, flat, (n, *model.belief_shape))
     res2 = res.reshape(n, -1)
     lik = likelihoods(model, rs_used)
@@ -394,22 +389,17 @@ def _make_stepper(model: GridModel, d: _Derived, normalise: bool):
 
 
 _NO_LIK = np.zeros(1)
-_NO_LIKS: dict[int, np.ndarray] = {}
-_ALL: dict[int, np.ndarray] = {}
 
 
+@functools.cache
 def _no_liks(n: int) -> np.ndarray:
-    arr = _NO_LIKS.get(n)
-    if arr is None:
-        arr = _NO_LIKS[n] = np.zeros((n, 1))
-    return arr
+    return np.zeros((n, 1))
 
 
+@functools.cache
 def _all(n: int) -> np.ndarray:
-    arr = _ALL.get(n)
-    if arr is None:
-        arr = _ALL[n] = np.ones(n, dtype=bool)
-        arr.setflags(write=False)
+    arr = np.ones(n, dtype=bool)
+    arr.setflags(write=False)
     return arr
 
 

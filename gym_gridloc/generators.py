@@ -116,11 +116,8 @@ def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:
     while stack:
         cell = stack[-1]
         r, c = divmod(cell, cw)
-        options = []
-        for dr, dc in steps:
-            rr, cc = r + dr, c + dc
-            if 0 <= rr < ch and 0 <= cc < cw and not visited[rr * cw + cc]:
-                options.append((rr, cc))
+        near = [(r + dr, c + dc) for dr, dc in steps]
+        options = [(rr, cc) for rr, cc in near if 0 <= rr < ch and 0 <= cc < cw and not visited[rr * cw + cc]]
         if not options:
             stack.pop()
             continue
@@ -141,7 +138,6 @@ def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:
     return GridMap(np.where(free, 0, -1), ("O",))
 
 
-
 def perfect_maze(size: int, *, seed: Any = None) -> GridMap:
     """A perfect maze of odd side ``size`` (>= 5): walls all round, exactly one path between any
     two free cells (connected, no cycle).
@@ -151,8 +147,6 @@ def perfect_maze(size: int, *, seed: Any = None) -> GridMap:
     rooms on its two sides are not yet joined (a union-find forest over the rooms tells).  Each
     opened wall joins two trees, so the result is one spanning tree of the rooms.
     """
-    from gym_gridloc.core.validation import check_int
-
     n = check_int("size", size, 5, MAX_SIDE)
     if n % 2 == 0:
         raise ValueError(f"size must be odd (rooms at odd coordinates, walls all round), got {size!r}")

@@ -69,15 +69,33 @@ def _import_pomdp_py():
     return pomdp_py
 
 
+class _Immutable:
+    """A mixin of the value classes below: hashed and compared (with objects of the same class) by
+    the attribute ``KEY`` names; immutable, so a deep copy is the object itself."""
+
+    __slots__ = ()
+    KEY = ""
+
+    def __hash__(self) -> int:
+        return hash(getattr(self, self.KEY))
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is type(self) and getattr(self, self.KEY) == getattr(other, self.KEY)
+
+    def __deepcopy__(self, memo: dict) -> _Immutable:
+        return self
+
+
 @functools.cache
 def _classes() -> dict[str, type]:
     """pomdp_py's subclasses for our models, defined once pomdp_py is importable."""
     pomdp_py = _import_pomdp_py()
 
-    class State(pomdp_py.State):
+    class State(_Immutable, pomdp_py.State):
         """A hidden state ``(layer, row, col)`` (hashable, immutable)."""
 
         __slots__ = ("col", "layer", "row")
+        KEY = "tuple"
 
         def __init__(self, layer: int, row: int, col: int) -> None:
             self.layer, self.row, self.col = int(layer), int(row), int(col)
@@ -86,17 +104,8 @@ def _classes() -> dict[str, type]:
         def tuple(self) -> tuple[int, int, int]:
             return (self.layer, self.row, self.col)
 
-        def __hash__(self) -> int:
-            return hash((self.layer, self.row, self.col))
-
-        def __eq__(self, other: object) -> bool:
-            return type(other) is type(self) and self.tuple == other.tuple
-
         def __repr__(self) -> str:
             return f"State{self.tuple}"
-
-        def __deepcopy__(self, memo: dict) -> State:
-            return self  # immutable
 
     class PlanState(State):
         """A hidden state and the node of the simulated history (its exact belief): the state of
@@ -117,44 +126,29 @@ def _classes() -> dict[str, type]:
         def __repr__(self) -> str:
             return f"PlanState{self.tuple}{' done' if self.node.done else ''}"
 
-    class Action(pomdp_py.Action):
+    class Action(_Immutable, pomdp_py.Action):
         """An action index; ``name`` is the model's name for it."""
+
+        KEY = "index"
 
         def __init__(self, index: int, name: str) -> None:
             self.index = int(index)
             self.name = str(name)
 
-        def __hash__(self) -> int:
-            return hash(self.index)
-
-        def __eq__(self, other: object) -> bool:
-            return isinstance(other, Action) and self.index == other.index
-
         def __repr__(self) -> str:
             return f"Action({self.index}={self.name})"
 
-        def __deepcopy__(self, memo: dict) -> Action:
-            return self
-
-    class Observation(pomdp_py.Observation):
+    class Observation(_Immutable, pomdp_py.Observation):
         """A reading index (``-1``: the planning model's "the episode is over")."""
 
         __slots__ = ("reading",)
+        KEY = "reading"
 
         def __init__(self, reading: int) -> None:
             self.reading = int(reading)
 
-        def __hash__(self) -> int:
-            return hash(self.reading)
-
-        def __eq__(self, other: object) -> bool:
-            return isinstance(other, Observation) and self.reading == other.reading
-
         def __repr__(self) -> str:
             return f"Observation({self.reading})"
-
-        def __deepcopy__(self, memo: dict) -> Observation:
-            return self
 
     class TransitionModel(pomdp_py.TransitionModel):
         """``P(s' | s, a)`` exactly from :meth:`GridModel.outcomes` (kidnapping mixed in);

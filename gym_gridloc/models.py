@@ -168,11 +168,9 @@ def ring_sensor_model(
                 terms.append(Term(hd, nh, int(dr), int(dc), weight))
             terms.append(Term(hd, hd, 0, 0, np.where(stuck, 1.0, 0.0)))
         return GridModel(grid, [terms] * 4, sensor, n_layers=4, name="RingSensor", params=params)
-    transitions = []
-    for a in range(4):
-        # The action plays the current heading: the next heading is drawn by the rule, then one
-        # move.  No move is blocked (the rule only picks open headings), except where none is open.
-        transitions.append(move_terms(grid, hp[a]))
+    # The action plays the current heading: the next heading is drawn by the rule, then one
+    # move.  No move is blocked (the rule only picks open headings), except where none is open.
+    transitions = [move_terms(grid, hp[a]) for a in range(4)]
     return GridModel(grid, transitions, sensor, name="RingSensor", params=params)
 
 

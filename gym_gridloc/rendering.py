@@ -33,13 +33,8 @@ def belief_table(belief: np.ndarray, free: np.ndarray, mark: tuple[int, int] | N
     for r in range(belief.shape[0]):
         cells = []
         for c in range(belief.shape[1]):
-            if not free[r, c]:
-                cell = "####"
-            else:
-                cell = f"{100 * belief[r, c]:.2f}"
-            if mark == (r, c):
-                cell += "*"
-            cells.append(f"{cell:>7}")
+            cell = f"{100 * belief[r, c]:.2f}" if free[r, c] else "####"
+            cells.append(f"{cell + ('*' if mark == (r, c) else ''):>7}")
         lines.append(" ".join(cells))
     return "\n".join(lines)
 

@@ -9,9 +9,23 @@ from typing import Any
 
 import numpy as np
 
+from gym_gridloc.core.sensors import xlogx
 from gym_gridloc_agents.planners.base import PlannerPolicy
 from gym_gridloc_agents.planners.central import nothing_reading
 from gym_gridloc_agents.planners.leaves import load_leaf
+
+
+def _sample(rng: np.random.Generator, p: np.ndarray) -> int:
+    """An index drawn with probability proportional to ``p`` (one uniform)."""
+    return int(min(np.searchsorted(np.cumsum(p), rng.random() * p.sum(), side="right"), len(p) - 1))
+
+
+def _choose(policy: PlannerPolicy, n: int, na: np.ndarray, q: np.ndarray, c: float) -> int:
+    """An untried action (drawn among several), else ``argmin_a q(a) - c * sqrt(ln n / na(a))``."""
+    untried = np.flatnonzero(na == 0)
+    if len(untried):
+        return policy._one_of(untried)
+    return policy._break_ties(q - c * np.sqrt(math.log(n) / na))
 
 
 class _Node:
@@ -68,9 +82,6 @@ class MCTSPolicy(PlannerPolicy):
         node.na = np.zeros(self.n_actions)
         node.qa = np.zeros(self.n_actions)
 
-    def _sample(self, p: np.ndarray) -> int:
-        return int(min(np.searchsorted(np.cumsum(p), self.rng.random() * p.sum(), side="right"), len(p) - 1))
-
     def _rollout_action(self, b: np.ndarray, preds: np.ndarray, pz: np.ndarray) -> int:
         A = self.n_actions
         if self.rollout == "random":
@@ -83,10 +94,7 @@ class MCTSPolicy(PlannerPolicy):
         if joint is None:  # layered: marginalise layers after weighting by the likelihood
             j = preds[:, None] * self.ops.lik[None]  # (A, Z, L, H, W)
             joint = j.sum(axis=2).reshape(A, self.ops.Z, -1)
-        jl = joint * np.log2(np.where(joint > 0, joint, 1.0))
-        pzl = pz * np.log2(np.where(pz > 0, pz, 1.0))
-        eh = -jl.sum(axis=(1, 2)) + pzl.sum(axis=1)
-        return self._break_ties(eh)
+        return self._break_ties(-xlogx(joint).sum(axis=(1, 2)) + xlogx(pz).sum(axis=1))
 
     def _evaluate(self, b: np.ndarray) -> float:
         """Rollout cost from a non-localised belief."""
@@ -97,7 +105,7 @@ class MCTSPolicy(PlannerPolicy):
             preds = self.ops.predict_all(b[None])
             pz = self.ops.reading_probs(preds)
             a = self._rollout_action(b, preds, pz)
-            z = self._sample(pz[a])
+            z = _sample(self.rng, pz[a])
             post = preds[a] * self.ops.lik[z]
             b = post / post.sum()
             cost += 1.0
@@ -108,13 +116,8 @@ class MCTSPolicy(PlannerPolicy):
     def _simulate(self, node: _Node, depth: int, root_scale: float) -> float:
         if node.preds is None:
             self._expand(node)
-        untried = np.flatnonzero(node.na == 0)
-        if len(untried):
-            a = int(untried[0]) if len(untried) == 1 else int(self.rng.choice(untried))
-        else:
-            ucb = node.qa - self.c * root_scale * np.sqrt(math.log(node.n) / node.na)
-            a = self._break_ties(ucb)
-        z = self._sample(node.pz[a])
+        a = _choose(self, node.n, node.na, node.qa, self.c * root_scale)
+        z = _sample(self.rng, node.pz[a])
         key = (a, z)
         child = node.children.get(key)
         if child is None:
@@ -244,18 +247,14 @@ class ExpectedMCTSPolicy(PlannerPolicy):
                     break
                 if depth == self.max_depth:
                     break
-                untried = np.flatnonzero(node.na == 0)
-                if len(untried):
-                    a = int(untried[0]) if len(untried) == 1 else int(self.rng.choice(untried))
-                else:
-                    a = self._break_ties(node.q - self.c * np.sqrt(math.log(node.n) / node.na))
+                a = _choose(self, node.n, node.na, node.q, self.c)
                 w, kids = node.kids[a]
                 open_ = [i for i, k in enumerate(kids) if k is not None]
                 path.append((node, a))
                 if not open_:
                     break
                 pw = w[open_]
-                i = open_[self._sample(pw)]
+                i = open_[_sample(self.rng, pw)]
                 node = kids[i]
             for nd, a in reversed(path):
                 nd.n += 1
@@ -270,9 +269,6 @@ class ExpectedMCTSPolicy(PlannerPolicy):
                 break
         self.sims_done += sims
         return root
-
-    def _sample(self, p: np.ndarray) -> int:
-        return int(min(np.searchsorted(np.cumsum(p), self.rng.random() * p.sum(), side="right"), len(p) - 1))
 
     def values(self, b: np.ndarray) -> np.ndarray:
         return self.search(b).q

@@ -3,6 +3,8 @@ through the engine; merging equal beliefs; the beliefs after the first reading."
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from gym_gridloc import engine
@@ -39,11 +41,9 @@ class BeliefOps:
     # -- basic quantities -------------------------------------------------------------------------
     def full(self, belief: np.ndarray) -> np.ndarray:
         b = np.asarray(belief, dtype=np.float64)
-        if b.shape == self.shape:
-            pass
-        elif b.shape == self.shape[1:] and self.shape[0] == 1:
+        if b.shape == self.shape[1:] and self.shape[0] == 1:
             b = b[None]
-        else:
+        elif b.shape != self.shape:
             raise ValueError(f"belief must have shape {self.shape}, got {b.shape} (use wrapper.filter.full_belief)")
         s = b.sum()
         if not s > 0:
@@ -94,14 +94,9 @@ def _dedupe(beliefs: np.ndarray, decimals: int = 10) -> tuple[np.ndarray, np.nda
     return beliefs[first], inv.reshape(-1)
 
 
-_PROJ: dict = {}
-
-
+@functools.cache
 def _projections(d: int) -> np.ndarray:
-    p = _PROJ.get(d)
-    if p is None:
-        p = _PROJ[d] = np.random.default_rng(12345).uniform(0.5, 1.5, (d, 2))
-    return p
+    return np.random.default_rng(12345).uniform(0.5, 1.5, (d, 2))
 
 
 def initial_beliefs(ops: BeliefOps) -> tuple[np.ndarray, np.ndarray]:

@@ -92,12 +92,8 @@ class Inspector:
         for a in range(n):
             x = x0 + a * (side * px + 10)
             yy = self._text(surf, model.action_names[a], x, y_top, self.small, INK)
-            values = np.full((side, side), np.nan)
-            for i in range(side):
-                for j in range(side):
-                    rr, cc = r - reach + i, c - reach + j
-                    if 0 <= rr < model.shape[0] and 0 <= cc < model.shape[1] and model.grid.free[rr, cc]:
-                        values[i, j] = data["positions"][a].get((rr, cc), 0.0)
+            pos = data["positions"][a]
+            values = _window(r, c, reach, model.shape, lambda rr, cc: pos.get((rr, cc), 0.0), model.grid.free)
             yy = self._heat(surf, values, x, yy, px, centre=(reach, reach))
             if model.n_layers > 1:  # the next headings, as text
                 for (l2, r2, c2), p in sorted(data["transitions"][a].items(), key=lambda kv: -kv[1])[:3]:
@@ -116,13 +112,8 @@ class Inspector:
         _, r, c = state
         readings = data["readings"]
         if isinstance(sensor, RingSensor):
-            h, w = model.shape
-            values = np.full((5, 5), np.nan)
-            for i in range(5):
-                for j in range(5):
-                    rr, cc = r - 2 + i, c - 2 + j
-                    if 0 <= rr < h and 0 <= cc < w:
-                        values[i, j] = readings.get(rr * w + cc, 0.0)
+            w = model.shape[1]
+            values = _window(r, c, 2, model.shape, lambda rr, cc: readings.get(rr * w + cc, 0.0))
             y = self._text(surf, "reading the cell at each place round it:", x0, y, self.small, DIM)
             self._text(surf, f"nothing: {readings[sensor.nothing]:.4f}", x0 + 5 * 32 + 12, y + 2 * 32 + 8, self.font)
             return self._heat(surf, values, x0, y, 32, centre=(2, 2))
@@ -143,12 +134,7 @@ class Inspector:
             for z, p in readings.items():
                 bits = "".join("o" if b else "-" for b in sensor.to_observation(z))
                 i, j = divmod(z, cols)
-                x, yy = x0 + j * colw, y + i * 24
-                self.pg.draw.rect(surf, _shade(p), (x, yy, colw - 6, 21))
-                if z == current:
-                    self.pg.draw.rect(surf, (0, 200, 220), (x, yy, colw - 6, 21), width=2)
-                a = np.sqrt(p) * 0.85
-                self._text_on(surf, f"{bits} {_fmt(p)}", x + 4, yy + 3, (255, 255, 255) if a > 0.5 else INK)
+                self._box(surf, x0 + j * colw, y + i * 24, colw - 6, p, z == current, f"{bits} {_fmt(p)}")
             return y + 4 * 24
         # Depth and any other sensor: reading: probability, in columns.
         label = (lambda z: f"d={z}") if isinstance(sensor, DepthSensor) else sensor.describe
@@ -159,20 +145,18 @@ class Inspector:
         per_row = max(1, width // colw)
         for k, (z, p) in enumerate(items):
             i, j = divmod(k, per_row)
-            x, yy = x0 + j * colw, y + i * 24
-            self.pg.draw.rect(surf, _shade(p), (x, yy, colw - 6, 21))
-            if z == current:
-                self.pg.draw.rect(surf, (0, 200, 220), (x, yy, colw - 6, 21), width=2)
-            a = np.sqrt(p) * 0.85
-            self._text_on(surf, f"{label(z)}: {_fmt(p)}", x + 4, yy + 3, (255, 255, 255) if a > 0.5 else INK)
+            self._box(surf, x0 + j * colw, y + i * 24, colw - 6, p, z == current, f"{label(z)}: {_fmt(p)}")
         rows = -(-len(items) // per_row)
         return y + rows * 24
 
-    def _text_on(self, surf, text: str, x: int, y: int, colour, font=None) -> None:
-        """Text without a background (on a shaded box)."""
-        font = font or self.font
+    def _box(self, surf, x: int, y: int, width: int, p: float, framed: bool, text: str) -> None:
+        """A box shaded by the probability ``p`` (framed: the reading received) with ``text`` on it."""
+        self.pg.draw.rect(surf, _shade(p), (x, y, width, 21))
+        if framed:
+            self.pg.draw.rect(surf, (0, 200, 220), (x, y, width, 21), width=2)
         self.texts.append(text)
-        surf.blit(font.render(text, True, colour), (x, y))
+        colour = (255, 255, 255) if np.sqrt(p) * 0.85 > 0.5 else INK
+        surf.blit(self.font.render(text, True, colour), (x + 4, y + 3))
 
     def _heat(self, surf, values: np.ndarray, x: int, y: int, px: int, centre=None) -> int:
         """A small heatmap of probabilities with their numbers; NaN: not a free cell."""
@@ -195,3 +179,16 @@ class Inspector:
             i, j = centre
             pg.draw.rect(surf, (255, 140, 0), (x + j * px - 1, y + i * px - 1, px + 1, px + 1), width=2)
         return y + values.shape[0] * px + 2
+
+
+def _window(r: int, c: int, reach: int, shape: tuple[int, int], value, free=None) -> np.ndarray:
+    """The ``(2 reach + 1)``-square of values round cell ``(r, c)``: ``value(row, col)`` for each
+    cell inside the map (and ``free``, where given), NaN elsewhere."""
+    side = 2 * reach + 1
+    values = np.full((side, side), np.nan)
+    for i in range(side):
+        for j in range(side):
+            rr, cc = r - reach + i, c - reach + j
+            if 0 <= rr < shape[0] and 0 <= cc < shape[1] and (free is None or free[rr, cc]):
+                values[i, j] = value(rr, cc)
+    return values

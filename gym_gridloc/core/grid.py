@@ -83,11 +83,7 @@ class GridMap:
     def to_text(self, sep: str = "") -> list[str]:
         """The map as rows of symbols ('.' or '#' for obstacles)."""
         obstacle = "." if sep else "#"
-        rows = []
-        for r in range(self.height):
-            cells = [self.symbols[v] if v >= 0 else obstacle for v in self.labels[r]]
-            rows.append(sep.join(cells))
-        return rows
+        return [sep.join(self.symbols[v] if v >= 0 else obstacle for v in row) for row in self.labels]
 
 
 #: The largest side a map may have (rows or columns), from a file or from rows.

@@ -86,9 +86,7 @@ def _share_equal(transitions: tuple[tuple[Term, ...], ...]) -> tuple[tuple[Term,
             same = next((w for w in seen.get(key, ()) if np.array_equal(w, t.weight)), None)
             if same is None:
                 seen.setdefault(key, []).append(t.weight)
-                shared.append(t)
-            else:
-                shared.append(Term(t.src, t.dst, t.dr, t.dc, same))
+            shared.append(t if same is None else Term(t.src, t.dst, t.dr, t.dc, same))
         out.append(tuple(shared))
     return tuple(out)
 

@@ -211,9 +211,7 @@ class ColourSensor(TableSensor):
         wrong = (1.0 - self.accuracy) / (k - 1) if k > 1 else 0.0
         if k == 1:
             self.accuracy = 1.0
-        table = np.empty((k, *grid.shape))
-        for colour in range(k):
-            table[colour] = np.where(grid.labels == colour, self.accuracy, wrong)
+        table = np.where(grid.labels == np.arange(k)[:, None, None], self.accuracy, wrong)  # (k, H, W)
         table[:, ~grid.free] = 0.0
         table.setflags(write=False)
         self.table = table

@@ -194,9 +194,6 @@ def _int_tuple(value: Any) -> tuple[int, ...] | None:
     """``value`` as a tuple of ints if it is a sequence of whole numbers (not strings or bools)."""
     if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
         return None
-    out = []
-    for v in value:
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
-            return None
-        out.append(int(v))
-    return tuple(out)
+    if any(isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) for v in value):
+        return None
+    return tuple(int(v) for v in value)
