@@ -152,10 +152,7 @@ class PPOPolicy(Policy):
 
     def encode(self, observation: Any, belief: np.ndarray) -> Any:
         """The observation the model's ``HMMBeliefWrapper`` would give."""
-        look = getattr(self, "_look", None)
-        if self.wrapper["lookahead"] and (look is None or look.model is not self.model):
-            look = self._look = Lookahead(self.model, pose=self.wrapper["full_state"])
-        return wrapped_observation(self.model, observation, self._full_belief(belief), look=look, **self.wrapper)
+        return wrapped_observation(self.model, observation, self._full_belief(belief), **self.wrapper)
 
     def act(self, observation: Any, belief: np.ndarray) -> int:
         action, _ = self.sb3.predict(self.encode(observation, belief), deterministic=self.deterministic)
@@ -169,11 +166,9 @@ def _wrapper_options(wrapper: dict[str, Any] | None) -> dict[str, Any]:
 
 
 def wrapped_observation(model: GridModel, observation: Any, belief: np.ndarray, *, flatten: bool = True,
-                        full_state: bool = False, map: bool = False, lookahead: int = 0,
-                        look: Lookahead | None = None) -> Any:
+                        full_state: bool = False, map: bool = False, lookahead: int = 0) -> Any:
     """The observation ``HMMBeliefWrapper(flatten=..., full_state=..., map=..., lookahead=...)``
-    gives for a sensor observation and the hidden-state belief ``(L, H, W)`` (``look``: a
-    :class:`Lookahead` of ``model`` to reuse)."""
+    gives for a sensor observation and the hidden-state belief ``(L, H, W)``."""
     from gym_gridloc.lookahead import lookahead_features
     from gym_gridloc.wrappers import batch_observation, map_channels
 
@@ -182,11 +177,7 @@ def wrapped_observation(model: GridModel, observation: Any, belief: np.ndarray, 
     np.clip(b, 0.0, 1.0, out=b)
     reading = np.array([model.sensor.to_reading(observation)])
     maps = map_channels(model)[None] if map else None
-    la = None
-    if lookahead:
-        if look is None or look.model is not model:
-            look = Lookahead(model, pose=full_state)
-        la = lookahead_features(look, np.asarray(belief), lookahead)[None]
+    la = lookahead_features(model, belief, lookahead, pose=full_state)[None] if lookahead else None
     out = batch_observation(model, [observation], reading, b[None], flatten=flatten, maps=maps, lookahead=la)
     return out[0] if flatten else {k: np.asarray(v[0]) for k, v in out.items()}
 

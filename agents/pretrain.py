@@ -83,12 +83,9 @@ def _episode_samples(ep, targets: list[np.ndarray], wrapper: dict[str, Any], gam
     planner's action values where they are asked for."""
     from gym_gridloc_agents.policies import wrapped_observation
 
-    from gym_gridloc.lookahead import Lookahead
-
-    depth = wrapper.get("lookahead", 0)
-    look = Lookahead(ep.model, pose=wrapper["full_state"]) if depth else None
     obs = [wrapped_observation(ep.model, o, b, flatten=wrapper["flatten"], full_state=wrapper["full_state"],
-                               map=wrapper["map"], lookahead=depth, look=look) for o, b in zip(ep.observations, ep.beliefs)]
+                               map=wrapper["map"], lookahead=wrapper.get("lookahead", 0))
+           for o, b in zip(ep.observations, ep.beliefs)]
     out = {"obs": _stack(obs), "targets": np.asarray(targets, dtype=np.float32),
            "returns": _discounted(ep.rewards, gamma, ep.truncated and not ep.terminated), "length": ep.steps}
     if values is not None:

@@ -16,6 +16,8 @@ first), and for full states always.
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from gym_gridloc import engine
@@ -112,15 +114,24 @@ def target_size(model: GridModel, pose: bool) -> int:
     return h * w * (model.n_layers if pose or model.sensor.layered else 1)
 
 
-def lookahead_features(look: Lookahead, belief: np.ndarray, depth: int) -> np.ndarray:
+#: The lookaheads of :func:`lookahead_features`, per model and target (let go with the model).
+_LOOKAHEADS: "weakref.WeakKeyDictionary[GridModel, dict[bool, Lookahead]]" = weakref.WeakKeyDictionary()
+
+
+def lookahead_features(model: GridModel, belief: np.ndarray, depth: int, *, pose: bool = False) -> np.ndarray:
     """The expected entropies of the target after each first action, as a fraction of the largest
     entropy the grid allows (``log2(target_size)`` bits): ``(depth, A)`` float32 in [0, 1].  Row 0
     is the one-step expectation (what ``greedy`` minimises), row 1 (``depth=2``) the two-step
     expectimax over the second action (what ``greedy2`` minimises).  ``belief`` is over the hidden
-    states ``(L, H, W)``."""
+    states ``(L, H, W)``; ``pose``: the target is the full hidden state.  The :class:`Lookahead`
+    of each model is built once and kept while the model lives."""
     if depth not in (1, 2):
         raise ValueError(f"lookahead depth must be 1 or 2, got {depth!r}")
+    looks = _LOOKAHEADS.setdefault(model, {})
+    look = looks.get(bool(pose))
+    if look is None:
+        look = looks[bool(pose)] = Lookahead(model, pose=pose)
     b = np.asarray(belief, dtype=float)
     rows = [look.one_step(b)] + ([look.two_step(b)] if depth == 2 else [])
-    out = np.asarray(rows, dtype=float) / np.log2(max(target_size(look.model, look.pose), 2))
+    out = np.asarray(rows, dtype=float) / np.log2(max(target_size(model, look.pose), 2))
     return np.clip(out, 0.0, 1.0).astype(np.float32)

@@ -31,7 +31,7 @@ from gymnasium.vector.utils import batch_space
 
 from gym_gridloc import engine, referee
 from gym_gridloc.envs.base import GridLocEnv
-from gym_gridloc.lookahead import Lookahead, lookahead_features
+from gym_gridloc.lookahead import lookahead_features
 from gym_gridloc.wrappers import (batch_observation, belief_observation_space, check_belief_option, check_lookahead,
                                   map_channels)
 
@@ -86,7 +86,6 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self.lookahead = check_lookahead(lookahead)
         if self.lookahead and self.belief is None:
             raise ValueError("lookahead needs a belief (belief='exact')")
-        self._looks: dict[int, Lookahead] = {}
         if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
             raise ValueError(f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}")
         self.autoreset_mode = self._mode(autoreset_mode)
@@ -212,15 +211,11 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
                                  lookahead=self._lookahead_features())
 
     def _lookahead_features(self) -> np.ndarray | None:
-        """``(N, lookahead, A)`` expected entropies per action (one lookahead per distinct model)."""
+        """``(N, lookahead, A)`` expected entropies per action."""
         if not self.lookahead:
             return None
-        looks = {}
-        for m in self.models:
-            look = self._looks.get(id(m))
-            looks[id(m)] = look if look is not None and look.model is m else Lookahead(m, pose=self.full_state)
-        self._looks = looks  # only the current models' (maps redrawn at reset are let go)
-        return np.stack([lookahead_features(looks[id(m)], b, self.lookahead) for m, b in zip(self.models, self._beliefs)])
+        return np.stack([lookahead_features(m, b, self.lookahead, pose=self.full_state)
+                         for m, b in zip(self.models, self._beliefs)])
 
     def _infos(self) -> dict[str, np.ndarray]:
         t = self.template

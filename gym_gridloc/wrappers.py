@@ -13,7 +13,7 @@ from gym_gridloc.core.errors import ImpossibleObservationError
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.core.validation import check_choice
 from gym_gridloc.filter import ForwardFilter
-from gym_gridloc.lookahead import Lookahead, lookahead_features
+from gym_gridloc.lookahead import lookahead_features
 
 
 _RESET_HINT = "pass on_impossible='reset' to HMMBeliefWrapper to restart the belief from the prior instead"
@@ -196,7 +196,6 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.full_state = bool(full_state)
         self.map = bool(map)
         self.lookahead = check_lookahead(lookahead)
-        self._look: Lookahead | None = None
         self.key = key
         inner = env.observation_space
         if isinstance(env.action_space, spaces.Discrete) and env.action_space.n != model.n_actions:
@@ -281,9 +280,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         without ``lookahead``)."""
         if not self.lookahead:
             return None
-        if self._look is None or self._look.model is not self.model:
-            self._look = Lookahead(self.model, pose=self.full_state)
-        return lookahead_features(self._look, self.filter.full_belief, self.lookahead)
+        return lookahead_features(self.model, self.filter.full_belief, self.lookahead, pose=self.full_state)
 
     def observation(self, observation: Any) -> dict[str, Any] | np.ndarray:
         maps = map_channels(self.model) if self.map else None
