@@ -26,6 +26,7 @@ Every ``run`` returns the sums (1.0 where nothing was summed).
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import os
 
@@ -53,6 +54,20 @@ def make_plan(transitions, n_layers: int, shape: tuple[int, int]):
     n_cells = n_layers * shape[0] * shape[1]
     cls = NumbaPlan if uses_numba(n_cells) else NumpyPlan
     return cls(transitions, n_layers, shape)
+
+
+def weigh(out, liks, layered: int, n_layers: int, mode: int) -> np.ndarray:
+    """Multiply N predicted flat beliefs ``out`` ``(N, L*H*W)`` by their likelihoods ``liks``, in
+    place (mode 1: and normalise each whose sum is positive and finite); returns the sums."""
+    if layered:
+        out *= liks
+    else:
+        view = out.reshape(out.shape[0], n_layers, -1)
+        view *= liks[:, None, :]
+    z = out.sum(axis=1)
+    if mode == 1:
+        out /= np.where((z > 0.0) & np.isfinite(z), z, 1.0)[:, None]
+    return z
 
 
 def _compiled():
@@ -140,7 +155,6 @@ class NumpyPlan:
         self.single = [self._diagonals(terms, w) for terms in transitions]
         self._transitions = transitions
         self._width = w
-        self._batch = None  # built on first batched use
 
     def _diagonals(self, terms, width: int):
         """``(zero, writes, adds)``: layers to clear, ``(src, dst, weight)`` of the ``(0, 0)``
@@ -183,8 +197,9 @@ class NumpyPlan:
             out *= 1.0 / z
         return z
 
+    @functools.cached_property
     def _batch_plan(self):
-        """One entry per distinct flat shift over all actions: ``(first, src_lo, dst_lo, n,
+        """Built on first batched use: one entry per distinct flat shift over all actions: ``(first, src_lo, dst_lo, n,
         weights)`` with ``weights`` an (A, n) stack of the actions' weight slices, or (1, n) when
         every action has the same weight; "first" entries write their destination layer."""
         hw, width = self.hw, self._width
@@ -224,9 +239,7 @@ class NumpyPlan:
     def run(self, beliefs, actions, liks, layered: int, out, mode: int, sel) -> np.ndarray:
         """N flat beliefs ``(N, L*H*W)`` with N actions (all N computed; rows where ``sel`` is
         False are written back unchanged)."""
-        if self._batch is None:
-            self._batch = self._batch_plan()
-        zero, plan = self._batch
+        zero, plan = self._batch_plan
         hw, n_rows = self.hw, beliefs.shape[0]
         keep = None if sel.all() else out[~sel].copy()
         for layer in zero:
@@ -238,17 +251,7 @@ class NumpyPlan:
                 np.multiply(wv, src, out=dst)
             else:
                 dst += wv * src
-        z = np.ones(n_rows)
-        if mode > 0:
-            if layered:
-                out *= liks
-            else:
-                view = out.reshape(n_rows, self.n_layers, hw)
-                view *= liks[:, None, :]
-            z = out.sum(axis=1)
-            if mode == 1:
-                ok = (z > 0.0) & np.isfinite(z)
-                out /= np.where(ok, z, 1.0)[:, None]
+        z = weigh(out, liks, layered, self.n_layers, mode) if mode > 0 else np.ones(n_rows)
         if keep is not None:
             out[~sel] = keep
             z[~sel] = 1.0
