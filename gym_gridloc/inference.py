@@ -41,20 +41,16 @@ __all__ = [
 # -- reading an episode ----------------------------------------------------------------------------
 def _episode(model: GridModel, actions: Sequence[Any] | None, observations: Sequence[Any]) -> tuple[list[int | None], list[int]]:
     """Checked ``(actions, readings)`` of an episode."""
-    if not isinstance(model, GridModel):
-        raise TypeError(f"model must be a GridModel, got {type(model).__name__}")
+    engine._checked_model(model, "model must be a GridModel")
     obs = list(observations)
     if not obs:
         raise ValueError("observations must hold at least one observation (the reading at reset)")
-    if actions is None:
-        acts: list[Any] = [None] * (len(obs) - 1)
-    else:
-        acts = list(actions)
-        if len(acts) != len(obs) - 1:
-            raise ValueError(
-                "actions must have exactly one element fewer than observations (actions[k] is taken "
-                f"between observations[k] and observations[k+1]); got {len(acts)} actions and {len(obs)} observations"
-            )
+    acts: list[Any] = [None] * (len(obs) - 1) if actions is None else list(actions)
+    if len(acts) != len(obs) - 1:
+        raise ValueError(
+            "actions must have exactly one element fewer than observations (actions[k] is taken "
+            f"between observations[k] and observations[k+1]); got {len(acts)} actions and {len(obs)} observations"
+        )
     acts = [None if a is None else model.check_action(a) for a in acts]
     readings = [model.sensor.to_reading(o) for o in obs]
     return acts, readings
@@ -175,9 +171,7 @@ class FixedLagSmoother:
     """
 
     def __init__(self, model: GridModel, lag: int, *, full_state: bool = False) -> None:
-        if not isinstance(model, GridModel):
-            raise TypeError(f"FixedLagSmoother needs a GridModel, got {type(model).__name__}")
-        self.model = model
+        self.model = engine._checked_model(model, "FixedLagSmoother needs a GridModel")
         self.lag = check_int("lag", lag, minimum=0)
         self.full_state = bool(full_state)
         self.t = -1
@@ -253,16 +247,9 @@ def fixed_lag_smooth(model: GridModel, actions: Sequence[Any] | None, observatio
     acts, _ = _episode(model, actions, observations)
     obs = list(observations)
     s = FixedLagSmoother(model, lag, full_state=full_state)
-    out = []
-    first = s.reset(obs[0])
-    if first is not None:
-        out.append(first)
-    for a, o in zip(acts, obs[1:]):
-        b = s.step(a, o)
-        if b is not None:
-            out.append(b)
-    out.extend(s.flush())
-    return np.stack(out)
+    # reset and step give None while no belief is d steps old; flush gives the ones still owed
+    out = [s.reset(obs[0]), *(s.step(a, o) for a, o in zip(acts, obs[1:])), *s.flush()]
+    return np.stack([b for b in out if b is not None])
 
 
 # -- Viterbi ---------------------------------------------------------------------------------------

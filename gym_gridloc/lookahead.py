@@ -36,9 +36,7 @@ class Lookahead:
     """
 
     def __init__(self, model: GridModel, *, pose: bool = False) -> None:
-        if not isinstance(model, GridModel):
-            raise TypeError(f"a lookahead needs the environment's GridModel, got {type(model).__name__}")
-        self.model = model
+        self.model = engine._checked_model(model, "a lookahead needs the environment's GridModel")
         self.pose = bool(pose or model.sensor.layered)
         self.n_actions = model.n_actions
         self.h = model.sensor.reading_entropy()
