@@ -72,11 +72,6 @@ class _Derived:
                 self._lik_bytes += lik.nbytes
         return lik
 
-    def stepper(self, normalise: bool):
-        if normalise not in self._steppers:
-            self._steppers[normalise] = _make_stepper(self.model(), self, normalise)
-        return self._steppers[normalise]
-
     @functools.cached_property
     def transitions(self) -> tuple[tuple[Term, ...], ...]:
         """Every action's terms; index n_actions is the unknown action: the average of the others
@@ -350,7 +345,10 @@ def stepper(model: GridModel, *, normalise: bool = True) -> Callable[[np.ndarray
     for hot loops (the single filter): ``belief`` and ``out`` C-contiguous float64 arrays of the
     belief's ``L*H*W`` values, ``(L, H, W)`` or flat (not checked), ``action`` an int or None,
     ``reading`` an int."""
-    return _derived(model).stepper(normalise)
+    d = _derived(model)
+    if normalise not in d._steppers:
+        d._steppers[normalise] = _make_stepper(model, d, normalise)
+    return d._steppers[normalise]
 
 
 def _make_stepper(model: GridModel, d: _Derived, normalise: bool):
@@ -401,10 +399,7 @@ def states_of(model: GridModel, indices: np.ndarray) -> np.ndarray:
     """State indices (layer-major over free cells, as :meth:`GridModel.to_vector` orders them)
     as ``(N, 3)`` states (layer, row, col)."""
     layer, cell = np.divmod(np.asarray(indices, dtype=np.int64).reshape(-1), model.grid.n_free)
-    out = np.empty((layer.size, 3), dtype=np.int64)
-    out[:, 0] = layer
-    out[:, 1:] = model.grid.free_cells[cell]
-    return out
+    return np.column_stack((layer, model.grid.free_cells[cell]))
 
 
 def sample_initial(model: GridModel, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -456,9 +451,7 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     if none.any():  # u * total rounded up to the total: the last possible outcome
         k[none] = p.shape[1] - 1 - np.argmax((p[none] > 0)[:, ::-1], axis=1)
     chosen = np.take_along_axis(key, k[:, None, None], axis=2)[:, :, 0]  # (n, 4)
-    out[moving, 0] = chosen[:, 1]
-    out[moving, 1] += chosen[:, 2]
-    out[moving, 2] += chosen[:, 3]
+    out[moving] = chosen[:, 1:] + st_m * (0, 1, 1)  # (destination layer, row + dr, col + dc)
     return out
 
 

@@ -17,6 +17,7 @@ The start distribution is the model's prior (uniform over free states) and kidna
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 from dataclasses import dataclass
 from typing import Any, Sequence
@@ -181,10 +182,6 @@ class FixedLagSmoother:
     def _out(self, belief: np.ndarray) -> np.ndarray:
         return belief if self.full_state else _positions(belief)
 
-    def _filter_step(self, predicted: np.ndarray, reading: int) -> np.ndarray:
-        _condition(self.model, predicted, reading, self.t + 1)
-        return predicted
-
     def _smoothed(self, k: int) -> np.ndarray:
         """``P(X_k | e_0:t)`` for k in the window (t-d .. t)."""
         first_f = self.t - len(self._f) + 1  # time of self._f[0]
@@ -205,7 +202,8 @@ class FixedLagSmoother:
         self.t = -1
         self._f.clear()
         self._links.clear()
-        f = self._filter_step(self.model.prior(), reading)
+        f = self.model.prior()
+        _condition(self.model, f, reading, 0)
         self.t = 0
         self._f.append(f)
         return self._smoothed(0) if self.lag == 0 else None
@@ -217,7 +215,8 @@ class FixedLagSmoother:
             raise RuntimeError("call FixedLagSmoother.reset(observation) before step()")
         a = None if action is None else self.model.check_action(action)
         reading = self.model.sensor.to_reading(observation)
-        f = self._filter_step(engine.predict(self.model, self._f[-1], a), reading)
+        f = engine.predict(self.model, self._f[-1], a)
+        _condition(self.model, f, reading, self.t + 1)
         self.t += 1
         self._f.append(f)
         if self.lag > 0:
@@ -276,31 +275,31 @@ def viterbi(
     n_states = model.n_states
     p_kid = model.kidnap_prob
 
-    def loglik(reading: int) -> np.ndarray:
+    def observe(scores: np.ndarray, k: int) -> np.ndarray:
+        """``scores`` plus the log likelihood of observation ``k``'s reading (an error if impossible)."""
         with np.errstate(divide="ignore"):
-            return np.log(engine.likelihood(model, reading))
+            scores = scores + np.log(engine.likelihood(model, readings[k]))
+        if not np.isfinite(scores.max()):
+            raise _impossible(model, k, readings[k])
+        return scores
 
-    with np.errstate(divide="ignore"):
-        delta = np.where(mask, -np.log(n_states), -np.inf) + loglik(readings[0])
-    if not np.isfinite(delta.max()):
-        raise _impossible(model, 0, readings[0])
-    log_terms: dict[int | None, list[np.ndarray]] = {}
+    @functools.cache
+    def log_terms(a: int | None) -> list[tuple]:
+        """``(term, source slices, destination slices, log weight)`` for each term of ``a``."""
+        with np.errstate(divide="ignore"):
+            return [
+                (t, *t.slices, np.log((1.0 - p_kid) * t.weight + (p_kid / n_states if p_kid > 0 else 0.0)))
+                for t in engine.terms(model, a)
+            ]
+
+    delta = observe(np.where(mask, -np.log(n_states), -np.inf), 0)
     pointers = np.empty((max(n - 1, 0), *model.belief_shape), dtype=np.int32)
     kidnap_from = np.zeros(max(n - 1, 0), dtype=np.int64)  # flat index of the best state (kidnap)
     for k in range(1, n):
-        a = acts[k - 1]
-        terms = engine.terms(model, a)
-        if a not in log_terms:
-            with np.errstate(divide="ignore"):
-                log_terms[a] = [
-                    (*t.slices, np.log((1.0 - p_kid) * t.weight + (p_kid / n_states if p_kid > 0 else 0.0)))
-                    for t in terms
-                ]
         new = np.full(model.belief_shape, -np.inf)
         bp = pointers[k - 1]
         bp.fill(-2)
-        for i, t in enumerate(terms):
-            src, dst, lw = log_terms[a][i]
+        for i, (t, src, dst, lw) in enumerate(log_terms(acts[k - 1])):
             cand = delta[t.src][src] + lw[src]
             region = new[t.dst][dst]
             better = cand > region
@@ -313,9 +312,7 @@ def viterbi(
             better = mask & (cand > new)
             new[better] = cand
             bp[better] = -1
-        delta = new + loglik(readings[k])
-        if not np.isfinite(delta.max()):
-            raise _impossible(model, k, readings[k])
+        delta = observe(new, k)
     best = int(np.argmax(delta))
     log_prob = float(delta.flat[best])
     state = np.unravel_index(best, model.belief_shape)

@@ -51,8 +51,7 @@ def uses_numba(n_cells: int) -> bool:
 
 def make_plan(transitions, n_layers: int, shape: tuple[int, int]):
     """The plan for ``transitions`` (one tuple of terms per action, the unknown action last)."""
-    n_cells = n_layers * shape[0] * shape[1]
-    cls = NumbaPlan if uses_numba(n_cells) else NumpyPlan
+    cls = NumbaPlan if uses_numba(n_layers * shape[0] * shape[1]) else NumpyPlan
     return cls(transitions, n_layers, shape)
 
 

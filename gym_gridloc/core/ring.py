@@ -84,20 +84,18 @@ class RingSensor(Sensor):
         else:
             out.fill(0.0)
         nothing = readings == self.nothing
-        if nothing.any():
-            out[nothing] = self._nothing.reshape(-1)
+        out[nothing] = self._nothing.reshape(-1)
         cells = np.flatnonzero(~nothing)
-        if cells.size:
-            r0, c0 = np.divmod(readings[cells], w)
-            free = self.grid.free
-            for i in range(5):
-                rr = r0 + i - 2
-                for j in range(5):
-                    cc = c0 + j - 2
-                    ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-                    if ok.any():
-                        r, c, k = rr[ok], cc[ok], cells[ok]
-                        out[k, r * w + c] = self.kernel[i, j] * free[r, c]
+        r0, c0 = np.divmod(readings[cells], w)
+        free = self.grid.free
+        for i in range(5):
+            rr = r0 + i - 2
+            for j in range(5):
+                cc = c0 + j - 2
+                ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+                if ok.any():
+                    r, c, k = rr[ok], cc[ok], cells[ok]
+                    out[k, r * w + c] = self.kernel[i, j] * free[r, c]
         return out
 
     def reading_probabilities(self, masses: np.ndarray) -> np.ndarray:
