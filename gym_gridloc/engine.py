@@ -312,12 +312,11 @@ def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out
     if rs.size != n:
         raise ValueError(f"step() needs one reading per belief: {n} beliefs, {rs.size} readings")
     sel = _all(n) if mask is None else np.asarray(mask, dtype=bool)
-    rs_used = rs if mask is None else np.where(sel, rs, 0)
     if mask is not None:
         acts = np.where(sel, acts, 0)
     res = _out(out, flat, (n, *model.belief_shape))
     res2 = res.reshape(n, -1)
-    lik = likelihoods(model, rs_used)
+    lik = likelihoods(model, rs if mask is None else np.where(sel, rs, 0))
     if model.kidnap_prob > 0.0:
         z = _mixed_step(model, d, flat, acts, lik, res2, normalise, sel)
     else:
@@ -329,9 +328,8 @@ def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out
 def _mixed_step(model: GridModel, d: _Derived, flat: np.ndarray, acts: np.ndarray, lik: np.ndarray,
                 out: np.ndarray, normalise: bool, sel: np.ndarray) -> np.ndarray:
     """:func:`step` with kidnapping: predict, mix, then weigh (the kernels' fused pass cannot mix)."""
-    n = flat.shape[0]
     keep = None if sel.all() else out[~sel].copy()
-    d.plan.run(flat, acts, _no_liks(n), 0, out, 0, sel)
+    d.plan.run(flat, acts, _no_liks(flat.shape[0]), 0, out, 0, sel)
     _kidnap(model, flat, out)
     z = kernels.weigh(out, lik, d.layered, model.n_layers, 1 if normalise else 2)
     if keep is not None:

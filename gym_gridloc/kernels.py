@@ -75,14 +75,12 @@ def _compiled():
     global _COMPILED, AVAILABLE
     if _COMPILED is None and AVAILABLE:
         try:
-            from gym_gridloc import _numba_kernels
+            from gym_gridloc import _numba_kernels as _COMPILED  # binds the global
         except ImportError as exc:  # pragma: no cover - a broken numba install
             import warnings
 
             warnings.warn(f"numba failed to import ({exc}); the filter runs on numpy", RuntimeWarning, stacklevel=2)
             AVAILABLE = False
-            return None
-        _COMPILED = _numba_kernels
     return _COMPILED
 
 
@@ -218,17 +216,14 @@ class NumpyPlan:
                 rows[a] = t.weight.reshape(-1)[s0 : s0 + n]
                 firsts[key] = firsts.get(key, True) and first
         covered = set()
-        first_keys, rest = [], []
+        first_keys = []
         for key in entries:
-            layer = key[1] // hw
-            if firsts[key] and layer not in covered and all(r is not None for r in entries[key]):
-                covered.add(layer)
+            if firsts[key] and key[1] // hw not in covered and all(r is not None for r in entries[key]):
+                covered.add(key[1] // hw)
                 first_keys.append(key)
-            else:
-                rest.append(key)
         zero = tuple(layer for layer in range(self.n_layers) if layer not in covered)
         plan = []
-        for key in first_keys + rest:
+        for key in first_keys + [key for key in entries if key not in first_keys]:
             n = key[2]
             rows = [np.zeros(n) if r is None else r for r in entries[key]]
             same = all(r is rows[0] or np.array_equal(r, rows[0]) for r in rows[1:])

@@ -145,8 +145,7 @@ def parse_rows(
         raise MapError(f"{source}: the map is empty (it needs at least one row)")
     if len(rows) > MAX_SIDE:
         raise MapError(f"{source}: {len(rows)} rows, more than the {MAX_SIDE} a map may have")
-    lookup = {s: i for i, s in enumerate(symbols)}
-    lookup.update({s: -1 for s in obstacles})
+    lookup = {**{s: i for i, s in enumerate(symbols)}, **dict.fromkeys(obstacles, -1)}
     allowed = ", ".join(repr(s) for s in [*symbols, *obstacles])
     grid: list[np.ndarray] = []  # one small int array per row: a large map never becomes Python lists
     width = None

@@ -181,8 +181,7 @@ class GridModel:
         if p == self.kidnap_prob:
             return self
         other = object.__new__(GridModel)
-        other.__dict__.update(self.__dict__)
-        object.__setattr__(other, "kidnap_prob", p)
+        other.__dict__.update(self.__dict__, kidnap_prob=p)
         return other
 
     # -- sizes ---------------------------------------------------------------------------------

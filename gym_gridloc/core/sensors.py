@@ -198,9 +198,6 @@ class TableSensor(Sensor):
         flat = np.asarray(masses).reshape(masses.shape[0], -1)
         return flat @ self.table.reshape(self.table.shape[0], -1).T
 
-    def reading_entropy(self) -> np.ndarray:
-        return -xlogx(self.table).sum(axis=0)
-
 
 class ColourSensor(TableSensor):
     """Reads the colour of the cell: right with ``accuracy``, each wrong colour equally often."""
