@@ -315,8 +315,7 @@ def viterbi(
         delta = observe(new, k)
     best = int(np.argmax(delta))
     log_prob = float(delta.flat[best])
-    state = np.unravel_index(best, model.belief_shape)
-    states = [tuple(int(v) for v in state)]
+    states = [tuple(int(v) for v in np.unravel_index(best, model.belief_shape))]
     for k in range(n - 1, 0, -1):
         layer, r, c = states[-1]
         i = int(pointers[k - 1][layer, r, c])

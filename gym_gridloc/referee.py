@@ -43,9 +43,7 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     truth = states[:, 1:3]
     error = np.abs(estimate - truth).sum(axis=1)
     localised = confidence >= threshold
-    right = error == 0
-    if pose:
-        right &= layer == states[:, 0]
+    right = (error == 0) & (layer == states[:, 0]) if pose else error == 0
     info = {
         "position": truth.copy(),
         "estimate": estimate,

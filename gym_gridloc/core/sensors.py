@@ -172,6 +172,12 @@ class TableSensor(Sensor):
     def likelihood(self, reading: int) -> np.ndarray:
         return self.table[reading]
 
+    def _set_table(self, table: np.ndarray) -> None:
+        """Keep ``table`` as :attr:`table`: zeroed on obstacles, read-only."""
+        table[..., ~self.grid.free] = 0.0
+        table.setflags(write=False)
+        self.table = table
+
     def _columns(self, states: np.ndarray) -> np.ndarray:
         """P(reading | state) for each of N states, ``(N, n_readings)``."""
         if states.shape[0] == 1:
@@ -212,10 +218,7 @@ class ColourSensor(TableSensor):
         wrong = (1.0 - self.accuracy) / (k - 1) if k > 1 else 0.0
         if k == 1:
             self.accuracy = 1.0
-        table = np.where(grid.labels == np.arange(k)[:, None, None], self.accuracy, wrong)  # (k, H, W)
-        table[:, ~grid.free] = 0.0
-        table.setflags(write=False)
-        self.table = table
+        self._set_table(np.where(grid.labels == np.arange(k)[:, None, None], self.accuracy, wrong))  # (k, H, W)
 
     def describe(self, reading: int) -> str:
         return self.colours[reading]
@@ -246,10 +249,8 @@ class WallSensor(TableSensor):
         self.p_bits = np.where(blocked, self.p_detect, self.p_false_alarm)  # P(bit = 1 | cell)
         self.p_bits.setflags(write=False)
         # reading r: the product over its bits, in (W, N, E, S) order, of P(bit | cell)
-        table = np.where(self._OBSERVATIONS[:, :, None, None] == 1, self.p_bits, 1.0 - self.p_bits).prod(axis=1)
-        table[:, ~grid.free] = 0.0
-        table.setflags(write=False)
-        self.table = table
+        bits = self._OBSERVATIONS[:, :, None, None] == 1  # (16, 4, 1, 1)
+        self._set_table(np.where(bits, self.p_bits, 1.0 - self.p_bits).prod(axis=1))
 
     def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         if states.shape[0] == 1:
@@ -342,9 +343,7 @@ class DepthSensor(TableSensor):
                     table[z] += np.where(depth == other, eps / 2 if two_sided else eps, 0.0)
         if self.max_depth == 1:
             table[1] = np.where(free, 1.0, 0.0)
-        table[:, :, ~free] = 0.0
-        table.setflags(write=False)
-        self.table = table
+        self._set_table(table)
 
     def describe(self, reading: int) -> str:
         return f"depth {reading}"
