@@ -253,14 +253,15 @@ def impossible(model: GridModel, reading: int, *, label: str | None = None,
     )
 
 
-def _check_z(model: GridModel, z: np.ndarray, readings: np.ndarray, batch: bool, sel: np.ndarray | None = None) -> None:
+def _check_z(model: GridModel, z: np.ndarray, readings: np.ndarray, sel: np.ndarray | None = None) -> None:
+    """Raise for the first belief of a batch (of those in ``sel``) whose normaliser ``z`` is not positive."""
     ok = (z > 0.0) & np.isfinite(z)
     if sel is not None:
         ok |= ~sel
     if not ok.all():
         i = int(np.flatnonzero(~ok)[0])
         text = model.sensor.observation_text(int(readings[i]))
-        raise impossible(model, int(readings[i]), label=f"observation {text} of belief {i}" if batch else None)
+        raise impossible(model, int(readings[i]), label=f"observation {text} of belief {i}")
 
 
 def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
@@ -286,7 +287,7 @@ def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
     lik = likelihoods(model, rs)
     post = flat * lik if lik.shape[1] == flat.shape[1] else (flat.reshape(n, model.n_layers, -1) * lik[:, None, :]).reshape(n, -1)
     z = post.sum(axis=1)
-    _check_z(model, z, rs, True)
+    _check_z(model, z, rs)
     np.divide(post, z[:, None], out=flat)
     return z
 
@@ -321,7 +322,7 @@ def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out
         z = _mixed_step(model, d, flat, acts, lik, res2, normalise, sel)
     else:
         z = d.plan.run(flat, acts, lik, d.layered, res2, 1 if normalise else 2, sel)
-    _check_z(model, z, rs, True, None if mask is None else sel)
+    _check_z(model, z, rs, None if mask is None else sel)
     return res, z
 
 
