@@ -120,9 +120,8 @@ class ForwardFilter:
         return self
 
     def __getstate__(self) -> dict:
-        state = dict(self.__dict__)
-        del state["_step"], state["_to_reading"]  # bound functions: rebuilt on load
-        return state
+        # all but the bound functions, which are rebuilt on load
+        return {k: v for k, v in self.__dict__.items() if k not in ("_step", "_to_reading")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)

@@ -122,12 +122,11 @@ def forward_backward(model: GridModel, actions: Sequence[Any] | None, observatio
     """
     acts, readings = _episode(model, actions, observations)
     f, loglik = _forward(model, acts, readings)
-    n = len(readings)
     smoothed = np.empty_like(f)
     mask = model.state_mask
     b = mask / float(mask.sum())
-    smoothed[n - 1] = f[n - 1]
-    for k in range(n - 2, -1, -1):
+    smoothed[-1] = f[-1]
+    for k in range(len(readings) - 2, -1, -1):
         b = engine.backward(model, engine.likelihood(model, readings[k + 1]) * b, acts[k])
         b /= b.sum()  # positive: observation k+1 is possible (the forward pass checked it)
         g = f[k] * b
@@ -314,7 +313,6 @@ def viterbi(
             bp[better] = -1
         delta = observe(new, k)
     best = int(np.argmax(delta))
-    log_prob = float(delta.flat[best])
     states = [tuple(int(v) for v in np.unravel_index(best, model.belief_shape))]
     for k in range(n - 1, 0, -1):
         layer, r, c = states[-1]
@@ -327,4 +325,4 @@ def viterbi(
         states.append(tuple(int(v) for v in prev))
     states.reverse()
     path = states if full_state else [(r, c) for _, r, c in states]
-    return path, log_prob
+    return path, float(delta.flat[best])

@@ -58,11 +58,8 @@ def make_plan(transitions, n_layers: int, shape: tuple[int, int]):
 def weigh(out, liks, layered: int, n_layers: int, mode: int) -> np.ndarray:
     """Multiply N predicted flat beliefs ``out`` ``(N, L*H*W)`` by their likelihoods ``liks``, in
     place (mode 1: and normalise each whose sum is positive and finite); returns the sums."""
-    if layered:
-        out *= liks
-    else:
-        view = out.reshape(out.shape[0], n_layers, -1)
-        view *= liks[:, None, :]
+    view = out if layered else out.reshape(out.shape[0], n_layers, -1)
+    view *= liks if layered else liks[:, None, :]
     z = out.sum(axis=1)
     if mode == 1:
         out /= np.where((z > 0.0) & np.isfinite(z), z, 1.0)[:, None]
@@ -184,11 +181,8 @@ class NumpyPlan:
         self.predict_one(belief, action, out)
         if mode == 0:
             return 1.0
-        if layered:
-            np.multiply(out, lik, out=out)
-        else:
-            view = out.reshape(self.n_layers, self.hw)
-            np.multiply(view, lik, out=view)
+        view = out if layered else out.reshape(self.n_layers, self.hw)
+        np.multiply(view, lik, out=view)
         z = float(np.add.reduce(out))
         if mode == 1 and z > 0.0 and np.isfinite(z):
             out *= 1.0 / z
