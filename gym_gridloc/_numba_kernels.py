@@ -21,10 +21,7 @@ def stencil_update(b, w, meta, lik, layered, out, n_layers, mode):  # pragma: no
     K = w.shape[0]
     hw = out.shape[0] // n_layers
     src, dst, off, lo, hi = meta[0], meta[1], meta[2], meta[3], meta[4]
-    z0 = 0.0
-    z1 = 0.0
-    z2 = 0.0
-    z3 = 0.0
+    z0 = z1 = z2 = z3 = 0.0
     for layer in range(n_layers):
         base = layer * hw
         lbase = base * layered

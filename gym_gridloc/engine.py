@@ -28,7 +28,9 @@ applied, so that no caller writes a prediction, an update or a sampler again.
 
 from __future__ import annotations
 
+import bisect
 import functools
+import itertools
 import math
 import weakref
 from typing import Any, Callable
@@ -46,67 +48,57 @@ __all__ = [
 
 
 class _Derived:
-    """What the engine derives from one model, built on first use."""
-
-    __slots__ = ("transitions", "_plan", "_moves", "_liks", "_lik_bytes", "layered", "_steppers", "__weakref__")
+    """What the engine derives from one model, built on first use.  It holds the model weakly (the
+    model is the key it is cached under)."""
 
     #: At most this many bytes of single-reading likelihoods are kept per model.
     LIK_CACHE_BYTES = 8 * 2**20
 
     def __init__(self, model: GridModel) -> None:
-        # Index n_actions is the unknown action: the average of the others (built on first use
-        # of the plan, as large as one action's terms on a 512 x 512 map).
-        self.transitions = None
-        self._plan = None
-        self._moves = None
+        self.model = weakref.ref(model)
         self._liks: dict[int, np.ndarray] = {}
         self._lik_bytes = 0
         self.layered = int(model.sensor.layered)
         self._steppers: dict[bool, Any] = {}
 
-    def lik(self, model: GridModel, reading: int) -> np.ndarray:
+    def lik(self, reading: int) -> np.ndarray:
         """The flat likelihood of one reading (cached while the cache is small)."""
         lik = self._liks.get(reading)
         if lik is None:
-            lik = np.ascontiguousarray(model.sensor.likelihood(reading), dtype=np.float64).reshape(-1)
+            lik = np.ascontiguousarray(self.model().sensor.likelihood(reading), dtype=np.float64).reshape(-1)
             lik.setflags(write=False)
             if self._lik_bytes + lik.nbytes <= self.LIK_CACHE_BYTES:
                 self._liks[reading] = lik
                 self._lik_bytes += lik.nbytes
         return lik
 
-    def stepper(self, model: GridModel, normalise: bool):
-        fn = self._steppers.get(normalise)
-        if fn is None:
-            fn = self._steppers[normalise] = _make_stepper(model, self, normalise)
-        return fn
+    @functools.cached_property
+    def transitions(self) -> tuple[tuple[Term, ...], ...]:
+        """Every action's terms; index n_actions is the unknown action: the average of the others
+        (built on first use of the plan, as large as one action's terms on a 512 x 512 map)."""
+        transitions = self.model().transitions
+        return (*transitions, mean_transition(transitions))
 
-    def all_transitions(self, model: GridModel) -> tuple[tuple[Term, ...], ...]:
-        if self.transitions is None:
-            self.transitions = (*model.transitions, mean_transition(model.transitions))
-        return self.transitions
-
-    def moves(self, model: GridModel) -> tuple[np.ndarray, np.ndarray]:
+    @functools.cached_property
+    def moves(self) -> tuple[np.ndarray, np.ndarray]:
         """The sampler's tables, every action's terms in their order padded to ``K`` (zero weight):
         ``weights`` ``(A + 1, H*W, K)`` and ``keys`` ``(A + 1, 4, K)`` (source layer, destination
         layer, row shift, column shift; a padding term's source is -1)."""
-        if self._moves is None:
-            ts = self.all_transitions(model)
-            k = max(1, max(len(terms) for terms in ts))
-            weights = np.zeros((len(ts), model.shape[0] * model.shape[1], k))
-            keys = np.zeros((len(ts), 4, k), dtype=np.int64)
-            keys[:, 0] = -1
-            for a, terms in enumerate(ts):
-                for i, t in enumerate(terms):
-                    weights[a, :, i] = t.weight.reshape(-1)
-                    keys[a, :, i] = (t.src, t.dst, t.dr, t.dc)
-            self._moves = (weights, keys)
-        return self._moves
+        ts, (h, w) = self.transitions, self.model().shape
+        k = max(1, max(len(terms) for terms in ts))
+        weights = np.zeros((len(ts), h * w, k))
+        keys = np.zeros((len(ts), 4, k), dtype=np.int64)
+        keys[:, 0] = -1
+        for a, terms in enumerate(ts):
+            for i, t in enumerate(terms):
+                weights[a, :, i] = t.weight.reshape(-1)
+                keys[a, :, i] = (t.src, t.dst, t.dr, t.dc)
+        return weights, keys
 
-    def plan(self, model: GridModel):
-        if self._plan is None:
-            self._plan = kernels.make_plan(self.all_transitions(model), model.n_layers, model.shape)
-        return self._plan
+    @functools.cached_property
+    def plan(self) -> kernels.NumbaPlan | kernels.NumpyPlan:
+        model = self.model()
+        return kernels.make_plan(self.transitions, model.n_layers, model.shape)
 
 
 _DERIVED: "weakref.WeakKeyDictionary[GridModel, _Derived]" = weakref.WeakKeyDictionary()
@@ -121,7 +113,7 @@ def _derived(model: GridModel) -> _Derived:
 
 def plan(model: GridModel) -> kernels.NumbaPlan | kernels.NumpyPlan:
     """The kernel plan of ``model`` (:mod:`gym_gridloc.kernels`), built once per model."""
-    return _derived(model).plan(model)
+    return _derived(model).plan
 
 
 def path(model: GridModel) -> str:
@@ -132,7 +124,7 @@ def path(model: GridModel) -> str:
 def terms(model: GridModel, action: int | None) -> tuple[Term, ...]:
     """The terms of ``action``'s transition (``None``: the actions' average, cached)."""
     if action is None:
-        return _derived(model).all_transitions(model)[model.n_actions]
+        return _derived(model).transitions[model.n_actions]
     return model.transitions[model.check_action(action)]
 
 
@@ -162,9 +154,10 @@ def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
     return out
 
 
-def _checked_model(model: Any) -> GridModel:
+def _checked_model(model: Any, expected: str = "expected a GridModel") -> GridModel:
+    """``model``, or a TypeError ``"<expected>, got <its type>"`` (each caller's own wording)."""
     if not isinstance(model, GridModel):
-        raise TypeError(f"expected a GridModel, got {type(model).__name__}")
+        raise TypeError(f"{expected}, got {type(model).__name__}")
     return model
 
 
@@ -238,8 +231,7 @@ def likelihood(model: GridModel, reading: int) -> np.ndarray:
     """P(reading | state) of one reading as ``(H, W)`` (position sensors) or ``(L, H, W)``
     (layered), cached per model while the cache is small (read-only: do not write into it)."""
     d = _derived(model)
-    lik = d.lik(model, int(reading))
-    return lik.reshape(model.belief_shape if d.layered else model.shape)
+    return d.lik(int(reading)).reshape(model.belief_shape if d.layered else model.shape)
 
 
 def likelihoods(model: GridModel, readings: Any, out: np.ndarray | None = None) -> np.ndarray:
@@ -261,14 +253,15 @@ def impossible(model: GridModel, reading: int, *, label: str | None = None,
     )
 
 
-def _check_z(model: GridModel, z: np.ndarray, readings: np.ndarray, batch: bool, sel: np.ndarray | None = None) -> None:
+def _check_z(model: GridModel, z: np.ndarray, readings: np.ndarray, sel: np.ndarray | None = None) -> None:
+    """Raise for the first belief of a batch (of those in ``sel``) whose normaliser ``z`` is not positive."""
     ok = (z > 0.0) & np.isfinite(z)
     if sel is not None:
         ok |= ~sel
     if not ok.all():
         i = int(np.flatnonzero(~ok)[0])
         text = model.sensor.observation_text(int(readings[i]))
-        raise impossible(model, int(readings[i]), label=f"observation {text} of belief {i}" if batch else None)
+        raise impossible(model, int(readings[i]), label=f"observation {text} of belief {i}")
 
 
 def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
@@ -284,7 +277,7 @@ def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
     if rs.size != n:
         raise ValueError(f"update() needs one reading per belief: {n} beliefs, {rs.size} readings")
     if single:  # one belief: the same numbers, with fewer array operations
-        lik = _derived(model).lik(model, int(rs[0]))
+        lik = _derived(model).lik(int(rs[0]))
         post = flat[0] * lik if lik.size == flat.shape[1] else (flat.reshape(model.n_layers, -1) * lik).reshape(-1)
         z1 = float(post.sum())
         if not (z1 > 0.0 and z1 < math.inf):
@@ -294,7 +287,7 @@ def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
     lik = likelihoods(model, rs)
     post = flat * lik if lik.shape[1] == flat.shape[1] else (flat.reshape(n, model.n_layers, -1) * lik[:, None, :]).reshape(n, -1)
     z = post.sum(axis=1)
-    _check_z(model, z, rs, not single)
+    _check_z(model, z, rs)
     np.divide(post, z[:, None], out=flat)
     return z
 
@@ -320,32 +313,26 @@ def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out
     if rs.size != n:
         raise ValueError(f"step() needs one reading per belief: {n} beliefs, {rs.size} readings")
     sel = _all(n) if mask is None else np.asarray(mask, dtype=bool)
-    rs_used = rs if mask is None else np.where(sel, rs, 0)
     if mask is not None:
         acts = np.where(sel, acts, 0)
     res = _out(out, flat, (n, *model.belief_shape))
     res2 = res.reshape(n, -1)
-    lik = likelihoods(model, rs_used)
+    lik = likelihoods(model, rs if mask is None else np.where(sel, rs, 0))
     if model.kidnap_prob > 0.0:
         z = _mixed_step(model, d, flat, acts, lik, res2, normalise, sel)
     else:
-        z = d.plan(model).run(flat, acts, lik, d.layered, res2, 1 if normalise else 2, sel)
-    _check_z(model, z, rs, True, None if mask is None else sel)
+        z = d.plan.run(flat, acts, lik, d.layered, res2, 1 if normalise else 2, sel)
+    _check_z(model, z, rs, None if mask is None else sel)
     return res, z
 
 
 def _mixed_step(model: GridModel, d: _Derived, flat: np.ndarray, acts: np.ndarray, lik: np.ndarray,
                 out: np.ndarray, normalise: bool, sel: np.ndarray) -> np.ndarray:
     """:func:`step` with kidnapping: predict, mix, then weigh (the kernels' fused pass cannot mix)."""
-    n = flat.shape[0]
     keep = None if sel.all() else out[~sel].copy()
-    d.plan(model).run(flat, acts, _no_liks(n), 0, out, 0, sel)
+    d.plan.run(flat, acts, _no_liks(flat.shape[0]), 0, out, 0, sel)
     _kidnap(model, flat, out)
-    view = out if d.layered else out.reshape(n, model.n_layers, -1)
-    view *= lik if d.layered else lik[:, None, :]
-    z = out.sum(axis=1)
-    if normalise:
-        out /= np.where((z > 0) & np.isfinite(z), z, 1.0)[:, None]
+    z = kernels.weigh(out, lik, d.layered, model.n_layers, 1 if normalise else 2)
     if keep is not None:
         out[~sel] = keep
         z[~sel] = 1.0
@@ -357,13 +344,16 @@ def stepper(model: GridModel, *, normalise: bool = True) -> Callable[[np.ndarray
     for hot loops (the single filter): ``belief`` and ``out`` C-contiguous float64 arrays of the
     belief's ``L*H*W`` values, ``(L, H, W)`` or flat (not checked), ``action`` an int or None,
     ``reading`` an int."""
-    return _derived(model).stepper(model, normalise)
+    d = _derived(model)
+    if normalise not in d._steppers:
+        d._steppers[normalise] = _make_stepper(model, d, normalise)
+    return d._steppers[normalise]
 
 
 def _make_stepper(model: GridModel, d: _Derived, normalise: bool):
     n_actions, layered, mode = model.n_actions, d.layered, 1 if normalise else 2
     lik_of, liks, check_action = d.lik, d._liks, model.check_action
-    run_one = d.plan(model).run_one
+    run_one = d.plan.run_one
     mixed = model.kidnap_prob > 0.0
 
     def step_one(belief: np.ndarray, action: Any, reading: int, out: np.ndarray) -> float:
@@ -375,7 +365,7 @@ def _make_stepper(model: GridModel, d: _Derived, normalise: bool):
             a = check_action(action)
         lik = liks.get(reading)
         if lik is None:
-            lik = lik_of(model, int(reading))
+            lik = lik_of(int(reading))
         if mixed:
             z = float(_mixed_step(model, d, belief.reshape(1, -1), np.array([a]), lik[None], out.reshape(1, -1),
                                   normalise, _all(1))[0])
@@ -408,10 +398,7 @@ def states_of(model: GridModel, indices: np.ndarray) -> np.ndarray:
     """State indices (layer-major over free cells, as :meth:`GridModel.to_vector` orders them)
     as ``(N, 3)`` states (layer, row, col)."""
     layer, cell = np.divmod(np.asarray(indices, dtype=np.int64).reshape(-1), model.grid.n_free)
-    out = np.empty((layer.size, 3), dtype=np.int64)
-    out[:, 0] = layer
-    out[:, 1:] = model.grid.free_cells[cell]
-    return out
+    return np.column_stack((layer, model.grid.free_cells[cell]))
 
 
 def sample_initial(model: GridModel, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -432,10 +419,10 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     _checked_model(model)
     st = np.asarray(states, dtype=np.int64).reshape(-1, 3)
     n = st.shape[0]
-    transitions = _derived(model).all_transitions(model)
+    transitions = _derived(model).transitions
     if n == 1 and model.kidnap_prob == 0.0 and type(actions) is int and 0 <= actions < model.n_actions:
-        layer, r, c = st[0].tolist()  # one state: the same draw, without array overheads
-        return np.array([_next_one(transitions[actions], layer, r, c, rng)], dtype=np.int64)
+        # one state: the same draw, without array overheads
+        return np.array([_next_one(transitions[actions], st[0], rng)], dtype=np.int64)
     acts = action_indices(model, actions, n)
     out = st.copy()
     moving = np.arange(n)
@@ -446,13 +433,12 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
             moving = np.flatnonzero(~kidnapped)
     if moving.size == 1:
         i = int(moving[0])
-        layer, r, c = st[i].tolist()
-        out[i] = _next_one(transitions[int(acts[i])], layer, r, c, rng)
+        out[i] = _next_one(transitions[int(acts[i])], st[i], rng)
         return out
     if moving.size == 0:
         return out
     u = rng.random(moving.size)
-    weights, keys = _derived(model).moves(model)
+    weights, keys = _derived(model).moves
     acts, st_m = acts[moving], st[moving]
     p = weights[acts, st_m[:, 1] * model.shape[1] + st_m[:, 2]]  # (n, K): each state's action's terms
     key = keys[acts]  # (n, 4, K)
@@ -464,26 +450,18 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     if none.any():  # u * total rounded up to the total: the last possible outcome
         k[none] = p.shape[1] - 1 - np.argmax((p[none] > 0)[:, ::-1], axis=1)
     chosen = np.take_along_axis(key, k[:, None, None], axis=2)[:, :, 0]  # (n, 4)
-    out[moving, 0] = chosen[:, 1]
-    out[moving, 1] += chosen[:, 2]
-    out[moving, 2] += chosen[:, 3]
+    out[moving] = chosen[:, 1:] + st_m * (0, 1, 1)  # (destination layer, row + dr, col + dc)
     return out
 
 
-def _next_one(ts: tuple[Term, ...], layer: int, r: int, c: int, rng: np.random.Generator) -> tuple[int, int, int]:
-    """:func:`sample_next` for one moving state (the same uniform and arithmetic, on scalars)."""
+def _next_one(ts: tuple[Term, ...], state: np.ndarray, rng: np.random.Generator) -> tuple[int, int, int]:
+    """:func:`sample_next` for one moving state ``(3,)`` (the same uniform and arithmetic, on scalars)."""
+    layer, r, c = state.tolist()
     x = rng.random()
     p = [float(t.weight[r, c]) if t.src == layer else 0.0 for t in ts]
-    total = 0.0
-    for q in p:
-        total += q
-    x *= total
-    acc = 0.0
-    for k, q in enumerate(p):
-        acc += q
-        if x < acc:
-            break
-    else:  # x rounded up to the total: the last possible outcome
+    cum = list(itertools.accumulate(p))  # summed left to right, as np.cumsum does
+    k = bisect.bisect_right(cum, x * cum[-1])  # the first term whose cumulative sum exceeds x * total
+    if k == len(p):  # x rounded up to the total: the last possible outcome
         k = max(j for j, q in enumerate(p) if q > 0.0)
     t = ts[k]
     return t.dst, r + t.dr, c + t.dc

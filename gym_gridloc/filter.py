@@ -18,12 +18,6 @@ from gym_gridloc import engine
 from gym_gridloc.core.model import GridModel
 
 
-def _check_model(model: Any, who: str) -> GridModel:
-    if not isinstance(model, GridModel):
-        raise TypeError(f"{who} needs a GridModel, got {type(model).__name__}")
-    return model
-
-
 def checked_belief(model: GridModel, belief: Any) -> np.ndarray:
     """An (L, H, W) array, an (S,) vector or (one layer) an (H, W) array as a normalised (L, H, W)
     belief, or a clear error."""
@@ -65,7 +59,7 @@ class ForwardFilter:
     """
 
     def __init__(self, model: GridModel, *, kidnap_prob: float | None = None) -> None:
-        model = _check_model(model, "ForwardFilter")
+        model = engine._checked_model(model, "ForwardFilter needs a GridModel")
         if kidnap_prob is not None:
             # The kidnapped robot: mix a teleport to a uniform free state with this probability
             # into every prediction (0.0 switches off any kidnapping the model has).
@@ -81,9 +75,7 @@ class ForwardFilter:
     # -- the API ---------------------------------------------------------------------------------
     def reset(self, observation: Any = None) -> "ForwardFilter":
         """Start from the prior (uniform over free states), updated with ``observation`` if given."""
-        self._f = self.model.prior()
-        self._spare = None
-        self._scale = 1.0
+        self._f, self._spare, self._scale = self.model.prior(), None, 1.0
         self.log_likelihood = 0.0
         if observation is not None:
             self.update(observation)
@@ -92,16 +84,17 @@ class ForwardFilter:
     def predict(self, action: int | None = None) -> "ForwardFilter":
         """One transition step; ``None`` means the action is unknown (the actions' average)."""
         f = self._belief()
-        self._f = engine.predict(self.model, f, action, out=self._buffer(f))
-        self._spare = f
+        out = self._spare
+        if out is None or out is f or out.shape != f.shape:
+            out = np.empty_like(f)
+        self._f, self._spare = engine.predict(self.model, f, action, out=out), f
         return self
 
     def update(self, observation: Any) -> "ForwardFilter":
         """Condition on a reading.  Raises :class:`ImpossibleObservationError` (and keeps the
         belief as it was) when the observation has probability zero under the model."""
         reading = self.model.sensor.to_reading(observation)
-        f = self._belief()
-        post = f.copy()
+        post = self._belief().copy()
         z = engine.update(self.model, post, reading)
         self._f = post
         self.log_likelihood += math.log(float(z[0]))
@@ -114,7 +107,7 @@ class ForwardFilter:
         before = self._f
         if before is None:
             raise RuntimeError("call ForwardFilter.reset() before using the filter")
-        out = self._spare  # _buffer() inlined: this is the filter's hot path (same shapes here)
+        out = self._spare  # the other buffer, as in predict() (same shapes here)
         if out is None or out is before:
             out = np.empty_like(before)
         zz = self._step(before, action, reading, out)
@@ -127,20 +120,13 @@ class ForwardFilter:
         return self
 
     def __getstate__(self) -> dict:
-        state = dict(self.__dict__)
-        del state["_step"], state["_to_reading"]  # bound functions: rebuilt on load
-        return state
+        # all but the bound functions, which are rebuilt on load
+        return {k: v for k, v in self.__dict__.items() if k not in ("_step", "_to_reading")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         self._step = engine.stepper(self.model, normalise=False)
         self._to_reading = self.model.sensor.to_reading
-
-    def _buffer(self, f: np.ndarray) -> np.ndarray:
-        spare = self._spare
-        if spare is None or spare is f or spare.shape != f.shape:
-            spare = self._spare = np.empty_like(f)
-        return spare
 
     # -- reading the belief -----------------------------------------------------------------------
     @property
@@ -169,9 +155,7 @@ class ForwardFilter:
     def set_belief(self, belief: np.ndarray) -> "ForwardFilter":
         """Replace the belief with an (L, H, W) array, an (S,) vector or, for a model of one layer,
         an (H, W) array like :attr:`position_belief` (checked, normalised)."""
-        self._f = checked_belief(self.model, belief)
-        self._spare = None
-        self._scale = 1.0
+        self._f, self._spare, self._scale = checked_belief(self.model, belief), None, 1.0
         return self
 
     def _belief(self) -> np.ndarray:
@@ -205,7 +189,7 @@ class BatchFilter:
     """
 
     def __init__(self, model: GridModel, n: int) -> None:
-        self.model = _check_model(model, "BatchFilter")
+        self.model = engine._checked_model(model, "BatchFilter needs a GridModel")
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"n (the number of beliefs) must be a positive integer, got {n!r}")
         self.n = int(n)

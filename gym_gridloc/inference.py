@@ -17,6 +17,7 @@ The start distribution is the model's prior (uniform over free states) and kidna
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 from dataclasses import dataclass
 from typing import Any, Sequence
@@ -41,20 +42,16 @@ __all__ = [
 # -- reading an episode ----------------------------------------------------------------------------
 def _episode(model: GridModel, actions: Sequence[Any] | None, observations: Sequence[Any]) -> tuple[list[int | None], list[int]]:
     """Checked ``(actions, readings)`` of an episode."""
-    if not isinstance(model, GridModel):
-        raise TypeError(f"model must be a GridModel, got {type(model).__name__}")
+    engine._checked_model(model, "model must be a GridModel")
     obs = list(observations)
     if not obs:
         raise ValueError("observations must hold at least one observation (the reading at reset)")
-    if actions is None:
-        acts: list[Any] = [None] * (len(obs) - 1)
-    else:
-        acts = list(actions)
-        if len(acts) != len(obs) - 1:
-            raise ValueError(
-                "actions must have exactly one element fewer than observations (actions[k] is taken "
-                f"between observations[k] and observations[k+1]); got {len(acts)} actions and {len(obs)} observations"
-            )
+    acts: list[Any] = [None] * (len(obs) - 1) if actions is None else list(actions)
+    if len(acts) != len(obs) - 1:
+        raise ValueError(
+            "actions must have exactly one element fewer than observations (actions[k] is taken "
+            f"between observations[k] and observations[k+1]); got {len(acts)} actions and {len(obs)} observations"
+        )
     acts = [None if a is None else model.check_action(a) for a in acts]
     readings = [model.sensor.to_reading(o) for o in obs]
     return acts, readings
@@ -125,12 +122,11 @@ def forward_backward(model: GridModel, actions: Sequence[Any] | None, observatio
     """
     acts, readings = _episode(model, actions, observations)
     f, loglik = _forward(model, acts, readings)
-    n = len(readings)
     smoothed = np.empty_like(f)
     mask = model.state_mask
     b = mask / float(mask.sum())
-    smoothed[n - 1] = f[n - 1]
-    for k in range(n - 2, -1, -1):
+    smoothed[-1] = f[-1]
+    for k in range(len(readings) - 2, -1, -1):
         b = engine.backward(model, engine.likelihood(model, readings[k + 1]) * b, acts[k])
         b /= b.sum()  # positive: observation k+1 is possible (the forward pass checked it)
         g = f[k] * b
@@ -175,9 +171,7 @@ class FixedLagSmoother:
     """
 
     def __init__(self, model: GridModel, lag: int, *, full_state: bool = False) -> None:
-        if not isinstance(model, GridModel):
-            raise TypeError(f"FixedLagSmoother needs a GridModel, got {type(model).__name__}")
-        self.model = model
+        self.model = engine._checked_model(model, "FixedLagSmoother needs a GridModel")
         self.lag = check_int("lag", lag, minimum=0)
         self.full_state = bool(full_state)
         self.t = -1
@@ -186,10 +180,6 @@ class FixedLagSmoother:
 
     def _out(self, belief: np.ndarray) -> np.ndarray:
         return belief if self.full_state else _positions(belief)
-
-    def _filter_step(self, predicted: np.ndarray, reading: int) -> np.ndarray:
-        _condition(self.model, predicted, reading, self.t + 1)
-        return predicted
 
     def _smoothed(self, k: int) -> np.ndarray:
         """``P(X_k | e_0:t)`` for k in the window (t-d .. t)."""
@@ -211,7 +201,8 @@ class FixedLagSmoother:
         self.t = -1
         self._f.clear()
         self._links.clear()
-        f = self._filter_step(self.model.prior(), reading)
+        f = self.model.prior()
+        _condition(self.model, f, reading, 0)
         self.t = 0
         self._f.append(f)
         return self._smoothed(0) if self.lag == 0 else None
@@ -223,7 +214,8 @@ class FixedLagSmoother:
             raise RuntimeError("call FixedLagSmoother.reset(observation) before step()")
         a = None if action is None else self.model.check_action(action)
         reading = self.model.sensor.to_reading(observation)
-        f = self._filter_step(engine.predict(self.model, self._f[-1], a), reading)
+        f = engine.predict(self.model, self._f[-1], a)
+        _condition(self.model, f, reading, self.t + 1)
         self.t += 1
         self._f.append(f)
         if self.lag > 0:
@@ -253,16 +245,9 @@ def fixed_lag_smooth(model: GridModel, actions: Sequence[Any] | None, observatio
     acts, _ = _episode(model, actions, observations)
     obs = list(observations)
     s = FixedLagSmoother(model, lag, full_state=full_state)
-    out = []
-    first = s.reset(obs[0])
-    if first is not None:
-        out.append(first)
-    for a, o in zip(acts, obs[1:]):
-        b = s.step(a, o)
-        if b is not None:
-            out.append(b)
-    out.extend(s.flush())
-    return np.stack(out)
+    # reset and step give None while no belief is d steps old; flush gives the ones still owed
+    out = [s.reset(obs[0]), *(s.step(a, o) for a, o in zip(acts, obs[1:])), *s.flush()]
+    return np.stack([b for b in out if b is not None])
 
 
 # -- Viterbi ---------------------------------------------------------------------------------------
@@ -289,31 +274,31 @@ def viterbi(
     n_states = model.n_states
     p_kid = model.kidnap_prob
 
-    def loglik(reading: int) -> np.ndarray:
+    def observe(scores: np.ndarray, k: int) -> np.ndarray:
+        """``scores`` plus the log likelihood of observation ``k``'s reading (an error if impossible)."""
         with np.errstate(divide="ignore"):
-            return np.log(engine.likelihood(model, reading))
+            scores = scores + np.log(engine.likelihood(model, readings[k]))
+        if not np.isfinite(scores.max()):
+            raise _impossible(model, k, readings[k])
+        return scores
 
-    with np.errstate(divide="ignore"):
-        delta = np.where(mask, -np.log(n_states), -np.inf) + loglik(readings[0])
-    if not np.isfinite(delta.max()):
-        raise _impossible(model, 0, readings[0])
-    log_terms: dict[int | None, list[np.ndarray]] = {}
+    @functools.cache
+    def log_terms(a: int | None) -> list[tuple]:
+        """``(term, source slices, destination slices, log weight)`` for each term of ``a``."""
+        with np.errstate(divide="ignore"):
+            return [
+                (t, *t.slices, np.log((1.0 - p_kid) * t.weight + (p_kid / n_states if p_kid > 0 else 0.0)))
+                for t in engine.terms(model, a)
+            ]
+
+    delta = observe(np.where(mask, -np.log(n_states), -np.inf), 0)
     pointers = np.empty((max(n - 1, 0), *model.belief_shape), dtype=np.int32)
     kidnap_from = np.zeros(max(n - 1, 0), dtype=np.int64)  # flat index of the best state (kidnap)
     for k in range(1, n):
-        a = acts[k - 1]
-        terms = engine.terms(model, a)
-        if a not in log_terms:
-            with np.errstate(divide="ignore"):
-                log_terms[a] = [
-                    (*t.slices, np.log((1.0 - p_kid) * t.weight + (p_kid / n_states if p_kid > 0 else 0.0)))
-                    for t in terms
-                ]
         new = np.full(model.belief_shape, -np.inf)
         bp = pointers[k - 1]
         bp.fill(-2)
-        for i, t in enumerate(terms):
-            src, dst, lw = log_terms[a][i]
+        for i, (t, src, dst, lw) in enumerate(log_terms(acts[k - 1])):
             cand = delta[t.src][src] + lw[src]
             region = new[t.dst][dst]
             better = cand > region
@@ -326,13 +311,9 @@ def viterbi(
             better = mask & (cand > new)
             new[better] = cand
             bp[better] = -1
-        delta = new + loglik(readings[k])
-        if not np.isfinite(delta.max()):
-            raise _impossible(model, k, readings[k])
+        delta = observe(new, k)
     best = int(np.argmax(delta))
-    log_prob = float(delta.flat[best])
-    state = np.unravel_index(best, model.belief_shape)
-    states = [tuple(int(v) for v in state)]
+    states = [tuple(int(v) for v in np.unravel_index(best, model.belief_shape))]
     for k in range(n - 1, 0, -1):
         layer, r, c = states[-1]
         i = int(pointers[k - 1][layer, r, c])
@@ -344,4 +325,4 @@ def viterbi(
         states.append(tuple(int(v) for v in prev))
     states.reverse()
     path = states if full_state else [(r, c) for _, r, c in states]
-    return path, log_prob
+    return path, float(delta.flat[best])

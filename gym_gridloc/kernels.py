@@ -26,6 +26,7 @@ Every ``run`` returns the sums (1.0 where nothing was summed).
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import os
 
@@ -50,9 +51,19 @@ def uses_numba(n_cells: int) -> bool:
 
 def make_plan(transitions, n_layers: int, shape: tuple[int, int]):
     """The plan for ``transitions`` (one tuple of terms per action, the unknown action last)."""
-    n_cells = n_layers * shape[0] * shape[1]
-    cls = NumbaPlan if uses_numba(n_cells) else NumpyPlan
+    cls = NumbaPlan if uses_numba(n_layers * shape[0] * shape[1]) else NumpyPlan
     return cls(transitions, n_layers, shape)
+
+
+def weigh(out, liks, layered: int, n_layers: int, mode: int) -> np.ndarray:
+    """Multiply N predicted flat beliefs ``out`` ``(N, L*H*W)`` by their likelihoods ``liks``, in
+    place (mode 1: and normalise each whose sum is positive and finite); returns the sums."""
+    view = out if layered else out.reshape(out.shape[0], n_layers, -1)
+    view *= liks if layered else liks[:, None, :]
+    z = out.sum(axis=1)
+    if mode == 1:
+        out /= np.where((z > 0.0) & np.isfinite(z), z, 1.0)[:, None]
+    return z
 
 
 def _compiled():
@@ -61,14 +72,12 @@ def _compiled():
     global _COMPILED, AVAILABLE
     if _COMPILED is None and AVAILABLE:
         try:
-            from gym_gridloc import _numba_kernels
+            from gym_gridloc import _numba_kernels as _COMPILED  # binds the global
         except ImportError as exc:  # pragma: no cover - a broken numba install
             import warnings
 
             warnings.warn(f"numba failed to import ({exc}); the filter runs on numpy", RuntimeWarning, stacklevel=2)
             AVAILABLE = False
-            return None
-        _COMPILED = _numba_kernels
     return _COMPILED
 
 
@@ -140,7 +149,6 @@ class NumpyPlan:
         self.single = [self._diagonals(terms, w) for terms in transitions]
         self._transitions = transitions
         self._width = w
-        self._batch = None  # built on first batched use
 
     def _diagonals(self, terms, width: int):
         """``(zero, writes, adds)``: layers to clear, ``(src, dst, weight)`` of the ``(0, 0)``
@@ -173,18 +181,16 @@ class NumpyPlan:
         self.predict_one(belief, action, out)
         if mode == 0:
             return 1.0
-        if layered:
-            np.multiply(out, lik, out=out)
-        else:
-            view = out.reshape(self.n_layers, self.hw)
-            np.multiply(view, lik, out=view)
+        view = out if layered else out.reshape(self.n_layers, self.hw)
+        np.multiply(view, lik, out=view)
         z = float(np.add.reduce(out))
         if mode == 1 and z > 0.0 and np.isfinite(z):
             out *= 1.0 / z
         return z
 
+    @functools.cached_property
     def _batch_plan(self):
-        """One entry per distinct flat shift over all actions: ``(first, src_lo, dst_lo, n,
+        """Built on first batched use: one entry per distinct flat shift over all actions: ``(first, src_lo, dst_lo, n,
         weights)`` with ``weights`` an (A, n) stack of the actions' weight slices, or (1, n) when
         every action has the same weight; "first" entries write their destination layer."""
         hw, width = self.hw, self._width
@@ -204,17 +210,14 @@ class NumpyPlan:
                 rows[a] = t.weight.reshape(-1)[s0 : s0 + n]
                 firsts[key] = firsts.get(key, True) and first
         covered = set()
-        first_keys, rest = [], []
+        first_keys = []
         for key in entries:
-            layer = key[1] // hw
-            if firsts[key] and layer not in covered and all(r is not None for r in entries[key]):
-                covered.add(layer)
+            if firsts[key] and key[1] // hw not in covered and all(r is not None for r in entries[key]):
+                covered.add(key[1] // hw)
                 first_keys.append(key)
-            else:
-                rest.append(key)
         zero = tuple(layer for layer in range(self.n_layers) if layer not in covered)
         plan = []
-        for key in first_keys + rest:
+        for key in first_keys + [key for key in entries if key not in first_keys]:
             n = key[2]
             rows = [np.zeros(n) if r is None else r for r in entries[key]]
             same = all(r is rows[0] or np.array_equal(r, rows[0]) for r in rows[1:])
@@ -224,9 +227,7 @@ class NumpyPlan:
     def run(self, beliefs, actions, liks, layered: int, out, mode: int, sel) -> np.ndarray:
         """N flat beliefs ``(N, L*H*W)`` with N actions (all N computed; rows where ``sel`` is
         False are written back unchanged)."""
-        if self._batch is None:
-            self._batch = self._batch_plan()
-        zero, plan = self._batch
+        zero, plan = self._batch_plan
         hw, n_rows = self.hw, beliefs.shape[0]
         keep = None if sel.all() else out[~sel].copy()
         for layer in zero:
@@ -238,17 +239,7 @@ class NumpyPlan:
                 np.multiply(wv, src, out=dst)
             else:
                 dst += wv * src
-        z = np.ones(n_rows)
-        if mode > 0:
-            if layered:
-                out *= liks
-            else:
-                view = out.reshape(n_rows, self.n_layers, hw)
-                view *= liks[:, None, :]
-            z = out.sum(axis=1)
-            if mode == 1:
-                ok = (z > 0.0) & np.isfinite(z)
-                out /= np.where(ok, z, 1.0)[:, None]
+        z = weigh(out, liks, layered, self.n_layers, mode) if mode > 0 else np.ones(n_rows)
         if keep is not None:
             out[~sel] = keep
             z[~sel] = 1.0

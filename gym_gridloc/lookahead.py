@@ -36,9 +36,7 @@ class Lookahead:
     """
 
     def __init__(self, model: GridModel, *, pose: bool = False) -> None:
-        if not isinstance(model, GridModel):
-            raise TypeError(f"a lookahead needs the environment's GridModel, got {type(model).__name__}")
-        self.model = model
+        self.model = engine._checked_model(model, "a lookahead needs the environment's GridModel")
         self.pose = bool(pose or model.sensor.layered)
         self.n_actions = model.n_actions
         self.h = model.sensor.reading_entropy()
@@ -57,8 +55,7 @@ class Lookahead:
         """Every action applied to each of N beliefs ``(N, L, H, W)``: ``(N, A, L, H, W)``."""
         n, A = beliefs.shape[0], self.n_actions
         self._check_work(n * A, "the lookahead")
-        rep = np.repeat(beliefs, A, axis=0)
-        out = engine.predict(self.model, rep, np.tile(np.arange(A), n))
+        out = engine.predict(self.model, np.repeat(beliefs, A, axis=0), np.tile(np.arange(A), n))
         return out.reshape(n, A, *self.model.belief_shape)
 
     def target(self, masses: np.ndarray) -> np.ndarray:
@@ -72,12 +69,11 @@ class Lookahead:
 
     def weighted_entropy(self, masses: np.ndarray) -> np.ndarray:
         """``m * E_z[H(X | z)]`` for unnormalised masses over hidden states ``(..., L, H, W)``."""
-        lead = masses.shape[:-3]
         full = masses.reshape(-1, *self.model.belief_shape)
         q = self.reading_probabilities(full)
         flat = self.target(full).reshape(full.shape[0], -1)
         w = flat @ self.h.reshape(-1) - xlogx(flat).sum(axis=1) + xlogx(q).sum(axis=1)
-        return w.reshape(lead)
+        return w.reshape(masses.shape[:-3])
 
     def one_step(self, belief: np.ndarray) -> np.ndarray:
         """Expected target entropy (bits) after each action's move and reading, ``(A,)``."""
@@ -88,10 +84,8 @@ class Lookahead:
         """The posterior masses after each possible reading of M predicted beliefs
         ``(M, L, H, W)``: ``(readings (K,), masses (M, K, L, H, W))`` for the K readings some
         belief can give (probability above ``prune`` for one of them)."""
-        m = predicted.shape[0]
-        q = self.reading_probabilities(predicted)
-        keep = np.flatnonzero(q.max(axis=0) > prune)
-        self._check_work(m * keep.size, "the lookahead")
+        keep = np.flatnonzero(self.reading_probabilities(predicted).max(axis=0) > prune)
+        self._check_work(predicted.shape[0] * keep.size, "the lookahead")
         lik = engine.likelihoods(self.model, keep)  # (K, cells) or (K, L*cells)
         shape = self.model.belief_shape
         lik = lik.reshape(keep.size, *shape) if lik.shape[1] == np.prod(shape) else lik.reshape(keep.size, 1, *shape[1:])

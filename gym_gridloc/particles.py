@@ -69,8 +69,7 @@ class ParticleFilter:
         kidnap_prob: float | None = None,
         on_depletion: str = "reinitialise",
     ) -> None:
-        if not isinstance(model, GridModel):
-            raise TypeError(f"ParticleFilter needs a GridModel, got {type(model).__name__}")
+        model = engine._checked_model(model, "ParticleFilter needs a GridModel")
         if kidnap_prob is not None:
             model = model.with_kidnapping(kidnap_prob)
         self.model = model
@@ -123,8 +122,7 @@ class ParticleFilter:
         """Weigh the particles by the reading's likelihood; resample if the ESS is low."""
         self._check_ready()
         reading = self.model.sensor.to_reading(observation)
-        lik = self._likelihood(reading)
-        w = self._w * lik
+        w = self._w * self._likelihood(reading)
         z = float(w.sum())
         if not z > 0.0 or not np.isfinite(z):
             possible = float(engine.likelihood(self.model, reading).sum()) > 0.0

@@ -37,17 +37,13 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     tested = flat if pose else pflat
     k = tested.argmax(axis=1)
     confidence = tested[np.arange(n), k]
-    cell = k % (h * w) if pose and L > 1 else k
+    layer, cell = np.divmod(k, h * w)  # k < h * w unless the pose of a model with layers is tested
     estimate = np.empty((n, 2), dtype=k.dtype)
     np.divmod(cell, w, out=(estimate[:, 0], estimate[:, 1]))
     truth = states[:, 1:3]
     error = np.abs(estimate - truth).sum(axis=1)
     localised = confidence >= threshold
-    right = error == 0
-    if pose:
-        layer = k // (h * w)
-        right &= layer == states[:, 0]
-    entropy = _entropy(pflat)
+    right = (error == 0) & (layer == states[:, 0]) if pose else error == 0
     info = {
         "position": truth.copy(),
         "estimate": estimate,
@@ -55,7 +51,7 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
         "error": error,
         "localised": localised,
         "success": localised & right,
-        "entropy": entropy,
+        "entropy": _entropy(pflat),
     }
     if L > 1:
         info["heading"] = states[:, 0].copy()

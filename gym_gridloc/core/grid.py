@@ -39,17 +39,12 @@ class GridMap:
         free = labels >= 0
         if not free.any():
             raise MapError("the map has no free cell: a robot needs somewhere to be")
-        labels.setflags(write=False)
-        free.setflags(write=False)
         cells = np.argwhere(free)
-        cells.setflags(write=False)
         index = np.full(labels.shape, -1, dtype=np.int64)
         index[free] = np.arange(len(cells))
-        index.setflags(write=False)
-        object.__setattr__(self, "labels", labels)
-        object.__setattr__(self, "free", free)
-        object.__setattr__(self, "free_cells", cells)
-        object.__setattr__(self, "cell_index", index)
+        for name, arr in (("labels", labels), ("free", free), ("free_cells", cells), ("cell_index", index)):
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -120,12 +115,9 @@ def read_layout(layout: str | os.PathLike | Sequence[str], what: str = "layout",
             rows.pop()
         return rows, str(path)
     if isinstance(layout, np.ndarray):
-        if layout.ndim == 2 and layout.dtype.kind in "US":
-            layout = [(sep or "").join(str(c) for c in row) for row in layout.tolist()]
-        elif layout.ndim == 1 and layout.dtype.kind in "US":
-            layout = [str(r) for r in layout.tolist()]
-        else:
+        if layout.ndim not in (1, 2) or layout.dtype.kind not in "US":
             raise TypeError(f"{what} must be {accepted}; got a {layout.ndim}-D array of {layout.dtype}")
+        layout = [(sep or "").join(map(str, row)) if layout.ndim == 2 else str(row) for row in layout.tolist()]
     if not isinstance(layout, (list, tuple)):
         raise TypeError(f"{what} must be {accepted}, got {type(layout).__name__} (a set or other unordered collection has no row order)")
     rows = list(layout)
@@ -153,8 +145,7 @@ def parse_rows(
         raise MapError(f"{source}: the map is empty (it needs at least one row)")
     if len(rows) > MAX_SIDE:
         raise MapError(f"{source}: {len(rows)} rows, more than the {MAX_SIDE} a map may have")
-    lookup = {s: i for i, s in enumerate(symbols)}
-    lookup.update({s: -1 for s in obstacles})
+    lookup = {**{s: i for i, s in enumerate(symbols)}, **dict.fromkeys(obstacles, -1)}
     allowed = ", ".join(repr(s) for s in [*symbols, *obstacles])
     grid: list[np.ndarray] = []  # one small int array per row: a large map never becomes Python lists
     width = None

@@ -24,6 +24,7 @@ import numpy as np
 
 from gym_gridloc.core.grid import DIRECTIONS, GridMap
 from gym_gridloc.core.sensors import Sensor
+from gym_gridloc.core.validation import check_probability
 
 _TOL = 1e-9
 
@@ -152,8 +153,6 @@ class GridModel:
         action_names: Sequence[str] | None = None,
         kidnap_prob: float = 0.0,
     ) -> None:
-        from gym_gridloc.core.validation import check_probability
-
         set_ = object.__setattr__
         set_(self, "kidnap_prob", check_probability("kidnap_prob", kidnap_prob))
         set_(self, "grid", grid)
@@ -178,14 +177,11 @@ class GridModel:
     def with_kidnapping(self, kidnap_prob: float) -> "GridModel":
         """A copy of this model in which, after every move, the robot is teleported with
         probability ``kidnap_prob`` to a uniformly chosen free state (the kidnapped robot)."""
-        from gym_gridloc.core.validation import check_probability
-
         p = check_probability("kidnap_prob", kidnap_prob)
         if p == self.kidnap_prob:
             return self
         other = object.__new__(GridModel)
-        other.__dict__.update(self.__dict__)
-        object.__setattr__(other, "kidnap_prob", p)
+        other.__dict__.update(self.__dict__, kidnap_prob=p)
         return other
 
     # -- sizes ---------------------------------------------------------------------------------
@@ -297,13 +293,8 @@ class GridModel:
         """The next states of ``state`` under ``action`` with their probabilities (non-zero only,
         kidnapping left out)."""
         layer, r, c = state
-        out = []
-        for t in self.terms(action):
-            if t.src == layer:
-                p = float(t.weight[r, c])
-                if p > 0.0:
-                    out.append(((t.dst, r + t.dr, c + t.dc), p))
-        return out
+        terms = [t for t in self.terms(action) if t.src == layer]
+        return [((t.dst, r + t.dr, c + t.dc), p) for t in terms if (p := float(t.weight[r, c])) > 0.0]
 
     def transition_matrix(self, action: int | None = None):
         """The transition of ``action`` (None: the average over actions) as a ``scipy.sparse``

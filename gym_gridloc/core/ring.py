@@ -44,14 +44,20 @@ class RingSensor(Sensor):
         self.kernel = np.choose(dist, [self.p_true, self.p_ring1, self.p_ring2])
         self.kernel.setflags(write=False)
         # P(nothing | cell) = 1 - sum of the kernel over the in-grid part of the window.
-        inside = np.zeros((h + 4, w + 4))
-        inside[2:-2, 2:-2] = 1.0
-        in_grid_mass = np.zeros((h, w))
-        for i in range(5):
-            for j in range(5):
-                in_grid_mass += self.kernel[i, j] * inside[i : i + h, j : j + w]
+        in_grid_mass = self._in_grid(np.zeros((h, w)), self.kernel)
         self._nothing = np.where(grid.free, np.clip(1.0 - in_grid_mass, 0.0, 1.0), 0.0)
         self._nothing.setflags(write=False)
+
+    def _in_grid(self, total: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """``total`` (H, W) plus, at each cell, ``values[i, j]`` (5, 5) for every offset
+        ``(i-2, j-2)`` of its window that falls inside the grid."""
+        h, w = self.grid.shape
+        inside = np.zeros((h + 4, w + 4))
+        inside[2:-2, 2:-2] = 1.0
+        for i in range(5):
+            for j in range(5):
+                total = total + values[i, j] * inside[i : i + h, j : j + w]
+        return total
 
     @property
     def nothing_probability(self) -> np.ndarray:
@@ -78,20 +84,18 @@ class RingSensor(Sensor):
         else:
             out.fill(0.0)
         nothing = readings == self.nothing
-        if nothing.any():
-            out[nothing] = self._nothing.reshape(-1)
+        out[nothing] = self._nothing.reshape(-1)
         cells = np.flatnonzero(~nothing)
-        if cells.size:
-            r0, c0 = np.divmod(readings[cells], w)
-            free = self.grid.free
-            for i in range(5):
-                rr = r0 + i - 2
-                for j in range(5):
-                    cc = c0 + j - 2
-                    ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-                    if ok.any():
-                        r, c, k = rr[ok], cc[ok], cells[ok]
-                        out[k, r * w + c] = self.kernel[i, j] * free[r, c]
+        r0, c0 = np.divmod(readings[cells], w)
+        free = self.grid.free
+        for i in range(5):
+            rr = r0 + i - 2
+            for j in range(5):
+                cc = c0 + j - 2
+                ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+                if ok.any():
+                    r, c, k = rr[ok], cc[ok], cells[ok]
+                    out[k, r * w + c] = self.kernel[i, j] * free[r, c]
         return out
 
     def reading_probabilities(self, masses: np.ndarray) -> np.ndarray:
@@ -112,15 +116,7 @@ class RingSensor(Sensor):
         return q
 
     def reading_entropy(self) -> np.ndarray:
-        h, w = self.grid.shape
-        inside = np.zeros((h + 4, w + 4))
-        inside[2:-2, 2:-2] = 1.0
-        ent = -xlogx(self._nothing)
-        k = -xlogx(self.kernel)
-        for i in range(5):
-            for j in range(5):
-                ent = ent + k[i, j] * inside[i : i + h, j : j + w]
-        return np.where(self.grid.free, ent, 0.0)
+        return np.where(self.grid.free, self._in_grid(-xlogx(self._nothing), -xlogx(self.kernel)), 0.0)
 
     def distribution(self, row: int, col: int, layer: int = 0) -> tuple[np.ndarray, np.ndarray]:
         h, w = self.grid.shape

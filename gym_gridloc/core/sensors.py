@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from gym_gridloc.core.grid import GridMap
+from gym_gridloc.core.grid import DIRECTIONS, GridMap
 from gym_gridloc.core.validation import check_probability
 
 
@@ -118,12 +118,16 @@ class Sensor(ABC):
             what = f"observation {single!r}" if single is not None else "observations"
             raise ValueError(f"{what} must be {'an integer' if single is not None else f'{n} integers (one per belief)'} in the sensor's space {space}, got {observations!r}")
         readings = obs.astype(np.int64) - int(space.start)
-        bad = (readings < 0) | (readings >= space.n)
+        self._check_in_space(obs, (readings < 0) | (readings >= space.n), single)
+        return readings
+
+    def _check_in_space(self, obs: np.ndarray, bad: np.ndarray, single: Any) -> None:
+        """The error for the first of N observations ``obs`` that ``bad`` marks, if any."""
         if np.any(bad):
             i = int(np.flatnonzero(bad)[0])
             shown = single if single is not None else obs[i].tolist()
-            raise ValueError(f"observation {shown!r}{'' if single is not None else f' of belief {i}'} is not in the sensor's space {space}")
-        return readings
+            where = "" if single is not None else f" of belief {i}"
+            raise ValueError(f"observation {shown!r}{where} is not in the sensor's space {self.observation_space}")
 
     @staticmethod
     def _whole(obs: np.ndarray) -> bool:
@@ -168,6 +172,12 @@ class TableSensor(Sensor):
     def likelihood(self, reading: int) -> np.ndarray:
         return self.table[reading]
 
+    def _set_table(self, table: np.ndarray) -> None:
+        """Keep ``table`` as :attr:`table`: zeroed on obstacles, read-only."""
+        table[..., ~self.grid.free] = 0.0
+        table.setflags(write=False)
+        self.table = table
+
     def _columns(self, states: np.ndarray) -> np.ndarray:
         """P(reading | state) for each of N states, ``(N, n_readings)``."""
         if states.shape[0] == 1:
@@ -194,9 +204,6 @@ class TableSensor(Sensor):
         flat = np.asarray(masses).reshape(masses.shape[0], -1)
         return flat @ self.table.reshape(self.table.shape[0], -1).T
 
-    def reading_entropy(self) -> np.ndarray:
-        return -xlogx(self.table).sum(axis=0)
-
 
 class ColourSensor(TableSensor):
     """Reads the colour of the cell: right with ``accuracy``, each wrong colour equally often."""
@@ -211,10 +218,7 @@ class ColourSensor(TableSensor):
         wrong = (1.0 - self.accuracy) / (k - 1) if k > 1 else 0.0
         if k == 1:
             self.accuracy = 1.0
-        table = np.where(grid.labels == np.arange(k)[:, None, None], self.accuracy, wrong)  # (k, H, W)
-        table[:, ~grid.free] = 0.0
-        table.setflags(write=False)
-        self.table = table
+        self._set_table(np.where(grid.labels == np.arange(k)[:, None, None], self.accuracy, wrong))  # (k, H, W)
 
     def describe(self, reading: int) -> str:
         return self.colours[reading]
@@ -244,14 +248,9 @@ class WallSensor(TableSensor):
         blocked = grid.blocked()[list(self.ORDER)]  # (4, H, W) in (W, N, E, S) order
         self.p_bits = np.where(blocked, self.p_detect, self.p_false_alarm)  # P(bit = 1 | cell)
         self.p_bits.setflags(write=False)
-        table = np.ones((16, *grid.shape))
-        for reading in range(16):
-            for i in range(4):
-                bit = (reading >> (3 - i)) & 1
-                table[reading] *= self.p_bits[i] if bit else 1.0 - self.p_bits[i]
-        table[:, ~grid.free] = 0.0
-        table.setflags(write=False)
-        self.table = table
+        # reading r: the product over its bits, in (W, N, E, S) order, of P(bit | cell)
+        bits = self._OBSERVATIONS[:, :, None, None] == 1  # (16, 4, 1, 1)
+        self._set_table(np.where(bits, self.p_bits, 1.0 - self.p_bits).prod(axis=1))
 
     def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         if states.shape[0] == 1:
@@ -282,11 +281,7 @@ class WallSensor(TableSensor):
             what = f"observation {single!r}" if single is not None else "observations"
             raise ValueError(f"{what} must be {'4 bits' if single is not None else f'({n}, 4) bits (four per belief)'} (W, N, E, S) in {self.observation_space}, got {observations!r}")
         bits = obs.astype(np.int64)
-        bad = np.any((bits != 0) & (bits != 1), axis=1)
-        if np.any(bad):
-            i = int(np.flatnonzero(bad)[0])
-            shown = single if single is not None else obs[i].tolist()
-            raise ValueError(f"observation {shown!r}{'' if single is not None else f' of belief {i}'} is not in the sensor's space {self.observation_space}")
+        self._check_in_space(obs, np.any((bits != 0) & (bits != 1), axis=1), single)
         return bits @ self._BITS
 
     @property
@@ -317,24 +312,18 @@ class DepthSensor(TableSensor):
     def __init__(self, grid: GridMap, max_depth: int, p_depth_error: float = 0.0) -> None:
         super().__init__(grid)
         self.p_depth_error = check_probability("p_depth_error", p_depth_error)
-        from gym_gridloc.core.grid import DIRECTIONS
-
         h, w = grid.shape
         free = grid.free
         depth = np.zeros((4, h, w), dtype=np.int64)
         for d, (dr, dc) in enumerate(DIRECTIONS):
-            # Free cells ahead, by a scan against the heading: one vector step per row (column).
+            # Free cells ahead, by a scan against the heading: one vector step per row (column:
+            # the same scan over the transposed views).
             run = np.zeros((h, w), dtype=np.int64)
-            if dr:
-                rows = range(h - 1, -1, -1) if dr > 0 else range(h)
-                for r in rows:
-                    if 0 <= r + dr < h:
-                        run[r] = np.where(free[r + dr], run[r + dr] + 1, 0)
-            else:
-                cols = range(w - 1, -1, -1) if dc > 0 else range(w)
-                for c in cols:
-                    if 0 <= c + dc < w:
-                        run[:, c] = np.where(free[:, c + dc], run[:, c + dc] + 1, 0)
+            ahead, lines, step = (free, run, dr) if dr else (free.T, run.T, dc)
+            n = lines.shape[0]
+            for i in range(n - 1, -1, -1) if step > 0 else range(n):
+                if 0 <= i + step < n:
+                    lines[i] = np.where(ahead[i + step], lines[i + step] + 1, 0)
             depth[d] = np.where(free, run + 1, 0)
         if int(depth.max()) > max_depth:
             raise ValueError(f"max_depth={max_depth} is below the map's largest depth {int(depth.max())}")
@@ -354,9 +343,7 @@ class DepthSensor(TableSensor):
                     table[z] += np.where(depth == other, eps / 2 if two_sided else eps, 0.0)
         if self.max_depth == 1:
             table[1] = np.where(free, 1.0, 0.0)
-        table[:, :, ~free] = 0.0
-        table.setflags(write=False)
-        self.table = table
+        self._set_table(table)
 
     def describe(self, reading: int) -> str:
         return f"depth {reading}"
