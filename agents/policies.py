@@ -39,7 +39,6 @@ EXPERT_NAMES = ("greedy", "greedy2", "central", "expectimax", "mcts", "optimal")
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 
 
-
 class RandomPolicy(Policy):
     """Uniform random actions from the policy's own seeded generator."""
 
@@ -259,10 +258,8 @@ def make_policy(
     """
     if name == "random":
         return RandomPolicy(model, seed=seed)
-    if name == "greedy":
-        return GreedyPolicy(model, seed=seed, pose=pose)
-    if name == "greedy2":
-        return Greedy2Policy(model, seed=seed, pose=pose)
+    if name in ("greedy", "greedy2"):
+        return {"greedy": GreedyPolicy, "greedy2": Greedy2Policy}[name](model, seed=seed, pose=pose)
     if name in ("central", "expectimax", "mcts"):
         from gym_gridloc_agents.planners import make_planner
 
@@ -277,8 +274,7 @@ def make_policy(
 
         threshold = options.pop("threshold", None) or (env_kwargs or {}).get("localise_threshold", 0.9)
         return PomcpPolicy(model, seed=seed, threshold=threshold, pose=pose, **options)
-    if name == "ppo":
-        return PPOPolicy(model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
-    if name == "recurrent":
-        return RecurrentPolicy(model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
+    if name in ("ppo", "recurrent"):
+        cls = PPOPolicy if name == "ppo" else RecurrentPolicy
+        return cls(model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
     raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")

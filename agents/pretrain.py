@@ -147,8 +147,8 @@ def _load_cache(cache: Path | None, key: str) -> list[dict[str, Any]]:
         out = []
         for a, b, n in zip(bounds[:-1], bounds[1:], lengths):
             obs = {k: arrays[f"obs.{k}"][a:b].copy() for k in obs_keys} if obs_keys else arrays["obs"][a:b].copy()
-            out.append({"obs": obs, "targets": arrays["targets"][a:b].copy(), "returns": arrays["returns"][a:b].copy(),
-                        "length": int(n), **({"values": arrays["values"][a:b].copy()} if "values" in arrays else {})})
+            out.append({"obs": obs, "length": int(n),
+                        **{k: arrays[k][a:b].copy() for k in ("targets", "returns", "values") if k in arrays}})
         return out
     except (OSError, KeyError, ValueError):
         return []  # an unreadable cache is collected again
@@ -172,20 +172,17 @@ def _sibling_caches(cache: Path, key: str) -> list[tuple[int, Path]]:
     return sorted(found, key=lambda t: -t[0])
 
 
-def _save_cache(cache: Path, key: str, episodes: list[dict[str, Any]]) -> None:
+def _save_cache(cache: Path | None, key: str, episodes: list[dict[str, Any]]) -> None:
     from gym_gridloc_agents.files import atomic_path
 
-    if not episodes:
+    if cache is None or not episodes:
         return
-    sizes = [len(e["targets"]) for e in episodes]
-    obs = _concat([e["obs"] for e in episodes])
+    data = _merge(episodes)  # obs, targets, returns, lengths (and values)
+    obs = data.pop("obs")
     arrays = {f"obs.{k}": v for k, v in obs.items()} if isinstance(obs, dict) else {"obs": obs}
-    if "values" in episodes[0]:
-        arrays["values"] = np.concatenate([e["values"] for e in episodes])
+    bounds = np.concatenate([[0], np.cumsum([len(e["targets"]) for e in episodes])])
     with atomic_path(cache) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, key=np.array(key), bounds=np.concatenate([[0], np.cumsum(sizes)]),
-                 lengths=np.array([e["length"] for e in episodes]), targets=np.concatenate([e["targets"] for e in episodes]),
-                 returns=np.concatenate([e["returns"] for e in episodes]), **arrays)
+        np.savez(fh, key=np.array(key), bounds=bounds, **data, **arrays)
 
 
 def _expert(cfg: dict[str, Any], env):
@@ -223,13 +220,11 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
             episodes.append(_episode_samples(ep, expert.targets, cfg["wrapper"], gamma,
                                              expert.q if expert.values else None))
     except KeyboardInterrupt:
-        if cache is not None:
-            _save_cache(cache, key, episodes)
+        _save_cache(cache, key, episodes)
         raise WarmStartInterrupted(len(episodes), 0) from None
     finally:
         env.close()
-    if cache is not None:
-        _save_cache(cache, key, episodes)
+    _save_cache(cache, key, episodes)
     return episodes
 
 
@@ -372,8 +367,7 @@ def behaviour_cloning(model, cfg: dict[str, Any], progress: bool = True, *, cach
                          label="behaviour cloning epochs")
         while rounds < pre["dagger_rounds"]:
             dagger_eps += dagger_round(model, cfg, rounds, progress=progress)
-            if dagger_cache is not None:
-                _save_cache(dagger_cache, dagger_key, dagger_eps)
+            _save_cache(dagger_cache, dagger_key, dagger_eps)
             _fit(model, _merge(expert_eps + dagger_eps), cfg, epochs=range(pre["dagger_epochs"]), progress=progress,
                  label=f"DAgger round {rounds + 1} epochs")
             rounds += 1

@@ -127,9 +127,8 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
     from gym_gridloc_agents.rollout import rollout
 
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
-    cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy
-    kwargs = {} if cls is RecurrentPolicy else {"wrapper": cfg["wrapper"]}
-    policy = cls(env.unwrapped.model, sb3_model=model, **kwargs)
+    cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy  # (RecurrentPolicy ignores the wrapper)
+    policy = cls(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"])
     eps = [rollout(env, policy, seed, reset_options=opts) for seed, opts in evaluation_episodes(env, cfg, episodes)]
     env.close()
     n = len(eps)
@@ -139,9 +138,7 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
 
 def _score(cfg: dict[str, Any], entry: dict[str, Any]) -> float:
     """Lower is better: mean steps, or minus the accuracy for fixed-length (protocol) episodes."""
-    if cfg["env_kwargs"].get("episode_length"):
-        return -entry["accuracy"]
-    return entry["mean_steps"]
+    return -entry["accuracy"] if cfg["env_kwargs"].get("episode_length") else entry["mean_steps"]
 
 
 def _every(freq: int, action: Callable[[Any], None]):
@@ -161,13 +158,6 @@ def _every(freq: int, action: Callable[[Any], None]):
             return True
 
     return Every()
-
-
-def _eval_callback(cfg: dict[str, Any], directory: Path, history: list, on_evaluation=None):
-    def evaluate_now(model) -> None:
-        record_evaluation(model, cfg, cfg["eval_episodes"], directory, history, on_evaluation)
-
-    return _every(cfg["eval_freq"], evaluate_now)
 
 
 def best_entry(directory: Path) -> dict[str, Any] | None:
@@ -267,6 +257,8 @@ def train(
 
     import torch
 
+    import gym_gridloc
+
     if torch_threads:
         torch.set_num_threads(int(torch_threads))
     Algo = algo_class(cfg["algo"])
@@ -295,8 +287,11 @@ def train(
             "config": cfg, "resumed_from": None if resume is None else str(resume),
             "command": command or " ".join(sys.argv),
             "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-            "package_version": _package_version(),
+            "package_version": gym_gridloc.__version__,
         }
+
+    def evaluate_now(m) -> None:
+        record_evaluation(m, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
 
     def interrupted(during: str, extra: dict[str, Any]) -> TrainingInterrupted:
         path = ckpt_dir / f"interrupted_step_{int(model.num_timesteps)}.zip"
@@ -318,12 +313,12 @@ def train(
 
     if cfg["eval_freq"] > 0 and cfg.get("pretrain") and int(model.num_timesteps) == 0 and not evaluations:
         # The warm-started policy itself competes for "best" (PPO may not improve on it).
-        record_evaluation(model, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
+        evaluate_now(model)
     cbs = list(callbacks or [])
     if cfg["checkpoint_freq"] > 0:
         cbs.append(_checkpoint_callback(cfg["checkpoint_freq"], ckpt_dir, meta))
     if cfg["eval_freq"] > 0:
-        cbs.append(_eval_callback(cfg, ckpt_dir, evaluations, on_evaluation))
+        cbs.append(_every(cfg["eval_freq"], evaluate_now))
     remaining = cfg["total_timesteps"] - int(model.num_timesteps)
     try:
         if remaining > 0:
@@ -336,7 +331,7 @@ def train(
         # Keep the best of the held-out evaluations (the final model included), as rl-zoo's
         # best_model: PPO's evaluation curve is noisy from one update to the next.
         if not evaluations or evaluations[-1]["num_timesteps"] != int(model.num_timesteps):
-            record_evaluation(model, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
+            evaluate_now(model)
         best = best_entry(ckpt_dir) or min(evaluations, key=lambda h: _score(cfg, h))
         if best not in evaluations:  # evaluated before the checkpoint this run resumed from was written
             evaluations.append({**best, "note": "evaluated before an interruption; kept as best.zip"})
@@ -344,12 +339,12 @@ def train(
         final_timesteps = int(model.num_timesteps)
         model = Algo.load(ckpt_dir / "best.zip", device="cpu")
         model.num_timesteps = final_timesteps
-    info = {**meta(), "interrupted": False, "selected_timesteps": selected,
-            "eval_seeds": f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + cfg['eval_episodes'] - 1}" if evaluations else None}
     # The final model is for acting: drop Adam's moment estimates (two thirds of the file); the
     # checkpoints keep them for resuming.
     model.policy.optimizer.state.clear()
-    info["optimizer_state"] = "dropped (checkpoints keep it)"
+    info = {**meta(), "interrupted": False, "selected_timesteps": selected,
+            "eval_seeds": f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + cfg['eval_episodes'] - 1}" if evaluations else None,
+            "optimizer_state": "dropped (checkpoints keep it)"}
     save_final(model, info, out, ckpt_dir, force=force)
     venv.close()
     return info
@@ -366,9 +361,3 @@ def save_final(model, info: dict[str, Any], out: Path, ckpt_dir: Path, *, force:
     appeared = not force and (out.exists() or metadata_path(out).exists())
     rescue_write(write, out, "model", places=(ckpt_dir,),
                  problem=f"{out} (or its .json) appeared during training" if appeared else None)
-
-
-def _package_version() -> str:
-    import gym_gridloc
-
-    return gym_gridloc.__version__
