@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from gym_gridloc_agents.files import ALGOS, algo_class  # the algorithms table lives with model loading
+from gym_gridloc_agents.policies import EXPERT_NAMES
 
 TOP_KEYS = {
     "algo": "ppo or recurrent_ppo",
@@ -108,8 +109,7 @@ def allowed_hyperparams(algo: str) -> set[str]:
 def activation(name: str):
     import torch.nn as nn
 
-    table = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU, "gelu": nn.GELU}
-    return table[name]
+    return {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU, "gelu": nn.GELU}[name]
 
 
 def load_config(path: str | Path) -> dict[str, Any]:
@@ -285,8 +285,6 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         if algo != "ppo" or not wrapper["belief"]:
             raise ConfigError(f"{source}: pretrain needs algo: ppo with wrapper.belief: true")
         _known_keys(source, pre, PRETRAIN_KEYS, "pretrain")
-        from gym_gridloc_agents.policies import EXPERT_NAMES
-
         if pre.get("expert", "greedy2") not in EXPERT_NAMES:
             raise ConfigError(f"{source}: pretrain.expert must be one of {', '.join(EXPERT_NAMES)}, got {pre.get('expert')!r}")
         pre.setdefault("expert", "greedy2")

@@ -72,9 +72,7 @@ def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, wrapper: dic
 
     env = gym.make(env_id, **dict(env_kwargs or {}))
     opts = {"belief": True} if wrapper is None else dict(wrapper)
-    if opts.pop("belief", True) is False:
-        return env
-    return gym_gridloc.HMMBeliefWrapper(env, **opts)
+    return env if opts.pop("belief", True) is False else gym_gridloc.HMMBeliefWrapper(env, **opts)
 
 
 def env_thunk(cfg: dict[str, Any]) -> Callable[[], gym.Env]:
@@ -153,10 +151,8 @@ class SB3VecEnv(VecEnv):
         dones = terminated | truncated
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
         for i in np.flatnonzero(dones):
-            final = dict(info["final_info"][i])
-            final["terminal_observation"] = info["final_obs"][i]
-            final["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
-            infos[i] = final
+            infos[i] = {**info["final_info"][i], "terminal_observation": info["final_obs"][i],
+                        "TimeLimit.truncated": bool(truncated[i] and not terminated[i])}
         return obs, rewards.astype(np.float32), dones, infos
 
     def close(self) -> None:

@@ -145,9 +145,7 @@ class PPOPolicy(Policy):
     def expected_space(self, model: GridModel) -> spaces.Space:
         from gym_gridloc.wrappers import belief_observation_space
 
-        w = self.wrapper
-        return belief_observation_space(model, model.sensor.observation_space, flatten=w["flatten"],
-                                        full_state=w["full_state"], map=w["map"], lookahead=w["lookahead"])
+        return belief_observation_space(model, model.sensor.observation_space, **self.wrapper)
 
     def encode(self, observation: Any, belief: np.ndarray) -> Any:
         """The observation the model's ``HMMBeliefWrapper`` would give."""

@@ -30,6 +30,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
+
+from gym_gridloc_agents.files import atomic_path
+from gym_gridloc_agents.policies import PPOPolicy, make_policy, wrapped_observation
+from gym_gridloc_agents.rollout import rollout
 
 PRETRAIN_SEED_BASE = 1_000_000
 DAGGER_SEED_BASE = 1_500_000
@@ -81,16 +86,12 @@ def _episode_samples(ep, targets: list[np.ndarray], wrapper: dict[str, Any], gam
     """One episode's samples: the observations PPO sees, the expert's action distributions to
     imitate (one-hot, or even over a planner's tied best actions), the returns, and the
     planner's action values where they are asked for."""
-    from gym_gridloc_agents.policies import wrapped_observation
-
     obs = [wrapped_observation(ep.model, o, b, flatten=wrapper["flatten"], full_state=wrapper["full_state"],
                                map=wrapper["map"], lookahead=wrapper.get("lookahead", 0))
            for o, b in zip(ep.observations, ep.beliefs)]
-    out = {"obs": _stack(obs), "targets": np.asarray(targets, dtype=np.float32),
-           "returns": _discounted(ep.rewards, gamma, ep.truncated and not ep.terminated), "length": ep.steps}
-    if values is not None:
-        out["values"] = np.asarray(values, dtype=np.float32)
-    return out
+    return {"obs": _stack(obs), "targets": np.asarray(targets, dtype=np.float32),
+            "returns": _discounted(ep.rewards, gamma, ep.truncated and not ep.terminated), "length": ep.steps,
+            **({"values": np.asarray(values, dtype=np.float32)} if values is not None else {})}
 
 
 def _label(expert, observation, belief, values: bool) -> tuple[np.ndarray, np.ndarray | None]:
@@ -173,8 +174,6 @@ def _sibling_caches(cache: Path, key: str) -> list[tuple[int, Path]]:
 
 
 def _save_cache(cache: Path | None, key: str, episodes: list[dict[str, Any]]) -> None:
-    from gym_gridloc_agents.files import atomic_path
-
     if cache is None or not episodes:
         return
     data = _merge(episodes)  # obs, targets, returns, lengths (and values)
@@ -186,8 +185,6 @@ def _save_cache(cache: Path | None, key: str, episodes: list[dict[str, Any]]) ->
 
 
 def _expert(cfg: dict[str, Any], env):
-    from gym_gridloc_agents.policies import make_policy
-
     pre = cfg["pretrain"]
     options = dict(pre.get("expert_kwargs", {}))
     if pre["expert"] in ("central", "expectimax", "mcts"):  # the planners plan for the referee's own test
@@ -198,10 +195,7 @@ def _expert(cfg: dict[str, Any], env):
 
 def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | None = None) -> list[dict[str, Any]]:
     """The expert's episodes as samples (continued from ``cache`` if it holds some)."""
-    from tqdm.auto import tqdm
-
     from gym_gridloc_agents.envs import make_env
-    from gym_gridloc_agents.rollout import rollout
 
     pre = cfg["pretrain"]
     gamma = float(cfg["hyperparams"].get("gamma", 0.99))
@@ -231,11 +225,7 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
 def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = True) -> list[dict[str, Any]]:
     """One DAgger round: the student (``model``, sampling its actions) plays; every belief it
     reaches is labelled with the expert's action."""
-    from tqdm.auto import tqdm
-
     from gym_gridloc_agents.envs import make_env
-    from gym_gridloc_agents.policies import PPOPolicy
-    from gym_gridloc_agents.rollout import rollout
 
     pre = cfg["pretrain"]
     gamma = float(cfg["hyperparams"].get("gamma", 0.99))
@@ -275,7 +265,6 @@ def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, pro
     shuffles of earlier epochs are drawn first, so a resumed fit continues the same sequence).
     Returns the number of epochs done; Ctrl-C raises :class:`_FitInterrupted` with that number."""
     import torch
-    from tqdm.auto import tqdm
 
     pre = cfg["pretrain"]
     policy = model.policy

@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from gym_gridloc_agents.config import ConfigError, activation, validate_config
+from gym_gridloc_agents.config import ConfigError, activation, load_config, validate_config
 from gym_gridloc_agents.envs import make_env, make_training_env
 from gym_gridloc_agents.files import (
     OutputError,
@@ -39,6 +39,9 @@ from gym_gridloc_agents.files import (
     rescue_write,
     writable_directory,
 )
+from gym_gridloc_agents.policies import PPOPolicy, RecurrentPolicy
+from gym_gridloc_agents.pretrain import WarmStartInterrupted, behaviour_cloning
+from gym_gridloc_agents.rollout import rollout
 
 
 class TrainingInterrupted(Exception):
@@ -123,9 +126,6 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
     """``model`` (deterministic) on the held-out evaluation episodes: mean steps to localise (a
     truncated episode counts at its length), the fraction that end collapsed onto the truth
     (``accuracy``) and the fraction whose most probable state is the truth at the end."""
-    from gym_gridloc_agents.policies import PPOPolicy, RecurrentPolicy
-    from gym_gridloc_agents.rollout import rollout
-
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
     cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy  # (RecurrentPolicy ignores the wrapper)
     policy = cls(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"])
@@ -191,15 +191,6 @@ def record_evaluation(model, cfg, episodes, directory: Path, history: list, on_e
 
 
 # -- training -------------------------------------------------------------------------------------
-def _checkpoint_callback(freq: int, directory: Path, meta: Callable[[], dict[str, Any]]):
-    def save(model) -> None:
-        path = directory / f"step_{model.num_timesteps}.zip"
-        atomic_save_model(model, path)
-        atomic_write_json(metadata_path(path), {**meta(), "num_timesteps": int(model.num_timesteps)})
-
-    return _every(freq, save)
-
-
 def train(
     config: dict[str, Any] | str | Path,
     *,
@@ -221,9 +212,6 @@ def train(
     written, :class:`TrainingInterrupted` after Ctrl-C (the checkpoint is saved first).
     ``on_evaluation`` is called with each held-out evaluation (e.g. to report it to a tuner).
     """
-    from gym_gridloc_agents.config import load_config
-    from gym_gridloc_agents.pretrain import WarmStartInterrupted, behaviour_cloning
-
     cfg = load_config(config) if isinstance(config, (str, Path)) else validate_config(config)
     if output is not None:
         cfg["output"] = str(output)
@@ -293,10 +281,14 @@ def train(
     def evaluate_now(m) -> None:
         record_evaluation(m, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
 
-    def interrupted(during: str, extra: dict[str, Any]) -> TrainingInterrupted:
-        path = ckpt_dir / f"interrupted_step_{int(model.num_timesteps)}.zip"
-        atomic_save_model(model, path)
-        atomic_write_json(metadata_path(path), {**meta(), "interrupted": True, **extra})
+    def save(m, name: str, **extra: Any) -> Path:
+        """A checkpoint ``name``: the model and its metadata (``meta()``, its ``num_timesteps`` is ``m``'s)."""
+        atomic_save_model(m, ckpt_dir / name)
+        atomic_write_json(metadata_path(ckpt_dir / name), {**meta(), **extra})
+        return ckpt_dir / name
+
+    def interrupted(during: str) -> TrainingInterrupted:
+        path = save(model, f"interrupted_step_{int(model.num_timesteps)}.zip", interrupted=True)
         venv.close()
         return TrainingInterrupted(path, int(model.num_timesteps), during)
 
@@ -309,14 +301,14 @@ def train(
             state["warm_start"] = {"done": True}
         except WarmStartInterrupted as exc:
             state["warm_start"] = {"done": False, "episodes": exc.episodes, "epochs": exc.epochs, "rounds": exc.rounds}
-            raise interrupted("warm start", {}) from None
+            raise interrupted("warm start") from None
 
     if cfg["eval_freq"] > 0 and cfg.get("pretrain") and int(model.num_timesteps) == 0 and not evaluations:
         # The warm-started policy itself competes for "best" (PPO may not improve on it).
         evaluate_now(model)
     cbs = list(callbacks or [])
     if cfg["checkpoint_freq"] > 0:
-        cbs.append(_checkpoint_callback(cfg["checkpoint_freq"], ckpt_dir, meta))
+        cbs.append(_every(cfg["checkpoint_freq"], lambda m: save(m, f"step_{m.num_timesteps}.zip")))
     if cfg["eval_freq"] > 0:
         cbs.append(_every(cfg["eval_freq"], evaluate_now))
     remaining = cfg["total_timesteps"] - int(model.num_timesteps)
@@ -325,7 +317,7 @@ def train(
             model.learn(remaining, callback=cbs or None, progress_bar=progress_bar, reset_num_timesteps=resume is None,
                         tb_log_name=f"{cfg['algo']}_{cfg['env_id']}_seed{cfg['seed']}")
     except KeyboardInterrupt:
-        raise interrupted("training", {}) from None
+        raise interrupted("training") from None
     selected = None
     if cfg["eval_freq"] > 0:
         # Keep the best of the held-out evaluations (the final model included), as rl-zoo's
