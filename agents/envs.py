@@ -4,19 +4,24 @@ adapter of the native vector environment (:class:`SB3VecEnv`)."""
 from __future__ import annotations
 
 import functools
+import inspect
 from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.envs.registration import load_env_creator
+from gymnasium.vector import AutoresetMode
+from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+import gym_gridloc
+from gym_gridloc.envs.base import GridLocEnv
+from gym_gridloc.vector import GridLocVectorEnv
+
 
 def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, error: type[Exception]) -> None:
     """Build ``gym.make(env_id, **env_kwargs)`` once: a gym_gridloc environment, or ``error``
     naming ``what`` and the reason (an unknown keyword, a bad value, another package's env)."""
-    from gym_gridloc.envs.base import GridLocEnv
-
-    import gym_gridloc
-
     if not isinstance(env_id, str) or env_id not in gym.registry:
         raise error(f"{what}: {env_id!r} is not a registered environment (gym_gridloc's: {', '.join(gym_gridloc.ENV_IDS)})")
     known = _keywords(env_id)
@@ -54,10 +59,6 @@ def _keywords(env_id: str) -> set[str]:
 
 def _parameters(env_id: str) -> list | None:
     """The parameters of a gym_gridloc environment's class (``None`` for another package's environment)."""
-    import inspect
-
-    from gymnasium.envs.registration import load_env_creator
-
     entry = gym.registry[env_id].entry_point
     if not isinstance(entry, str) or not entry.startswith("gym_gridloc."):
         return None
@@ -68,8 +69,6 @@ def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, wrapper: dic
     """``gym.make(env_id, **env_kwargs)``, behind ``HMMBeliefWrapper(**wrapper)`` unless
     ``wrapper["belief"]`` is false (raw readings).  ``wrapper=None``: the Dict belief observation
     every policy of the benchmark reads."""
-    import gym_gridloc
-
     env = gym.make(env_id, **dict(env_kwargs or {}))
     opts = {"belief": True} if wrapper is None else dict(wrapper)
     return env if opts.pop("belief", True) is False else gym_gridloc.HMMBeliefWrapper(env, **opts)
@@ -91,8 +90,6 @@ def make_training_env(cfg: dict[str, Any]):
                               **cfg["env_kwargs"])
         venv.seed(cfg["seed"])
         return venv
-    from stable_baselines3.common.env_util import make_vec_env
-
     return make_vec_env(env_thunk(cfg), n_envs=cfg["n_envs"], seed=cfg["seed"])
 
 
@@ -115,10 +112,6 @@ class SB3VecEnv(VecEnv):
     """
 
     def __init__(self, venv) -> None:
-        from gymnasium.vector import AutoresetMode
-
-        from gym_gridloc.vector import GridLocVectorEnv
-
         env = getattr(venv, "unwrapped", venv)
         if not isinstance(env, GridLocVectorEnv):
             raise TypeError(f"SB3VecEnv needs a gym_gridloc native vector env (GridLocVectorEnv), got {type(venv).__name__}")

@@ -28,6 +28,7 @@ from gymnasium import spaces
 
 from gym_gridloc.core.model import GridModel
 from gym_gridloc_agents.base import Policy
+from gym_gridloc_agents.files import load_model, model_kwargs, read_metadata
 from gym_gridloc.lookahead import Lookahead
 
 #: Names accepted by :func:`make_policy`.
@@ -129,8 +130,6 @@ class PPOPolicy(Policy):
             self.path, self.sb3, self.meta = None, sb3_model, {}
             self.wrapper = _wrapper_options(wrapper)
             return
-        from gym_gridloc_agents.files import load_model, read_metadata  # heavy imports (torch) only when needed
-
         if path is None:
             if env_id is None:
                 raise ValueError(f"policy {self.name!r} needs env_id=... (for the shipped model) or path=...")
@@ -217,8 +216,6 @@ def default_model_path(env_id: str, algo: str = "ppo", env_kwargs: dict[str, Any
     for them, else the model in :data:`POLICY_DIR` whose metadata names them (defaults filled in,
     so ``DepthMaze-v0`` with no keywords finds the model trained with ``size=7``; episode keywords
     such as ``episode_length`` may differ)."""
-    from gym_gridloc_agents.files import model_kwargs, read_metadata
-
     suffix = "" if algo == "ppo" else "-recurrent"
     plain = POLICY_DIR / f"{env_id}{suffix}.zip"
     want = model_kwargs(env_id, env_kwargs or {})

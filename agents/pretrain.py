@@ -34,7 +34,6 @@ from tqdm.auto import tqdm
 
 from gym_gridloc_agents.files import atomic_path
 from gym_gridloc_agents.policies import PPOPolicy, make_policy, wrapped_observation
-from gym_gridloc_agents.rollout import rollout
 
 PRETRAIN_SEED_BASE = 1_000_000
 DAGGER_SEED_BASE = 1_500_000
@@ -196,6 +195,7 @@ def _expert(cfg: dict[str, Any], env):
 def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | None = None) -> list[dict[str, Any]]:
     """The expert's episodes as samples (continued from ``cache`` if it holds some)."""
     from gym_gridloc_agents.envs import make_env
+    from gym_gridloc_agents.rollout import rollout
 
     pre = cfg["pretrain"]
     gamma = float(cfg["hyperparams"].get("gamma", 0.99))
@@ -226,6 +226,7 @@ def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = 
     """One DAgger round: the student (``model``, sampling its actions) plays; every belief it
     reaches is labelled with the expert's action."""
     from gym_gridloc_agents.envs import make_env
+    from gym_gridloc_agents.rollout import rollout
 
     pre = cfg["pretrain"]
     gamma = float(cfg["hyperparams"].get("gamma", 0.99))

@@ -26,8 +26,13 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+import torch
+from stable_baselines3.common.callbacks import BaseCallback
+
+import gym_gridloc
 from gym_gridloc_agents.config import ConfigError, activation, load_config, validate_config
 from gym_gridloc_agents.envs import make_env, make_training_env
+from gym_gridloc_agents.features import EXTRACTORS
 from gym_gridloc_agents.files import (
     OutputError,
     algo_class,
@@ -41,7 +46,6 @@ from gym_gridloc_agents.files import (
 )
 from gym_gridloc_agents.policies import PPOPolicy, RecurrentPolicy
 from gym_gridloc_agents.pretrain import WarmStartInterrupted, behaviour_cloning
-from gym_gridloc_agents.rollout import rollout
 
 
 class TrainingInterrupted(Exception):
@@ -72,8 +76,6 @@ def _policy_kwargs(cfg: dict[str, Any]) -> dict[str, Any]:
     if "activation_fn" in pk:
         pk["activation_fn"] = activation(pk["activation_fn"])
     if "features_extractor" in pk:
-        from gym_gridloc_agents.features import EXTRACTORS
-
         pk["features_extractor_class"] = EXTRACTORS[pk.pop("features_extractor")]
     return pk
 
@@ -126,6 +128,8 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
     """``model`` (deterministic) on the held-out evaluation episodes: mean steps to localise (a
     truncated episode counts at its length), the fraction that end collapsed onto the truth
     (``accuracy``) and the fraction whose most probable state is the truth at the end."""
+    from gym_gridloc_agents.rollout import rollout
+
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
     cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy  # (RecurrentPolicy ignores the wrapper)
     policy = cls(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"])
@@ -144,8 +148,6 @@ def _score(cfg: dict[str, Any], entry: dict[str, Any]) -> float:
 def _every(freq: int, action: Callable[[Any], None]):
     """An SB3 callback that calls ``action(model)`` at the first step at or past each multiple of
     ``freq`` after the step where training (or a resumed training) starts."""
-    from stable_baselines3.common.callbacks import BaseCallback
-
     class Every(BaseCallback):
         next_at = None
 
@@ -242,10 +244,6 @@ def train(
         for name in ("best.zip", "best.json"):
             if (ckpt_dir / name).exists():
                 os.replace(ckpt_dir / name, ckpt_dir / name.replace("best", f"best-before-{stamp}"))
-
-    import torch
-
-    import gym_gridloc
 
     if torch_threads:
         torch.set_num_threads(int(torch_threads))
