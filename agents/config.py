@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from gym_gridloc_agents.files import ALGOS, algo_class  # the algorithms table lives with model loading
+from gym_gridloc_agents.policies import EXPERT_NAMES
 
 TOP_KEYS = {
     "algo": "ppo or recurrent_ppo",
@@ -108,8 +109,7 @@ def allowed_hyperparams(algo: str) -> set[str]:
 def activation(name: str):
     import torch.nn as nn
 
-    table = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU, "gelu": nn.GELU}
-    return table[name]
+    return {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU, "gelu": nn.GELU}[name]
 
 
 def load_config(path: str | Path) -> dict[str, Any]:
@@ -146,6 +146,18 @@ def _num(source: str, key: str, value: Any, *, integer: bool, minimum: float, ma
     return value
 
 
+def _known_keys(source: str, value: Any, allowed, name: str | None = None, qualifier: str = "") -> None:
+    """``value`` (the config, or its mapping ``name``) has only keys among ``allowed`` (listed in
+    this order, ``allowed{qualifier}:``), else a :class:`ConfigError` naming the others."""
+    if name is not None and not isinstance(value, dict):
+        raise ConfigError(f"{source}: {name} must be a mapping, got {value!r}")
+    bad = sorted(set(value) - set(allowed))
+    if bad:
+        where = "" if name is None else f"in {name}: "
+        raise ConfigError(f"{source}: unknown key(s) {where}{', '.join(map(repr, bad))}; "
+                          f"allowed{qualifier}: {', '.join(allowed)}")
+
+
 #: Ranges of the algorithms' numeric hyperparameters: (integer, minimum, strictly above it, maximum).
 HYPER_RANGES = {
     "n_steps": (True, 1, False, None), "batch_size": (True, 2, False, None), "n_epochs": (True, 1, False, None),
@@ -159,11 +171,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     """Check a config dict (see the module docstring) and fill in defaults."""
     if not isinstance(raw, dict):
         raise ConfigError(f"{source}: a config must be a mapping of keys to values, got {type(raw).__name__}")
-    unknown = sorted(set(raw) - set(TOP_KEYS))
-    if unknown:
-        raise ConfigError(
-            f"{source}: unknown key(s) {', '.join(map(repr, unknown))}; allowed: {', '.join(sorted(TOP_KEYS))}"
-        )
+    _known_keys(source, raw, sorted(TOP_KEYS))
     cfg = copy.deepcopy(raw)
     for key in ("algo", "env_id"):
         if key not in cfg:
@@ -185,11 +193,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     check_environment(cfg["env_id"], cfg["env_kwargs"], what=f"{source}: env_id/env_kwargs", error=ConfigError)
 
     wrapper = cfg.setdefault("wrapper", {})
-    if not isinstance(wrapper, dict):
-        raise ConfigError(f"{source}: wrapper must be a mapping, got {wrapper!r}")
-    bad = sorted(set(wrapper) - set(WRAPPER_KEYS))
-    if bad:
-        raise ConfigError(f"{source}: unknown key(s) in wrapper: {', '.join(map(repr, bad))}; allowed: {', '.join(WRAPPER_KEYS)}")
+    _known_keys(source, wrapper, WRAPPER_KEYS, "wrapper")
     wrapper.setdefault("belief", algo == "ppo")
     wrapper.setdefault("flatten", bool(wrapper["belief"]))
     wrapper.setdefault("full_state", False)
@@ -226,13 +230,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         )
 
     pk = cfg.setdefault("policy_kwargs", {})
-    if not isinstance(pk, dict):
-        raise ConfigError(f"{source}: policy_kwargs must be a mapping, got {pk!r}")
-    bad = sorted(set(pk) - POLICY_KWARGS[algo])
-    if bad:
-        raise ConfigError(
-            f"{source}: unknown key(s) in policy_kwargs: {', '.join(map(repr, bad))}; allowed for {algo}: {', '.join(sorted(POLICY_KWARGS[algo]))}"
-        )
+    _known_keys(source, pk, sorted(POLICY_KWARGS[algo]), "policy_kwargs", f" for {algo}")
     if "features_extractor" in pk:
         from gym_gridloc_agents.features import EXTRACTORS
 
@@ -262,12 +260,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             raise ConfigError(f"{source}: policy_kwargs.net_arch must be a list of positive integers or {{pi: [...], vf: [...]}}, got {na!r}")
 
     hp = cfg.setdefault("hyperparams", {})
-    if not isinstance(hp, dict):
-        raise ConfigError(f"{source}: hyperparams must be a mapping, got {hp!r}")
-    allowed = allowed_hyperparams(algo)
-    bad = sorted(set(hp) - allowed)
-    if bad:
-        raise ConfigError(f"{source}: unknown key(s) in hyperparams: {', '.join(map(repr, bad))}; allowed for {algo}: {', '.join(sorted(allowed))}")
+    _known_keys(source, hp, sorted(allowed_hyperparams(algo)), "hyperparams", f" for {algo}")
     for k, v in hp.items():
         if isinstance(v, str):
             raise ConfigError(f"{source}: hyperparams.{k} must be a number or boolean (strings are not evaluated), got {v!r}")
@@ -283,23 +276,15 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         raise ConfigError(f"{source}: missing required key 'output' (the model file to write, .zip)")
     if not isinstance(cfg["output"], str) or not cfg["output"].endswith(".zip"):
         raise ConfigError(f"{source}: output must be a path ending in .zip, got {cfg['output']!r}")
-    cfg.setdefault("checkpoint_dir", None)
-    cfg.setdefault("tensorboard_log", None)
     for key in ("checkpoint_dir", "tensorboard_log"):
-        if cfg[key] is not None and not isinstance(cfg[key], str):
+        if cfg.setdefault(key, None) is not None and not isinstance(cfg[key], str):
             raise ConfigError(f"{source}: {key} must be a path or null, got {cfg[key]!r}")
     cfg.setdefault("description", "")
     pre = cfg.setdefault("pretrain", None)
     if pre is not None:
         if algo != "ppo" or not wrapper["belief"]:
             raise ConfigError(f"{source}: pretrain needs algo: ppo with wrapper.belief: true")
-        if not isinstance(pre, dict):
-            raise ConfigError(f"{source}: pretrain must be a mapping, got {pre!r}")
-        bad = sorted(set(pre) - set(PRETRAIN_KEYS))
-        if bad:
-            raise ConfigError(f"{source}: unknown key(s) in pretrain: {', '.join(map(repr, bad))}; allowed: {', '.join(PRETRAIN_KEYS)}")
-        from gym_gridloc_agents.policies import EXPERT_NAMES
-
+        _known_keys(source, pre, PRETRAIN_KEYS, "pretrain")
         if pre.get("expert", "greedy2") not in EXPERT_NAMES:
             raise ConfigError(f"{source}: pretrain.expert must be one of {', '.join(EXPERT_NAMES)}, got {pre.get('expert')!r}")
         pre.setdefault("expert", "greedy2")

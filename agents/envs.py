@@ -3,18 +3,25 @@ adapter of the native vector environment (:class:`SB3VecEnv`)."""
 
 from __future__ import annotations
 
+import functools
+import inspect
 from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.envs.registration import load_env_creator
+from gymnasium.vector import AutoresetMode
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+import gym_gridloc
+from gym_gridloc.envs.base import GridLocEnv
+from gym_gridloc.vector import GridLocVectorEnv
+
 
 def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, error: type[Exception]) -> None:
     """Build ``gym.make(env_id, **env_kwargs)`` once: a gym_gridloc environment, or ``error``
     naming ``what`` and the reason (an unknown keyword, a bad value, another package's env)."""
-    from gym_gridloc.envs.base import GridLocEnv
-
-    import gym_gridloc
-
     if not isinstance(env_id, str) or env_id not in gym.registry:
         raise error(f"{what}: {env_id!r} is not a registered environment (gym_gridloc's: {', '.join(gym_gridloc.ENV_IDS)})")
     known = _keywords(env_id)
@@ -34,14 +41,9 @@ def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, err
 def default_kwargs(env_id: str) -> dict[str, Any]:
     """The keyword arguments a gym_gridloc environment is built with when none are given: its
     class's defaults, then its registration's (empty for another package's environment)."""
-    import inspect
-
-    from gymnasium.envs.registration import load_env_creator
-
-    entry = gym.registry[env_id].entry_point
-    if not isinstance(entry, str) or not entry.startswith("gym_gridloc."):
+    params = _parameters(env_id)
+    if params is None:
         return {}
-    params = inspect.signature(load_env_creator(entry)).parameters.values()
     out = {p.name: p.default for p in params if p.default is not p.empty and p.name != "render_mode"}
     return {**out, **dict(gym.registry[env_id].kwargs or {})}
 
@@ -49,40 +51,32 @@ def default_kwargs(env_id: str) -> dict[str, Any]:
 def _keywords(env_id: str) -> set[str]:
     """The keyword arguments a gym_gridloc environment's class takes (empty: not one of ours, or
     it takes ``**kwargs``)."""
-    import inspect
-
-    from gymnasium.envs.registration import load_env_creator
-
-    entry = gym.registry[env_id].entry_point
-    if not isinstance(entry, str) or not entry.startswith("gym_gridloc."):
-        return set()
-    params = inspect.signature(load_env_creator(entry)).parameters.values()
-    if any(p.kind is p.VAR_KEYWORD for p in params):
+    params = _parameters(env_id)
+    if params is None or any(p.kind is p.VAR_KEYWORD for p in params):
         return set()
     return {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)} - {"self"}
+
+
+def _parameters(env_id: str) -> list | None:
+    """The parameters of a gym_gridloc environment's class (``None`` for another package's environment)."""
+    entry = gym.registry[env_id].entry_point
+    if not isinstance(entry, str) or not entry.startswith("gym_gridloc."):
+        return None
+    return list(inspect.signature(load_env_creator(entry)).parameters.values())
 
 
 def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, wrapper: dict[str, Any] | None = None) -> gym.Env:
     """``gym.make(env_id, **env_kwargs)``, behind ``HMMBeliefWrapper(**wrapper)`` unless
     ``wrapper["belief"]`` is false (raw readings).  ``wrapper=None``: the Dict belief observation
     every policy of the benchmark reads."""
-    import gym_gridloc
-
     env = gym.make(env_id, **dict(env_kwargs or {}))
     opts = {"belief": True} if wrapper is None else dict(wrapper)
-    if opts.pop("belief", True) is False:
-        return env
-    return gym_gridloc.HMMBeliefWrapper(env, **opts)
+    return env if opts.pop("belief", True) is False else gym_gridloc.HMMBeliefWrapper(env, **opts)
 
 
 def env_thunk(cfg: dict[str, Any]) -> Callable[[], gym.Env]:
     """A picklable thunk building one (wrapped) training environment from a validated config."""
-    env_id, env_kwargs, wrapper = cfg["env_id"], dict(cfg["env_kwargs"]), dict(cfg["wrapper"])
-
-    def thunk() -> gym.Env:
-        return make_env(env_id, env_kwargs, wrapper)
-
-    return thunk
+    return functools.partial(make_env, cfg["env_id"], dict(cfg["env_kwargs"]), dict(cfg["wrapper"]))
 
 
 def make_training_env(cfg: dict[str, Any]):
@@ -96,18 +90,10 @@ def make_training_env(cfg: dict[str, Any]):
                               **cfg["env_kwargs"])
         venv.seed(cfg["seed"])
         return venv
-    from stable_baselines3.common.env_util import make_vec_env
-
     return make_vec_env(env_thunk(cfg), n_envs=cfg["n_envs"], seed=cfg["seed"])
 
 
-def _vec_env_base():
-    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
-
-    return VecEnv
-
-
-class SB3VecEnv(_vec_env_base()):
+class SB3VecEnv(VecEnv):
     """stable-baselines3 ``VecEnv`` over a :class:`gym_gridloc.vector.GridLocVectorEnv` (SB3
     takes its own VecEnv API, not Gymnasium's ``VectorEnv``).
 
@@ -126,10 +112,6 @@ class SB3VecEnv(_vec_env_base()):
     """
 
     def __init__(self, venv) -> None:
-        from gymnasium.vector import AutoresetMode
-
-        from gym_gridloc.vector import GridLocVectorEnv
-
         env = getattr(venv, "unwrapped", venv)
         if not isinstance(env, GridLocVectorEnv):
             raise TypeError(f"SB3VecEnv needs a gym_gridloc native vector env (GridLocVectorEnv), got {type(venv).__name__}")
@@ -152,10 +134,9 @@ class SB3VecEnv(_vec_env_base()):
 
     def step_async(self, actions: np.ndarray) -> None:
         acts = np.asarray(actions).reshape(self.num_envs)
-        if not np.issubdtype(acts.dtype, np.integer):
-            whole = np.issubdtype(acts.dtype, np.floating) and np.all(acts == np.round(acts))
-            if not whole:
-                raise ValueError(f"actions must be integers (one per environment), got {actions!r}")
+        if not np.issubdtype(acts.dtype, np.integer) and not (
+                np.issubdtype(acts.dtype, np.floating) and np.all(acts == np.round(acts))):
+            raise ValueError(f"actions must be integers (one per environment), got {actions!r}")
         self._actions = acts.astype(np.int64)
 
     def step_wait(self):
@@ -163,10 +144,8 @@ class SB3VecEnv(_vec_env_base()):
         dones = terminated | truncated
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
         for i in np.flatnonzero(dones):
-            final = dict(info["final_info"][i])
-            final["terminal_observation"] = info["final_obs"][i]
-            final["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
-            infos[i] = final
+            infos[i] = {**info["final_info"][i], "terminal_observation": info["final_obs"][i],
+                        "TimeLimit.truncated": bool(truncated[i] and not terminated[i])}
         return obs, rewards.astype(np.float32), dones, infos
 
     def close(self) -> None:

@@ -57,9 +57,8 @@ class BeliefMapCNN(BaseFeaturesExtractor):
         c_in = image[0] + (maps.shape[0] if maps is not None else 0)
         reading = get_flattened_obs_dim(observation_space["observation"])
         super().__init__(observation_space, features_dim=features + reading)
-        convs: list[nn.Module] = []
-        for k in range(layers):
-            convs += [nn.Conv2d(c_in if k == 0 else channels, channels, 3, padding=1), nn.ReLU()]
+        convs = [m for k in range(layers)
+                 for m in (nn.Conv2d(c_in if k == 0 else channels, channels, 3, padding=1), nn.ReLU())]
         h, w = image[1:]
         self.cnn = nn.Sequential(*convs, nn.Flatten(), nn.Linear(channels * h * w, features), nn.ReLU())
         self.has_map = maps is not None

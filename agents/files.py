@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import glob
+import importlib
 import json
 import os
 import tempfile
@@ -33,13 +34,10 @@ def writable_directory(directory: Path, what: str) -> None:
     :class:`OutputError` naming it and why."""
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        probe = tempfile.NamedTemporaryFile(dir=directory, prefix=f".gridloc-probe{TMP_MARK}", delete=True)
-        probe.close()
+        tempfile.NamedTemporaryFile(dir=directory, prefix=f".gridloc-probe{TMP_MARK}", delete=True).close()
     except OSError as exc:
-        reason = exc.strerror or str(exc)
         blocker = next((p for p in [directory, *directory.parents] if p.exists() and not p.is_dir()), None)
-        if blocker is not None:
-            reason = f"{blocker} is a file, not a directory"
+        reason = exc.strerror or str(exc) if blocker is None else f"{blocker} is a file, not a directory"
         raise OutputError(f"cannot write to the {what} {directory}: {reason}") from None
 
 
@@ -75,21 +73,17 @@ def rescue_write(write, path: Path, what: str, *, places: tuple[Path, ...] = (),
     raise OutputError(f"{problem}; writing it elsewhere failed too")
 
 
-#: The algorithms a model file may hold.
-ALGOS = ("ppo", "recurrent_ppo")
+#: The algorithms a model file may hold: their modules and classes.
+_ALGO_CLASSES = {"ppo": ("stable_baselines3", "PPO"), "recurrent_ppo": ("sb3_contrib", "RecurrentPPO")}
+ALGOS = tuple(_ALGO_CLASSES)
 
 
 def algo_class(algo: str):
     """The stable-baselines3 (or sb3-contrib) class of ``algo``."""
-    if algo == "ppo":
-        from stable_baselines3 import PPO
-
-        return PPO
-    if algo == "recurrent_ppo":
-        from sb3_contrib import RecurrentPPO
-
-        return RecurrentPPO
-    raise ValueError(f"algo must be one of {', '.join(ALGOS)}, got {algo!r}")
+    if algo not in ALGOS:
+        raise ValueError(f"algo must be one of {', '.join(ALGOS)}, got {algo!r}")
+    module, name = _ALGO_CLASSES[algo]
+    return getattr(importlib.import_module(module), name)
 
 
 def _umask_mode() -> int:
@@ -178,9 +172,8 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
     trusted sources only."""
     path = Path(path)
     if not path.is_file():
-        hint = ""
-        if path.parent.name == "policies":
-            hint = " (train it with `gridloc train configs/...`, or pass --ppo-model PATH)"
+        hint = (" (train it with `gridloc train configs/...`, or pass --ppo-model PATH)"
+                if path.parent.name == "policies" else "")
         raise FileNotFoundError(f"model file {str(path)!r} does not exist{hint}")
     meta = read_metadata(path)
     if meta.get("algo") not in (None, algo):
@@ -253,10 +246,6 @@ def model_kwargs(env_id: str | None, kwargs: dict) -> str:
     from gym_gridloc_agents.envs import default_kwargs
 
     defaults = default_kwargs(env_id) if env_id in gym.registry else {}
-    return _canonical({**defaults, **dict(kwargs)})
-
-
-def _canonical(kwargs: dict) -> str:
-    """The model-defining keyword arguments in one comparable form (tuples and lists alike, keys
-    sorted, :data:`EPISODE_KWARGS` left out)."""
+    kwargs = {**defaults, **dict(kwargs)}
+    # tuples and lists alike (JSON), keys sorted
     return json.dumps({k: v for k, v in kwargs.items() if k not in EPISODE_KWARGS}, sort_keys=True, default=str)

@@ -28,6 +28,7 @@ from gymnasium import spaces
 
 from gym_gridloc.core.model import GridModel
 from gym_gridloc_agents.base import Policy
+from gym_gridloc_agents.files import load_model, model_kwargs, read_metadata
 from gym_gridloc.lookahead import Lookahead
 
 #: Names accepted by :func:`make_policy`.
@@ -37,7 +38,6 @@ EXPERT_NAMES = ("greedy", "greedy2", "central", "expectimax", "mcts", "optimal")
 
 #: Where the shipped models live: ``<env_id>.zip`` (PPO) and ``<env_id>-recurrent.zip``.
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
-
 
 
 class RandomPolicy(Policy):
@@ -130,8 +130,6 @@ class PPOPolicy(Policy):
             self.path, self.sb3, self.meta = None, sb3_model, {}
             self.wrapper = _wrapper_options(wrapper)
             return
-        from gym_gridloc_agents.files import load_model, read_metadata  # heavy imports (torch) only when needed
-
         if path is None:
             if env_id is None:
                 raise ValueError(f"policy {self.name!r} needs env_id=... (for the shipped model) or path=...")
@@ -146,9 +144,7 @@ class PPOPolicy(Policy):
     def expected_space(self, model: GridModel) -> spaces.Space:
         from gym_gridloc.wrappers import belief_observation_space
 
-        w = self.wrapper
-        return belief_observation_space(model, model.sensor.observation_space, flatten=w["flatten"],
-                                        full_state=w["full_state"], map=w["map"], lookahead=w["lookahead"])
+        return belief_observation_space(model, model.sensor.observation_space, **self.wrapper)
 
     def encode(self, observation: Any, belief: np.ndarray) -> Any:
         """The observation the model's ``HMMBeliefWrapper`` would give."""
@@ -220,8 +216,6 @@ def default_model_path(env_id: str, algo: str = "ppo", env_kwargs: dict[str, Any
     for them, else the model in :data:`POLICY_DIR` whose metadata names them (defaults filled in,
     so ``DepthMaze-v0`` with no keywords finds the model trained with ``size=7``; episode keywords
     such as ``episode_length`` may differ)."""
-    from gym_gridloc_agents.files import model_kwargs, read_metadata
-
     suffix = "" if algo == "ppo" else "-recurrent"
     plain = POLICY_DIR / f"{env_id}{suffix}.zip"
     want = model_kwargs(env_id, env_kwargs or {})
@@ -259,10 +253,8 @@ def make_policy(
     """
     if name == "random":
         return RandomPolicy(model, seed=seed)
-    if name == "greedy":
-        return GreedyPolicy(model, seed=seed, pose=pose)
-    if name == "greedy2":
-        return Greedy2Policy(model, seed=seed, pose=pose)
+    if name in ("greedy", "greedy2"):
+        return {"greedy": GreedyPolicy, "greedy2": Greedy2Policy}[name](model, seed=seed, pose=pose)
     if name in ("central", "expectimax", "mcts"):
         from gym_gridloc_agents.planners import make_planner
 
@@ -277,8 +269,7 @@ def make_policy(
 
         threshold = options.pop("threshold", None) or (env_kwargs or {}).get("localise_threshold", 0.9)
         return PomcpPolicy(model, seed=seed, threshold=threshold, pose=pose, **options)
-    if name == "ppo":
-        return PPOPolicy(model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
-    if name == "recurrent":
-        return RecurrentPolicy(model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
+    if name in ("ppo", "recurrent"):
+        cls = PPOPolicy if name == "ppo" else RecurrentPolicy
+        return cls(model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
     raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")

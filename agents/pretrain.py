@@ -30,6 +30,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
+
+from gym_gridloc_agents.files import atomic_path
+from gym_gridloc_agents.policies import PPOPolicy, make_policy, wrapped_observation
 
 PRETRAIN_SEED_BASE = 1_000_000
 DAGGER_SEED_BASE = 1_500_000
@@ -81,16 +85,12 @@ def _episode_samples(ep, targets: list[np.ndarray], wrapper: dict[str, Any], gam
     """One episode's samples: the observations PPO sees, the expert's action distributions to
     imitate (one-hot, or even over a planner's tied best actions), the returns, and the
     planner's action values where they are asked for."""
-    from gym_gridloc_agents.policies import wrapped_observation
-
     obs = [wrapped_observation(ep.model, o, b, flatten=wrapper["flatten"], full_state=wrapper["full_state"],
                                map=wrapper["map"], lookahead=wrapper.get("lookahead", 0))
            for o, b in zip(ep.observations, ep.beliefs)]
-    out = {"obs": _stack(obs), "targets": np.asarray(targets, dtype=np.float32),
-           "returns": _discounted(ep.rewards, gamma, ep.truncated and not ep.terminated), "length": ep.steps}
-    if values is not None:
-        out["values"] = np.asarray(values, dtype=np.float32)
-    return out
+    return {"obs": _stack(obs), "targets": np.asarray(targets, dtype=np.float32),
+            "returns": _discounted(ep.rewards, gamma, ep.truncated and not ep.terminated), "length": ep.steps,
+            **({"values": np.asarray(values, dtype=np.float32)} if values is not None else {})}
 
 
 def _label(expert, observation, belief, values: bool) -> tuple[np.ndarray, np.ndarray | None]:
@@ -147,8 +147,8 @@ def _load_cache(cache: Path | None, key: str) -> list[dict[str, Any]]:
         out = []
         for a, b, n in zip(bounds[:-1], bounds[1:], lengths):
             obs = {k: arrays[f"obs.{k}"][a:b].copy() for k in obs_keys} if obs_keys else arrays["obs"][a:b].copy()
-            out.append({"obs": obs, "targets": arrays["targets"][a:b].copy(), "returns": arrays["returns"][a:b].copy(),
-                        "length": int(n), **({"values": arrays["values"][a:b].copy()} if "values" in arrays else {})})
+            out.append({"obs": obs, "length": int(n),
+                        **{k: arrays[k][a:b].copy() for k in ("targets", "returns", "values") if k in arrays}})
         return out
     except (OSError, KeyError, ValueError):
         return []  # an unreadable cache is collected again
@@ -172,25 +172,18 @@ def _sibling_caches(cache: Path, key: str) -> list[tuple[int, Path]]:
     return sorted(found, key=lambda t: -t[0])
 
 
-def _save_cache(cache: Path, key: str, episodes: list[dict[str, Any]]) -> None:
-    from gym_gridloc_agents.files import atomic_path
-
-    if not episodes:
+def _save_cache(cache: Path | None, key: str, episodes: list[dict[str, Any]]) -> None:
+    if cache is None or not episodes:
         return
-    sizes = [len(e["targets"]) for e in episodes]
-    obs = _concat([e["obs"] for e in episodes])
+    data = _merge(episodes)  # obs, targets, returns, lengths (and values)
+    obs = data.pop("obs")
     arrays = {f"obs.{k}": v for k, v in obs.items()} if isinstance(obs, dict) else {"obs": obs}
-    if "values" in episodes[0]:
-        arrays["values"] = np.concatenate([e["values"] for e in episodes])
+    bounds = np.concatenate([[0], np.cumsum([len(e["targets"]) for e in episodes])])
     with atomic_path(cache) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, key=np.array(key), bounds=np.concatenate([[0], np.cumsum(sizes)]),
-                 lengths=np.array([e["length"] for e in episodes]), targets=np.concatenate([e["targets"] for e in episodes]),
-                 returns=np.concatenate([e["returns"] for e in episodes]), **arrays)
+        np.savez(fh, key=np.array(key), bounds=bounds, **data, **arrays)
 
 
 def _expert(cfg: dict[str, Any], env):
-    from gym_gridloc_agents.policies import make_policy
-
     pre = cfg["pretrain"]
     options = dict(pre.get("expert_kwargs", {}))
     if pre["expert"] in ("central", "expectimax", "mcts"):  # the planners plan for the referee's own test
@@ -201,8 +194,6 @@ def _expert(cfg: dict[str, Any], env):
 
 def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | None = None) -> list[dict[str, Any]]:
     """The expert's episodes as samples (continued from ``cache`` if it holds some)."""
-    from tqdm.auto import tqdm
-
     from gym_gridloc_agents.envs import make_env
     from gym_gridloc_agents.rollout import rollout
 
@@ -223,23 +214,18 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
             episodes.append(_episode_samples(ep, expert.targets, cfg["wrapper"], gamma,
                                              expert.q if expert.values else None))
     except KeyboardInterrupt:
-        if cache is not None:
-            _save_cache(cache, key, episodes)
+        _save_cache(cache, key, episodes)
         raise WarmStartInterrupted(len(episodes), 0) from None
     finally:
         env.close()
-    if cache is not None:
-        _save_cache(cache, key, episodes)
+    _save_cache(cache, key, episodes)
     return episodes
 
 
 def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = True) -> list[dict[str, Any]]:
     """One DAgger round: the student (``model``, sampling its actions) plays; every belief it
     reaches is labelled with the expert's action."""
-    from tqdm.auto import tqdm
-
     from gym_gridloc_agents.envs import make_env
-    from gym_gridloc_agents.policies import PPOPolicy
     from gym_gridloc_agents.rollout import rollout
 
     pre = cfg["pretrain"]
@@ -280,7 +266,6 @@ def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, pro
     shuffles of earlier epochs are drawn first, so a resumed fit continues the same sequence).
     Returns the number of epochs done; Ctrl-C raises :class:`_FitInterrupted` with that number."""
     import torch
-    from tqdm.auto import tqdm
 
     pre = cfg["pretrain"]
     policy = model.policy
@@ -372,8 +357,7 @@ def behaviour_cloning(model, cfg: dict[str, Any], progress: bool = True, *, cach
                          label="behaviour cloning epochs")
         while rounds < pre["dagger_rounds"]:
             dagger_eps += dagger_round(model, cfg, rounds, progress=progress)
-            if dagger_cache is not None:
-                _save_cache(dagger_cache, dagger_key, dagger_eps)
+            _save_cache(dagger_cache, dagger_key, dagger_eps)
             _fit(model, _merge(expert_eps + dagger_eps), cfg, epochs=range(pre["dagger_epochs"]), progress=progress,
                  label=f"DAgger round {rounds + 1} epochs")
             rounds += 1

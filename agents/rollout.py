@@ -54,10 +54,7 @@ class Episode:
 
 def _right(info: dict[str, Any]) -> bool:
     """The estimate is the truth (the pose too, where the referee tests poses)."""
-    ok = info["error"] == 0
-    if "estimate_heading" in info:
-        ok = ok and info["estimate_heading"] == info["heading"]
-    return bool(ok)
+    return bool(info["error"] == 0 and ("estimate_heading" not in info or info["estimate_heading"] == info["heading"]))
 
 
 def rollout(env, policy, seed: int, *, keep: bool = False, frames: bool = False, max_steps: int | None = None,

@@ -73,8 +73,7 @@ def median_index(scores: Sequence[float]) -> int:
     """The position of the median of ``scores`` (lower median for an even count: the
     ``(n - 1) // 2``-th smallest; ties keep the earlier position)."""
     x = _values(scores)
-    order = sorted(range(x.size), key=lambda i: (x[i], i))
-    return order[(x.size - 1) // 2]
+    return sorted(range(x.size), key=lambda i: (x[i], i))[(x.size - 1) // 2]
 
 
 def wilson_ci95(successes: int, n: int) -> list[float]:

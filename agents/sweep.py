@@ -61,6 +61,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from gym_gridloc_agents.files import atomic_write_json, writable_directory
+
 # What a sweep is (--grid, the trials' configs, --resume's check) is sweep_spec; what its trials
 # produced and the report, sweep_results.  Their public names are importable from here too.
 from gym_gridloc_agents.sweep_results import (
@@ -247,8 +249,6 @@ def run(spec: dict[str, Any], *, address: str | None = None, cpus: int | None = 
     Ray starts embedded on this machine (``cpus`` CPUs, default all) unless ``address`` names a
     running cluster to join.  Raises :class:`SweepError` before starting when the output directory
     holds another sweep (without ``resume``) or nothing to resume (with it)."""
-    from gym_gridloc_agents.files import atomic_write_json, writable_directory
-
     out = Path(spec["output"])
     exp_dir = out / EXPERIMENT
     stored_path = out / "sweep.json"

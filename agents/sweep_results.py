@@ -13,6 +13,8 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from gym_gridloc_agents import stats
+from gym_gridloc_agents.files import atomic_path, atomic_write_json, atomic_write_text, read_metadata
 from gym_gridloc_agents.sweep_spec import (
     _canonical,
     config_label,
@@ -35,8 +37,6 @@ def _comparable(cfg: dict[str, Any]) -> str:
 
 def completed_metadata(cfg: dict[str, Any]) -> dict[str, Any] | None:
     """The metadata of this trial's finished model, if it exists and was trained with this config."""
-    from gym_gridloc_agents.files import read_metadata
-
     out = Path(cfg["output"])
     if not out.is_file():
         return None
@@ -46,9 +46,7 @@ def completed_metadata(cfg: dict[str, Any]) -> dict[str, Any] | None:
         return None
     if meta.get("interrupted") is not False or not isinstance(meta.get("config"), dict):
         return None
-    if _comparable(meta["config"]) != _comparable(json.loads(json.dumps(cfg))):
-        return None
-    return meta
+    return meta if _comparable(meta["config"]) == _comparable(json.loads(json.dumps(cfg))) else None
 
 
 def selected_evaluation(meta: dict[str, Any]) -> dict[str, Any]:
@@ -72,11 +70,9 @@ def saved_statuses(exp_dir: Path) -> dict[str, str]:
     has already stopped them (TERMINATED, like a trial the pruner stopped).  ``{}`` if unreadable."""
     try:
         latest = max(Path(exp_dir).glob("experiment_state-*.json"), key=lambda p: p.stat().st_mtime)
-        out = {}
-        for item in json.loads(latest.read_text(encoding="utf-8"))["trial_data"]:
-            state = json.loads(item[0]) if isinstance(item[0], str) else item[0]
-            out[str(state["trial_id"])] = str(state["status"])
-        return out
+        items = json.loads(latest.read_text(encoding="utf-8"))["trial_data"]
+        states = [json.loads(item[0]) if isinstance(item[0], str) else item[0] for item in items]
+        return {str(state["trial_id"]): str(state["status"]) for state in states}
     except (OSError, ValueError, KeyError, TypeError, IndexError):
         return {}
 
@@ -120,14 +116,6 @@ _PRIORITY = {"done": 0, "stopped": 1, "error": 2, "unfinished": 3}
 def summarise(spec: dict[str, Any], records: list[dict[str, Any]]) -> dict[str, Any]:
     """Group the trials by configuration, aggregate across seeds, pick the best configuration and
     its median seed; write the tables, JSON files and ``best.zip``; return the summary."""
-    from gym_gridloc_agents import stats
-    from gym_gridloc_agents.files import (
-        atomic_path,
-        atomic_write_json,
-        atomic_write_text,
-        read_metadata,
-    )
-
     out = Path(spec["output"])
     keys = list(spec["grid"])
     order = configurations(spec["grid"]) if spec["search"] != "optuna" else []
@@ -146,8 +134,7 @@ def summarise(spec: dict[str, Any], records: list[dict[str, Any]]) -> dict[str, 
             m = (r or {}).get("metrics") or {}
             rows.append({
                 "seed": cfg0["seed"] + index, "status": r["status"] if r else "not run",
-                **{k: m.get(k) for k in ("score", "mean_steps", "accuracy", "argmax_accuracy")},
-                "selected_timesteps": m.get("selected_timesteps"), "num_timesteps": m.get("num_timesteps"),
+                **{k: m.get(k) for k in (*METRICS, "selected_timesteps", "num_timesteps")},
                 "model": m.get("model") if r and r["status"] == "done" else None,
                 "trial_id": r["trial_id"] if r else None, "error": r["error"] if r else None,
             })

@@ -89,12 +89,10 @@ def parse_grid(items: Sequence[str] | None) -> dict[str, list[Any]]:
         texts = split_values(rest)
         if not rest.strip() or any(not t.strip() for t in texts):
             raise SweepError(f"--grid {item!r}: {key} needs values, e.g. {key}=V1,V2 (an empty value is not one)")
-        values = []
-        for t in texts:
-            try:
-                values.append(parse_value(t))
-            except SweepError as exc:
-                raise SweepError(f"--grid {item!r}: {exc}") from None
+        try:
+            values = [parse_value(t) for t in texts]
+        except SweepError as exc:
+            raise SweepError(f"--grid {item!r}: {exc}") from None
         if len({_canonical(v) for v in values}) != len(values):
             raise SweepError(f"--grid {item!r}: {key} repeats a value")
         grid[key] = values
@@ -120,8 +118,7 @@ def _canonical(value: Any) -> str:
 
 def configurations(grid: dict[str, list[Any]]) -> list[dict[str, Any]]:
     """Every combination of the grid's values (the first key varies slowest); ``[{}]`` without a grid."""
-    keys = list(grid)
-    return [dict(zip(keys, combo)) for combo in itertools.product(*(grid[k] for k in keys))]
+    return [dict(zip(grid, combo)) for combo in itertools.product(*grid.values())]
 
 
 _SAFE = re.compile(r"^[A-Za-z0-9._+-]+$")

@@ -26,8 +26,13 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from gym_gridloc_agents.config import ConfigError, activation, validate_config
+import torch
+from stable_baselines3.common.callbacks import BaseCallback
+
+import gym_gridloc
+from gym_gridloc_agents.config import ConfigError, activation, load_config, validate_config
 from gym_gridloc_agents.envs import make_env, make_training_env
+from gym_gridloc_agents.features import EXTRACTORS
 from gym_gridloc_agents.files import (
     OutputError,
     algo_class,
@@ -39,6 +44,8 @@ from gym_gridloc_agents.files import (
     rescue_write,
     writable_directory,
 )
+from gym_gridloc_agents.policies import PPOPolicy, RecurrentPolicy
+from gym_gridloc_agents.pretrain import WarmStartInterrupted, behaviour_cloning
 
 
 class TrainingInterrupted(Exception):
@@ -69,8 +76,6 @@ def _policy_kwargs(cfg: dict[str, Any]) -> dict[str, Any]:
     if "activation_fn" in pk:
         pk["activation_fn"] = activation(pk["activation_fn"])
     if "features_extractor" in pk:
-        from gym_gridloc_agents.features import EXTRACTORS
-
         pk["features_extractor_class"] = EXTRACTORS[pk.pop("features_extractor")]
     return pk
 
@@ -123,13 +128,11 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
     """``model`` (deterministic) on the held-out evaluation episodes: mean steps to localise (a
     truncated episode counts at its length), the fraction that end collapsed onto the truth
     (``accuracy``) and the fraction whose most probable state is the truth at the end."""
-    from gym_gridloc_agents.policies import PPOPolicy, RecurrentPolicy
     from gym_gridloc_agents.rollout import rollout
 
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
-    cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy
-    kwargs = {} if cls is RecurrentPolicy else {"wrapper": cfg["wrapper"]}
-    policy = cls(env.unwrapped.model, sb3_model=model, **kwargs)
+    cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy  # (RecurrentPolicy ignores the wrapper)
+    policy = cls(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"])
     eps = [rollout(env, policy, seed, reset_options=opts) for seed, opts in evaluation_episodes(env, cfg, episodes)]
     env.close()
     n = len(eps)
@@ -139,16 +142,12 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
 
 def _score(cfg: dict[str, Any], entry: dict[str, Any]) -> float:
     """Lower is better: mean steps, or minus the accuracy for fixed-length (protocol) episodes."""
-    if cfg["env_kwargs"].get("episode_length"):
-        return -entry["accuracy"]
-    return entry["mean_steps"]
+    return -entry["accuracy"] if cfg["env_kwargs"].get("episode_length") else entry["mean_steps"]
 
 
 def _every(freq: int, action: Callable[[Any], None]):
     """An SB3 callback that calls ``action(model)`` at the first step at or past each multiple of
     ``freq`` after the step where training (or a resumed training) starts."""
-    from stable_baselines3.common.callbacks import BaseCallback
-
     class Every(BaseCallback):
         next_at = None
 
@@ -161,13 +160,6 @@ def _every(freq: int, action: Callable[[Any], None]):
             return True
 
     return Every()
-
-
-def _eval_callback(cfg: dict[str, Any], directory: Path, history: list, on_evaluation=None):
-    def evaluate_now(model) -> None:
-        record_evaluation(model, cfg, cfg["eval_episodes"], directory, history, on_evaluation)
-
-    return _every(cfg["eval_freq"], evaluate_now)
 
 
 def best_entry(directory: Path) -> dict[str, Any] | None:
@@ -201,15 +193,6 @@ def record_evaluation(model, cfg, episodes, directory: Path, history: list, on_e
 
 
 # -- training -------------------------------------------------------------------------------------
-def _checkpoint_callback(freq: int, directory: Path, meta: Callable[[], dict[str, Any]]):
-    def save(model) -> None:
-        path = directory / f"step_{model.num_timesteps}.zip"
-        atomic_save_model(model, path)
-        atomic_write_json(metadata_path(path), {**meta(), "num_timesteps": int(model.num_timesteps)})
-
-    return _every(freq, save)
-
-
 def train(
     config: dict[str, Any] | str | Path,
     *,
@@ -231,9 +214,6 @@ def train(
     written, :class:`TrainingInterrupted` after Ctrl-C (the checkpoint is saved first).
     ``on_evaluation`` is called with each held-out evaluation (e.g. to report it to a tuner).
     """
-    from gym_gridloc_agents.config import load_config
-    from gym_gridloc_agents.pretrain import WarmStartInterrupted, behaviour_cloning
-
     cfg = load_config(config) if isinstance(config, (str, Path)) else validate_config(config)
     if output is not None:
         cfg["output"] = str(output)
@@ -265,8 +245,6 @@ def train(
             if (ckpt_dir / name).exists():
                 os.replace(ckpt_dir / name, ckpt_dir / name.replace("best", f"best-before-{stamp}"))
 
-    import torch
-
     if torch_threads:
         torch.set_num_threads(int(torch_threads))
     Algo = algo_class(cfg["algo"])
@@ -295,13 +273,20 @@ def train(
             "config": cfg, "resumed_from": None if resume is None else str(resume),
             "command": command or " ".join(sys.argv),
             "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-            "package_version": _package_version(),
+            "package_version": gym_gridloc.__version__,
         }
 
-    def interrupted(during: str, extra: dict[str, Any]) -> TrainingInterrupted:
-        path = ckpt_dir / f"interrupted_step_{int(model.num_timesteps)}.zip"
-        atomic_save_model(model, path)
-        atomic_write_json(metadata_path(path), {**meta(), "interrupted": True, **extra})
+    def evaluate_now(m) -> None:
+        record_evaluation(m, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
+
+    def save(m, name: str, **extra: Any) -> Path:
+        """A checkpoint ``name``: the model and its metadata (``meta()``, its ``num_timesteps`` is ``m``'s)."""
+        atomic_save_model(m, ckpt_dir / name)
+        atomic_write_json(metadata_path(ckpt_dir / name), {**meta(), **extra})
+        return ckpt_dir / name
+
+    def interrupted(during: str) -> TrainingInterrupted:
+        path = save(model, f"interrupted_step_{int(model.num_timesteps)}.zip", interrupted=True)
         venv.close()
         return TrainingInterrupted(path, int(model.num_timesteps), during)
 
@@ -314,29 +299,29 @@ def train(
             state["warm_start"] = {"done": True}
         except WarmStartInterrupted as exc:
             state["warm_start"] = {"done": False, "episodes": exc.episodes, "epochs": exc.epochs, "rounds": exc.rounds}
-            raise interrupted("warm start", {}) from None
+            raise interrupted("warm start") from None
 
     if cfg["eval_freq"] > 0 and cfg.get("pretrain") and int(model.num_timesteps) == 0 and not evaluations:
         # The warm-started policy itself competes for "best" (PPO may not improve on it).
-        record_evaluation(model, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
+        evaluate_now(model)
     cbs = list(callbacks or [])
     if cfg["checkpoint_freq"] > 0:
-        cbs.append(_checkpoint_callback(cfg["checkpoint_freq"], ckpt_dir, meta))
+        cbs.append(_every(cfg["checkpoint_freq"], lambda m: save(m, f"step_{m.num_timesteps}.zip")))
     if cfg["eval_freq"] > 0:
-        cbs.append(_eval_callback(cfg, ckpt_dir, evaluations, on_evaluation))
+        cbs.append(_every(cfg["eval_freq"], evaluate_now))
     remaining = cfg["total_timesteps"] - int(model.num_timesteps)
     try:
         if remaining > 0:
             model.learn(remaining, callback=cbs or None, progress_bar=progress_bar, reset_num_timesteps=resume is None,
                         tb_log_name=f"{cfg['algo']}_{cfg['env_id']}_seed{cfg['seed']}")
     except KeyboardInterrupt:
-        raise interrupted("training", {}) from None
+        raise interrupted("training") from None
     selected = None
     if cfg["eval_freq"] > 0:
         # Keep the best of the held-out evaluations (the final model included), as rl-zoo's
         # best_model: PPO's evaluation curve is noisy from one update to the next.
         if not evaluations or evaluations[-1]["num_timesteps"] != int(model.num_timesteps):
-            record_evaluation(model, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
+            evaluate_now(model)
         best = best_entry(ckpt_dir) or min(evaluations, key=lambda h: _score(cfg, h))
         if best not in evaluations:  # evaluated before the checkpoint this run resumed from was written
             evaluations.append({**best, "note": "evaluated before an interruption; kept as best.zip"})
@@ -344,12 +329,12 @@ def train(
         final_timesteps = int(model.num_timesteps)
         model = Algo.load(ckpt_dir / "best.zip", device="cpu")
         model.num_timesteps = final_timesteps
-    info = {**meta(), "interrupted": False, "selected_timesteps": selected,
-            "eval_seeds": f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + cfg['eval_episodes'] - 1}" if evaluations else None}
     # The final model is for acting: drop Adam's moment estimates (two thirds of the file); the
     # checkpoints keep them for resuming.
     model.policy.optimizer.state.clear()
-    info["optimizer_state"] = "dropped (checkpoints keep it)"
+    info = {**meta(), "interrupted": False, "selected_timesteps": selected,
+            "eval_seeds": f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + cfg['eval_episodes'] - 1}" if evaluations else None,
+            "optimizer_state": "dropped (checkpoints keep it)"}
     save_final(model, info, out, ckpt_dir, force=force)
     venv.close()
     return info
@@ -366,9 +351,3 @@ def save_final(model, info: dict[str, Any], out: Path, ckpt_dir: Path, *, force:
     appeared = not force and (out.exists() or metadata_path(out).exists())
     rescue_write(write, out, "model", places=(ckpt_dir,),
                  problem=f"{out} (or its .json) appeared during training" if appeared else None)
-
-
-def _package_version() -> str:
-    import gym_gridloc
-
-    return gym_gridloc.__version__
