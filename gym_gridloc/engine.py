@@ -352,9 +352,12 @@ def stepper(model: GridModel, *, normalise: bool = True) -> Callable[[np.ndarray
 
 def _make_stepper(model: GridModel, d: _Derived, normalise: bool):
     n_actions, layered, mode = model.n_actions, d.layered, 1 if normalise else 2
-    lik_of, liks, check_action = d.lik, d._liks, model.check_action
+    lik_of, liks = d.lik, d._liks
+    # The model's cache keeps this stepper: holding the model strongly here would keep it forever.
     run_one = d.plan.run_one
     mixed = model.kidnap_prob > 0.0
+    model_ref = weakref.ref(model)
+    del model
 
     def step_one(belief: np.ndarray, action: Any, reading: int, out: np.ndarray) -> float:
         if type(action) is int and 0 <= action < n_actions:
@@ -362,17 +365,17 @@ def _make_stepper(model: GridModel, d: _Derived, normalise: bool):
         elif action is None:
             a = n_actions
         else:
-            a = check_action(action)
+            a = model_ref().check_action(action)
         lik = liks.get(reading)
         if lik is None:
             lik = lik_of(int(reading))
         if mixed:
-            z = float(_mixed_step(model, d, belief.reshape(1, -1), np.array([a]), lik[None], out.reshape(1, -1),
+            z = float(_mixed_step(model_ref(), d, belief.reshape(1, -1), np.array([a]), lik[None], out.reshape(1, -1),
                                   normalise, _all(1))[0])
         else:
             z = run_one(belief, a, lik, layered, out, mode)
         if not (z > 0.0 and z < math.inf):
-            raise impossible(model, int(reading))
+            raise impossible(model_ref(), int(reading))
         return z
 
     return step_one

@@ -36,12 +36,17 @@ class Lookahead:
     """
 
     def __init__(self, model: GridModel, *, pose: bool = False) -> None:
-        self.model = engine._checked_model(model, "a lookahead needs the environment's GridModel")
+        self._model = engine._checked_model(model, "a lookahead needs the environment's GridModel")
+        self._model_ref: weakref.ref | None = None  # set instead by lookahead_features' cache
         self.pose = bool(pose or model.sensor.layered)
         self.n_actions = model.n_actions
         self.h = model.sensor.reading_entropy()
         if self.pose and self.h.ndim == 2:
             self.h = np.broadcast_to(self.h, model.belief_shape)
+
+    @property
+    def model(self) -> GridModel:
+        return self._model if self._model_ref is None else self._model_ref()
 
     def _check_work(self, n_beliefs: int, what: str) -> None:
         work = n_beliefs * self.model.n_layers * self.model.shape[0] * self.model.shape[1]
@@ -125,6 +130,8 @@ def lookahead_features(model: GridModel, belief: np.ndarray, depth: int, *, pose
     look = looks.get(bool(pose))
     if look is None:
         look = looks[bool(pose)] = Lookahead(model, pose=pose)
+        # The cache's value must not hold its key, or no model would ever be let go.
+        look._model, look._model_ref = None, weakref.ref(model)
     b = np.asarray(belief, dtype=float)
     rows = [look.one_step(b)] + ([look.two_step(b)] if depth == 2 else [])
     out = np.asarray(rows, dtype=float) / np.log2(max(target_size(model, look.pose), 2))

@@ -4,7 +4,9 @@ single beliefs, layered likelihoods, and the samplers against the model's probab
 
 from __future__ import annotations
 
+import gc
 import re
+import weakref
 
 import numpy as np
 import pytest
@@ -510,3 +512,24 @@ def test_compiled_kernel_equals_numpy_stencil_on_large_grids(make, monkeypatch):
         slow.step(a, o)
     np.testing.assert_allclose(fast.full_belief, slow.full_belief, rtol=0, atol=1e-12)
     assert abs(fast.log_likelihood - slow.log_likelihood) < 1e-9
+
+
+def test_the_engine_and_lookahead_caches_let_go_of_a_redrawn_map():
+    """The per-model caches (the engine's derived data and stepper, the lookahead features) hold
+    their model weakly: a map redrawn at reset is freed, not kept for the life of the process."""
+    import gymnasium as gym
+
+    from gym_gridloc import engine
+    from gym_gridloc import lookahead as la
+
+    env = gym_gridloc.HMMBeliefWrapper(gym.make("DepthMaze-v0", size=7), lookahead=2)
+    env.reset(seed=0)
+    env.step(0)
+    first = weakref.ref(env.unwrapped.model)
+    assert first() in engine._DERIVED and first() in la._LOOKAHEADS
+    for seed in range(1, 4):
+        env.reset(seed=seed)
+        env.step(0)
+    gc.collect()
+    assert first() is None
+    assert env.unwrapped.model in la._LOOKAHEADS and len(la._LOOKAHEADS) <= 2
