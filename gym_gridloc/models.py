@@ -45,11 +45,7 @@ def colour_grid_model(
     """
     grid = layout if isinstance(layout, GridMap) else parse_colour_map(COLOUR_GRID_LAYOUT if layout is None else layout)
     slip = check_probability("slip", slip)
-    transitions = []
-    for a in range(4):
-        probs = np.full(4, slip / 4)
-        probs[a] += 1.0 - slip
-        transitions.append(move_terms(grid, probs))
+    transitions = [move_terms(grid, np.full(4, slip / 4) + (1.0 - slip) * np.eye(4)[a]) for a in range(4)]
     return GridModel(grid, transitions, ColourSensor(grid, accuracy), name="ColourGrid",
                      params={"slip": slip, "accuracy": accuracy})
 
@@ -71,13 +67,8 @@ def windy_maze_model(
     drift = check_probability("drift", drift)
     if drift > 0.5:
         raise ValueError(f"drift must be in [0, 0.5] (the robot drifts left and right with drift each), got {drift!r}")
-    transitions = []
-    for a in range(4):
-        probs = np.zeros(4)
-        probs[a] = 1.0 - 2.0 * drift
-        probs[(a - 1) % 4] += drift
-        probs[(a + 1) % 4] += drift
-        transitions.append(move_terms(grid, probs))
+    # Direction a with 1 - 2 drift, its left (a - 1) and right (a + 1) neighbours with drift each.
+    transitions = [move_terms(grid, np.roll([drift, 1.0 - 2.0 * drift, drift, 0.0], a - 1)) for a in range(4)]
     return GridModel(
         grid,
         transitions,
@@ -200,13 +191,10 @@ def depth_maze_model(
         max_depth = max(grid.shape) - 2 if walled and min(grid.shape) > 2 else max(grid.shape)
     free = grid.free.astype(np.float64)
     blocked = grid.blocked()
-    turns = []
-    for step in (-1, 1):  # left, right
-        terms = []
-        for h in range(4):
-            terms.append(Term(h, (h + step) % 4, 0, 0, (1.0 - turn_fail) * free))
-            terms.append(Term(h, h, 0, 0, turn_fail * free))
-        turns.append(terms)
+    # Left (step -1) and right (+1): from heading h, the turned heading or (failing) h itself.
+    turns = [[Term(h, nh, 0, 0, p * free)
+              for h in range(4) for nh, p in (((h + step) % 4, 1.0 - turn_fail), (h, turn_fail))]
+             for step in (-1, 1)]
     forward = []
     for h, (dr, dc) in enumerate(DIRECTIONS):
         go = (1.0 - move_fail) * np.where(blocked[h], 0.0, free)
