@@ -24,6 +24,7 @@ from typing import Callable
 import numpy as np
 
 from gym_gridloc.core.grid import GridMap
+from gym_gridloc.core.validation import check_int
 
 #: The sets' seed-sequence tag (the letters "gridloc" in ASCII, folded into 32 bits).
 TAG = 0x67726C63
@@ -75,10 +76,7 @@ def _draw(env_id: str, size: int, n: int, purpose: str) -> list[HeldOutMap]:
     gens = _generators()
     if env_id not in gens:
         raise ValueError(f"no held-out maps for {env_id!r}; families with random maps: {', '.join(gens)}")
-    from gym_gridloc.core.validation import check_int
-
     size = check_int("size", size, 2, 4096)
-    n = check_int("n", n, 1, 100_000)
     family, generate = gens[env_id]
     layers = 4 if env_id == "DepthMaze-v0" else 1
     children = np.random.SeedSequence([TAG, PURPOSES[purpose], family, size]).spawn(n)
@@ -103,8 +101,6 @@ def checksum(maps: list[HeldOutMap]) -> str:
 
 
 def _checked(env_id: str, size: int, n: int, purpose: str) -> list[HeldOutMap]:
-    from gym_gridloc.core.validation import check_int
-
     n = check_int("n", n, 1, 100_000)  # before drawing: a stored set is drawn 1000 long
     full = max(n, 1000) if (env_id, purpose, size) in CHECKSUMS else n
     maps = _draw(env_id, size, full, purpose)

@@ -29,14 +29,11 @@ PATH_RGB = (200, 0, 200)
 def belief_table(belief: np.ndarray, free: np.ndarray, mark: tuple[int, int] | None = None) -> str:
     """A table of position beliefs in percent, ``####`` on obstacles (like seed 004's tables);
     ``mark`` puts a ``*`` after the true position."""
-    lines = []
-    for r in range(belief.shape[0]):
-        cells = []
-        for c in range(belief.shape[1]):
-            cell = f"{100 * belief[r, c]:.2f}" if free[r, c] else "####"
-            cells.append(f"{cell + ('*' if mark == (r, c) else ''):>7}")
-        lines.append(" ".join(cells))
-    return "\n".join(lines)
+    def cell(r: int, c: int) -> str:
+        text = f"{100 * belief[r, c]:.2f}" if free[r, c] else "####"
+        return f"{text + ('*' if mark == (r, c) else ''):>7}"
+
+    return "\n".join(" ".join(cell(r, c) for c in range(belief.shape[1])) for r in range(belief.shape[0]))
 
 
 class Frame(NamedTuple):
