@@ -159,12 +159,8 @@ def seed004(report: Report, verbose: bool) -> None:
 
 # -- seed 001 --------------------------------------------------------------------------------------
 def seed001_expected(h: int = 8, w: int = 8) -> np.ndarray:
-    out = np.empty((h, w))
-    for r in range(h):
-        for c in range(w):
-            key = tuple(sorted((min(r, h - 1 - r, 2), min(c, w - 1 - c, 2))))
-            out[r, c] = SEED001_NOTHING[key]
-    return out
+    return np.array([[SEED001_NOTHING[tuple(sorted((min(r, h - 1 - r, 2), min(c, w - 1 - c, 2))))] for c in range(w)]
+                     for r in range(h)])
 
 
 def seed001(report: Report, verbose: bool) -> None:
@@ -184,14 +180,9 @@ def seed001(report: Report, verbose: bool) -> None:
 def max_sum_errors(model) -> tuple[float, float]:
     """Largest |row sum - 1| over every action's transition matrix (and the unknown action), and
     largest |sum of a state's reading distribution - 1|."""
-    t_err = 0.0
-    for a in [*range(model.n_actions), None]:
-        sums = np.asarray(model.transition_matrix(a).sum(axis=1)).ravel()
-        t_err = max(t_err, float(np.abs(sums - 1.0).max()))
-    o_err = 0.0
-    for r, c in model.grid.free_cells:
-        _, probs = model.sensor.distribution(int(r), int(c))
-        o_err = max(o_err, abs(float(probs.sum()) - 1.0))
+    t_err = max(float(np.abs(np.asarray(model.transition_matrix(a).sum(axis=1)).ravel() - 1.0).max())
+                for a in [*range(model.n_actions), None])
+    o_err = max(abs(float(model.sensor.distribution(int(r), int(c))[1].sum()) - 1.0) for r, c in model.grid.free_cells)
     return t_err, o_err
 
 
