@@ -52,9 +52,7 @@ def largest_component(free: np.ndarray) -> np.ndarray:
     labels, n = ndimage.label(free)
     if n <= 1:
         return free.copy()
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = 0
-    return labels == int(np.argmax(sizes))
+    return labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))  # label 0: the obstacles
 
 
 def is_connected(free: np.ndarray) -> bool:

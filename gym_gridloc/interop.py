@@ -211,8 +211,7 @@ def _classes() -> dict[str, type]:
         def sample(self, state, action, next_state) -> float:
             return -1.0
 
-        def argmax(self, state, action, next_state) -> float:
-            return -1.0
+        argmax = sample
 
         def probability(self, reward, state, action, next_state) -> float:
             return 1.0 if reward == -1.0 else 0.0
@@ -359,8 +358,7 @@ class PomdpPy:
     def likelihood_table(self) -> np.ndarray:
         """``P(reading | state)`` as a ``(n_readings, n_states)`` array (built on first use)."""
         if self._table is None:
-            m = self.model
-            self._table = np.stack([m.likelihood_vector(z) for z in range(self.n_readings)])
+            self._table = np.stack([self.model.likelihood_vector(z) for z in range(self.n_readings)])
             self._table.setflags(write=False)
         return self._table
 
@@ -441,11 +439,9 @@ class PomdpPy:
         the referee's test); ``plan=False``: on the plain POMDP's explicit models."""
         pomdp_py = _import_pomdp_py()
         init = self.particles(belief, n_particles, plan=plan)
-        if plan:
-            return pomdp_py.Agent(init, policy_model=self.policy_model, observation_model=self.observation_model,
-                                  blackbox_model=self.blackbox_model)
-        return pomdp_py.Agent(init, policy_model=self.policy_model, transition_model=self.transition_model,
-                              observation_model=self.observation_model, reward_model=self.reward_model)
+        models = ({"blackbox_model": self.blackbox_model} if plan
+                  else {"transition_model": self.transition_model, "reward_model": self.reward_model})
+        return pomdp_py.Agent(init, policy_model=self.policy_model, observation_model=self.observation_model, **models)
 
 
 def to_pomdp_py(model: GridModel, *, threshold: float = 0.9, discount: float = 1.0, pose: bool = False,

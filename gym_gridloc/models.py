@@ -98,14 +98,13 @@ def heading_probs(grid: GridMap, keep: float) -> np.ndarray:
         facing_free = open_[hd]
         for nh in range(4):
             if nh == hd:
-                p = np.where(facing_free, np.where(n_others > 0, keep, 1.0), 0.0)
+                out[hd, nh] = np.where(facing_free, np.where(n_others > 0, keep, 1.0), 0.0)
             else:
-                p = np.where(
+                out[hd, nh] = np.where(
                     facing_free,
                     np.where(others_open[nh], (1.0 - keep) / np.maximum(n_others, 1), 0.0),
                     np.where(open_[nh], 1.0 / np.maximum(n_open, 1), 0.0),
                 )
-            out[hd, nh] = p
         # Nowhere to go: keep the heading (and stay; see ring_sensor_model).
         out[hd, hd] = np.where(n_open == 0, 1.0, out[hd, hd])
     out[:, :, ~grid.free] = 0.0
@@ -153,10 +152,8 @@ def ring_sensor_model(
     if dynamics == "passive":
         terms = []
         for hd in range(4):
-            for nh in range(4):
-                weight = np.where(stuck, 0.0, hp[hd, nh])
-                dr, dc = DIRECTIONS[nh]
-                terms.append(Term(hd, nh, int(dr), int(dc), weight))
+            terms += [Term(hd, nh, int(dr), int(dc), np.where(stuck, 0.0, hp[hd, nh]))
+                      for nh, (dr, dc) in enumerate(DIRECTIONS)]
             terms.append(Term(hd, hd, 0, 0, np.where(stuck, 1.0, 0.0)))
         return GridModel(grid, [terms] * 4, sensor, n_layers=4, name="RingSensor", params=params)
     # The action plays the current heading: the next heading is drawn by the rule, then one
@@ -198,8 +195,7 @@ def depth_maze_model(
     forward = []
     for h, (dr, dc) in enumerate(DIRECTIONS):
         go = (1.0 - move_fail) * np.where(blocked[h], 0.0, free)
-        forward.append(Term(h, h, int(dr), int(dc), go))
-        forward.append(Term(h, h, 0, 0, free - go))
+        forward += [Term(h, h, int(dr), int(dc), go), Term(h, h, 0, 0, free - go)]
     sensor = DepthSensor(grid, max_depth, p_depth_error)
     return GridModel(grid, [*turns, forward], sensor, n_layers=4, name="DepthMaze",
                      action_names=("left", "right", "forward"),

@@ -143,10 +143,8 @@ def _outline(frame: np.ndarray, r: int, c: int, t: int, rgb, width: int, inset: 
     tile = frame[r * t : (r + 1) * t, c * t : (c + 1) * t]
     if inset and t - 2 * inset > 2 * width:
         tile = tile[inset:-inset, inset:-inset]
-    tile[:width] = rgb
-    tile[-width:] = rgb
-    tile[:, :width] = rgb
-    tile[:, -width:] = rgb
+    for edge in (np.s_[:width], np.s_[-width:], np.s_[:, :width], np.s_[:, -width:]):
+        tile[edge] = rgb
 
 
 def _arrow(frame: np.ndarray, r: int, c: int, heading: int, t: int, rgb) -> None:

@@ -83,21 +83,20 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         for name, value in (("flatten", flatten), ("full_state", full_state), ("map", map)):
             if not isinstance(value, bool):
                 raise TypeError(f"{name} must be True or False, got {value!r}")
+            setattr(self, name, value)
         self.lookahead = check_lookahead(lookahead)
         if self.lookahead and self.belief is None:
             raise ValueError("lookahead needs a belief (belief='exact')")
         if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
             raise ValueError(f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}")
         self.autoreset_mode = self._mode(autoreset_mode)
-        cls = env_class or self.env_class
         #: The single environment the N share the parameters of (and, without map redraws, the model).
-        self.template = template = cls(**env_kwargs)
+        self.template = template = (env_class or self.env_class)(**env_kwargs)
         model = template.model
         self.num_envs = n = int(num_envs)
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self.metadata = {"autoreset_mode": self.autoreset_mode, "render_modes": []}
         self.render_mode = None
-        self.flatten, self.full_state, self.map = flatten, full_state, map
         inner = template.observation_space
         self.single_observation_space = inner if self.belief is None else belief_observation_space(
             model, inner, flatten=flatten, full_state=full_state, map=map, lookahead=self.lookahead)

@@ -179,9 +179,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         for name, value in (("flatten", flatten), ("full_state", full_state), ("map", map)):
             if not isinstance(value, (bool, np.bool_)):
                 raise TypeError(f"{name} must be True or False, got {value!r}")
-        self.flatten = bool(flatten)
-        self.full_state = bool(full_state)
-        self.map = bool(map)
+            setattr(self, name, bool(value))
         self.lookahead = check_lookahead(lookahead)
         self.key = key
         inner = env.observation_space
