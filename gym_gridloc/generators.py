@@ -84,9 +84,7 @@ def colour_map(
     free = rng.random((h, w)) >= density
     if not free.any():
         free[rng.integers(h), rng.integers(w)] = True
-    free = largest_component(free)
-    labels = np.where(free, colours, -1)
-    return GridMap(labels, COLOUR_SYMBOLS[:k])
+    return GridMap(np.where(largest_component(free), colours, -1), COLOUR_SYMBOLS[:k])
 
 
 def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:

@@ -86,8 +86,7 @@ def heading_probs(grid: GridMap, keep: float) -> np.ndarray:
     wall, a uniformly chosen heading that does not.  Where every heading faces a wall, the heading
     is kept and the robot cannot move (it stays).
     """
-    blocked = grid.blocked()  # (4, H, W)
-    open_ = ~blocked
+    open_ = ~grid.blocked()  # (4, H, W)
     n_open = open_.sum(axis=0)
     h, w = grid.shape
     out = np.zeros((4, 4, h, w))

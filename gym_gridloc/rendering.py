@@ -109,8 +109,7 @@ def rgb_frame(frame: Frame) -> np.ndarray:
     if frame.path is not None and len(frame.path) > 0:
         _path(image, frame.path, t, PATH_RGB)
     if frame.estimate is not None:
-        w = max(1, t // 10)
-        _outline(image, int(frame.estimate[0]), int(frame.estimate[1]), t, ESTIMATE_RGB, w, inset=max(1, t // 6) + 1)
+        _outline(image, *map(int, frame.estimate), t, ESTIMATE_RGB, max(1, t // 10), inset=max(1, t // 6) + 1)
     if frame.state is not None:
         if frame.heading:
             _arrow(image, frame.state[1], frame.state[2], frame.state[0], t, TRUTH_RGB)
@@ -121,9 +120,8 @@ def rgb_frame(frame: Frame) -> np.ndarray:
     if isinstance(sensor, ColourSensor) and reading is not None:
         strip[:] = COLOUR_RGB.get(sensor.colours[reading], (128, 128, 128))
     elif isinstance(sensor, WallSensor) and reading is not None:
-        bits = sensor.to_observation(reading)
         q = strip.shape[1] // 4
-        for i, b in enumerate(bits):
+        for i, b in enumerate(sensor.to_observation(reading)):
             strip[:, i * q : (i + 1) * q - 1] = OBSTACLE_RGB if b else FREE_RGB
     elif isinstance(sensor, RingSensor):
         strip[:] = FREE_RGB if reading == sensor.nothing else READING_RGB

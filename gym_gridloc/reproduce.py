@@ -87,8 +87,7 @@ def seed000(report: Report, verbose: bool) -> None:
     print("=" * 100)
     print("Seed 000: ColourGrid, slip=1.0, uniform prior, predict-then-update; readings",
           " ".join(SEED000_READINGS[:8]), "(Y unprinted)", " ".join(SEED000_READINGS[9:]))
-    beliefs = seed000_beliefs(SEED000_READINGS)
-    printed = [b for i, b in enumerate(beliefs) if i != SEED000_SKIPPED]
+    printed = [b for i, b in enumerate(seed000_beliefs(SEED000_READINGS)) if i != SEED000_SKIPPED]
     worst = 0.0
     for k, ((colour, table), ours) in enumerate(zip(SEED000_MOVES, printed), start=1):
         diff = float(np.abs(ours - np.array(table)).max())
@@ -129,10 +128,8 @@ def seed004_beliefs() -> list[np.ndarray]:
 def seed004(report: Report, verbose: bool) -> None:
     print("=" * 100)
     print("Seed 004: WindyMaze, tables in percent (#### = obstacle)")
-    beliefs = seed004_beliefs()
-    names = [("initial", None, SEED004_INITIAL), *SEED004_TABLES]
     worst = 0.0
-    for (kind, arg, table), ours in zip(names, beliefs):
+    for (kind, arg, table), ours in zip([("initial", None, SEED004_INITIAL), *SEED004_TABLES], seed004_beliefs()):
         seed = np.array([[np.nan if v is None else v for v in row] for row in table], dtype=float)
         diff = float(np.nanmax(np.abs(ours - seed)))
         if kind == "filter":
@@ -191,8 +188,7 @@ def track(model, runs: int, steps: int, seed: int) -> tuple[float, float]:
     probable position is the true one, mean Manhattan error of that estimate)."""
     rng = np.random.default_rng(seed)
     w = model.shape[1]
-    hits = 0
-    error = 0
+    hits = error = 0
     for _ in range(runs):
         states = engine.sample_initial(model, 1, rng)
         f = ForwardFilter(model).reset()
