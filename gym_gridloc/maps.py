@@ -75,9 +75,8 @@ def _draw(env_id: str, size: int, n: int, purpose: str) -> list[HeldOutMap]:
     size = check_int("size", size, 2, 4096)
     family, generate = _GENERATORS[env_id]
     layers = 4 if env_id == "DepthMaze-v0" else 1
-    children = np.random.SeedSequence([TAG, PURPOSES[purpose], family, size]).spawn(n)
     out = []
-    for i, child in enumerate(children):
+    for i, child in enumerate(np.random.SeedSequence([TAG, PURPOSES[purpose], family, size]).spawn(n)):
         rng = np.random.default_rng(child)
         grid = generate(size, rng)
         layer, cell = divmod(int(rng.integers(layers * grid.n_free)), grid.n_free)

@@ -14,6 +14,7 @@ from gym_gridloc.core.model import GridModel
 from gym_gridloc.core.validation import check_choice
 from gym_gridloc.filter import ForwardFilter
 from gym_gridloc.lookahead import lookahead_features
+from gym_gridloc.particles import ParticleFilter
 
 
 _RESET_HINT = "pass on_impossible='reset' to HMMBeliefWrapper to restart the belief from the prior instead"
@@ -162,7 +163,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         gym.ObservationWrapper.__init__(self, env)
         #: No model given: follow the environment's, also when it redraws its map at reset.
         self._follows_env = model is None
-        self._filter_args = (n_particles, resample_threshold)
+        self._filter_args = {"n_particles": n_particles, "resample_threshold": resample_threshold}
         if model is None:
             model = getattr(env.unwrapped, "model", None)
             if not isinstance(model, GridModel):
@@ -201,10 +202,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     # -- filtering -------------------------------------------------------------------------------
     def _make_filter(self, model: GridModel):
         if self.belief == "particles":
-            from gym_gridloc.particles import ParticleFilter
-
-            n, threshold = self._filter_args
-            return ParticleFilter(model, n, resample_threshold=threshold)
+            return ParticleFilter(model, **self._filter_args)
         return ForwardFilter(model)
 
     def _sensor_obs(self, observation):
