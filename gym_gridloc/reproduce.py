@@ -241,8 +241,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--runs and --steps must be at least 1, got --runs {args.runs} --steps {args.steps}")
 
     report = Report()
-    for seed in (seed000, seed004, seed001):
-        seed(report, not args.quiet)
+    for check_seed in (seed000, seed004, seed001):
+        check_seed(report, not args.quiet)
     seed003(report, args.runs, args.steps, args.seed)
     failed = [name for name, ok in report.results if not ok]
     print("=" * 100)
