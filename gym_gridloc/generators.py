@@ -52,9 +52,7 @@ def largest_component(free: np.ndarray) -> np.ndarray:
     labels, n = ndimage.label(free)
     if n <= 1:
         return free.copy()
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = 0
-    return labels == int(np.argmax(sizes))
+    return labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))  # label 0: the obstacles
 
 
 def is_connected(free: np.ndarray) -> bool:
@@ -86,9 +84,7 @@ def colour_map(
     free = rng.random((h, w)) >= density
     if not free.any():
         free[rng.integers(h), rng.integers(w)] = True
-    free = largest_component(free)
-    labels = np.where(free, colours, -1)
-    return GridMap(labels, COLOUR_SYMBOLS[:k])
+    return GridMap(np.where(largest_component(free), colours, -1), COLOUR_SYMBOLS[:k])
 
 
 def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:

@@ -69,6 +69,15 @@ def _import_pomdp_py():
     return pomdp_py
 
 
+class _Served:
+    """A mixin of pomdp_py's models below: each serves the adapter :class:`PomdpPy` it is made with."""
+
+    __slots__ = ()
+
+    def __init__(self, pp: PomdpPy) -> None:
+        self.pp = pp
+
+
 class _Immutable:
     """A mixin of the value classes below: hashed and compared (with objects of the same class) by
     the attribute ``KEY`` names; immutable, so a deep copy is the object itself."""
@@ -150,12 +159,9 @@ def _classes() -> dict[str, type]:
         def __repr__(self) -> str:
             return f"Observation({self.reading})"
 
-    class TransitionModel(pomdp_py.TransitionModel):
+    class TransitionModel(_Served, pomdp_py.TransitionModel):
         """``P(s' | s, a)`` exactly from :meth:`GridModel.outcomes` (kidnapping mixed in);
         ``sample`` through :func:`gym_gridloc.engine.sample_next` with the adapter's generator."""
-
-        def __init__(self, pp: PomdpPy) -> None:
-            self.pp = pp
 
         def probability(self, next_state, state, action) -> float:
             m = self.pp.model
@@ -179,12 +185,9 @@ def _classes() -> dict[str, type]:
         def argmax(self, state, action):
             return self.pp.to_state(max(self.pp.model.outcomes(state.tuple, action.index), key=lambda o: o[1])[0])
 
-    class ObservationModel(pomdp_py.ObservationModel):
+    class ObservationModel(_Served, pomdp_py.ObservationModel):
         """``P(o | s', a)`` exactly from the sensor's likelihood (the action plays no part);
         ``sample`` through :func:`gym_gridloc.engine.sample_readings` with the adapter's generator."""
-
-        def __init__(self, pp: PomdpPy) -> None:
-            self.pp = pp
 
         def probability(self, observation, next_state, action) -> float:
             z = observation.reading
@@ -208,18 +211,14 @@ def _classes() -> dict[str, type]:
         def sample(self, state, action, next_state) -> float:
             return -1.0
 
-        def argmax(self, state, action, next_state) -> float:
-            return -1.0
+        argmax = sample
 
         def probability(self, reward, state, action, next_state) -> float:
             return 1.0 if reward == -1.0 else 0.0
 
-    class PolicyModel(pomdp_py.RolloutPolicy):
+    class PolicyModel(_Served, pomdp_py.RolloutPolicy):
         """Uniform over the actions (every action is possible everywhere); also POMCP's rollout
         policy, drawing with the adapter's generator (not Python's ``random``)."""
-
-        def __init__(self, pp: PomdpPy) -> None:
-            self.pp = pp
 
         def get_all_actions(self, state=None, history=None) -> list:
             return list(self.pp.actions)
@@ -236,13 +235,10 @@ def _classes() -> dict[str, type]:
                 return self.pp.actions[0]
             return self.pp.actions[self.pp.random_action()]
 
-    class LocalisationModel(pomdp_py.BlackboxModel):
+    class LocalisationModel(_Served, pomdp_py.BlackboxModel):
         """The planning model ``(s', o, r, 1) ~ G(s, a)`` on :class:`PlanState`: the plain POMDP's
         step, ending (absorbing, reward 0, observation ``done``) once the exact belief of the
         simulated history passes the referee's test (see the module docstring)."""
-
-        def __init__(self, pp: PomdpPy) -> None:
-            self.pp = pp
 
         def sample(self, state, action):
             node = state.node
@@ -264,9 +260,7 @@ def _classes() -> dict[str, type]:
             self._pp = pp
 
         def random(self):
-            if not self._list:
-                return None
-            return self._list[int(self._pp.rng.integers(len(self._list)))]
+            return self._list[int(self._pp.rng.integers(len(self._list)))] if self._list else None
 
         def __deepcopy__(self, memo: dict) -> ParticleBelief:
             return ParticleBelief(list(self._list), self._pp)
@@ -364,8 +358,7 @@ class PomdpPy:
     def likelihood_table(self) -> np.ndarray:
         """``P(reading | state)`` as a ``(n_readings, n_states)`` array (built on first use)."""
         if self._table is None:
-            m = self.model
-            self._table = np.stack([m.likelihood_vector(z) for z in range(self.n_readings)])
+            self._table = np.stack([self.model.likelihood_vector(z) for z in range(self.n_readings)])
             self._table.setflags(write=False)
         return self._table
 
@@ -446,11 +439,9 @@ class PomdpPy:
         the referee's test); ``plan=False``: on the plain POMDP's explicit models."""
         pomdp_py = _import_pomdp_py()
         init = self.particles(belief, n_particles, plan=plan)
-        if plan:
-            return pomdp_py.Agent(init, policy_model=self.policy_model, observation_model=self.observation_model,
-                                  blackbox_model=self.blackbox_model)
-        return pomdp_py.Agent(init, policy_model=self.policy_model, transition_model=self.transition_model,
-                              observation_model=self.observation_model, reward_model=self.reward_model)
+        models = ({"blackbox_model": self.blackbox_model} if plan
+                  else {"transition_model": self.transition_model, "reward_model": self.reward_model})
+        return pomdp_py.Agent(init, policy_model=self.policy_model, observation_model=self.observation_model, **models)
 
 
 def to_pomdp_py(model: GridModel, *, threshold: float = 0.9, discount: float = 1.0, pose: bool = False,

@@ -24,20 +24,18 @@ from typing import Callable
 import numpy as np
 
 from gym_gridloc.core.grid import GridMap
+from gym_gridloc.core.validation import check_int
+from gym_gridloc.generators import colour_map, maze_map, perfect_maze
 
 #: The sets' seed-sequence tag (the letters "gridloc" in ASCII, folded into 32 bits).
 TAG = 0x67726C63
 PURPOSES = {"test": 1, "validation": 2}
-
-
-def _generators() -> dict[str, tuple[int, Callable[[int, np.random.Generator], GridMap]]]:
-    from gym_gridloc.generators import colour_map, maze_map, perfect_maze
-
-    return {
-        "DepthMaze-v0": (1, lambda size, rng: perfect_maze(size, seed=rng)),
-        "WindyMaze-v0": (2, lambda size, rng: maze_map((size, size), seed=rng)),
-        "ColourGrid-v0": (3, lambda size, rng: colour_map((size, size), obstacle_density=0.2, n_colours=4, seed=rng)),
-    }
+#: Per family: its number in the seed sequences and its map generator ``(size, rng) -> GridMap``.
+_GENERATORS: dict[str, tuple[int, Callable[[int, np.random.Generator], GridMap]]] = {
+    "DepthMaze-v0": (1, lambda size, rng: perfect_maze(size, seed=rng)),
+    "WindyMaze-v0": (2, lambda size, rng: maze_map((size, size), seed=rng)),
+    "ColourGrid-v0": (3, lambda size, rng: colour_map((size, size), obstacle_density=0.2, n_colours=4, seed=rng)),
+}
 
 
 #: SHA-256 of the first 1000 maps and start states of each stored set (see :func:`checksum`).
@@ -68,26 +66,20 @@ class HeldOutMap:
 
 def families() -> tuple[str, ...]:
     """The environment ids that have held-out sets."""
-    return tuple(_generators())
+    return tuple(_GENERATORS)
 
 
 def _draw(env_id: str, size: int, n: int, purpose: str) -> list[HeldOutMap]:
-    gens = _generators()
-    if env_id not in gens:
-        raise ValueError(f"no held-out maps for {env_id!r}; families with random maps: {', '.join(gens)}")
-    from gym_gridloc.core.validation import check_int
-
+    if env_id not in _GENERATORS:
+        raise ValueError(f"no held-out maps for {env_id!r}; families with random maps: {', '.join(_GENERATORS)}")
     size = check_int("size", size, 2, 4096)
-    n = check_int("n", n, 1, 100_000)
-    family, generate = gens[env_id]
+    family, generate = _GENERATORS[env_id]
     layers = 4 if env_id == "DepthMaze-v0" else 1
-    children = np.random.SeedSequence([TAG, PURPOSES[purpose], family, size]).spawn(n)
     out = []
-    for i, child in enumerate(children):
+    for i, child in enumerate(np.random.SeedSequence([TAG, PURPOSES[purpose], family, size]).spawn(n)):
         rng = np.random.default_rng(child)
         grid = generate(size, rng)
-        s = int(rng.integers(layers * grid.n_free))
-        layer, cell = divmod(s, grid.n_free)
+        layer, cell = divmod(int(rng.integers(layers * grid.n_free)), grid.n_free)
         r, c = grid.free_cells[cell]
         out.append(HeldOutMap(grid, (int(layer), int(r), int(c)), i))
     return out
@@ -103,8 +95,6 @@ def checksum(maps: list[HeldOutMap]) -> str:
 
 
 def _checked(env_id: str, size: int, n: int, purpose: str) -> list[HeldOutMap]:
-    from gym_gridloc.core.validation import check_int
-
     n = check_int("n", n, 1, 100_000)  # before drawing: a stored set is drawn 1000 long
     full = max(n, 1000) if (env_id, purpose, size) in CHECKSUMS else n
     maps = _draw(env_id, size, full, purpose)

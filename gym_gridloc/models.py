@@ -45,11 +45,7 @@ def colour_grid_model(
     """
     grid = layout if isinstance(layout, GridMap) else parse_colour_map(COLOUR_GRID_LAYOUT if layout is None else layout)
     slip = check_probability("slip", slip)
-    transitions = []
-    for a in range(4):
-        probs = np.full(4, slip / 4)
-        probs[a] += 1.0 - slip
-        transitions.append(move_terms(grid, probs))
+    transitions = [move_terms(grid, np.full(4, slip / 4) + (1.0 - slip) * np.eye(4)[a]) for a in range(4)]
     return GridModel(grid, transitions, ColourSensor(grid, accuracy), name="ColourGrid",
                      params={"slip": slip, "accuracy": accuracy})
 
@@ -71,13 +67,8 @@ def windy_maze_model(
     drift = check_probability("drift", drift)
     if drift > 0.5:
         raise ValueError(f"drift must be in [0, 0.5] (the robot drifts left and right with drift each), got {drift!r}")
-    transitions = []
-    for a in range(4):
-        probs = np.zeros(4)
-        probs[a] = 1.0 - 2.0 * drift
-        probs[(a - 1) % 4] += drift
-        probs[(a + 1) % 4] += drift
-        transitions.append(move_terms(grid, probs))
+    # Direction a with 1 - 2 drift, its left (a - 1) and right (a + 1) neighbours with drift each.
+    transitions = [move_terms(grid, np.roll([drift, 1.0 - 2.0 * drift, drift, 0.0], a - 1)) for a in range(4)]
     return GridModel(
         grid,
         transitions,
@@ -95,8 +86,7 @@ def heading_probs(grid: GridMap, keep: float) -> np.ndarray:
     wall, a uniformly chosen heading that does not.  Where every heading faces a wall, the heading
     is kept and the robot cannot move (it stays).
     """
-    blocked = grid.blocked()  # (4, H, W)
-    open_ = ~blocked
+    open_ = ~grid.blocked()  # (4, H, W)
     n_open = open_.sum(axis=0)
     h, w = grid.shape
     out = np.zeros((4, 4, h, w))
@@ -107,14 +97,13 @@ def heading_probs(grid: GridMap, keep: float) -> np.ndarray:
         facing_free = open_[hd]
         for nh in range(4):
             if nh == hd:
-                p = np.where(facing_free, np.where(n_others > 0, keep, 1.0), 0.0)
+                out[hd, nh] = np.where(facing_free, np.where(n_others > 0, keep, 1.0), 0.0)
             else:
-                p = np.where(
+                out[hd, nh] = np.where(
                     facing_free,
                     np.where(others_open[nh], (1.0 - keep) / np.maximum(n_others, 1), 0.0),
                     np.where(open_[nh], 1.0 / np.maximum(n_open, 1), 0.0),
                 )
-            out[hd, nh] = p
         # Nowhere to go: keep the heading (and stay; see ring_sensor_model).
         out[hd, hd] = np.where(n_open == 0, 1.0, out[hd, hd])
     out[:, :, ~grid.free] = 0.0
@@ -162,10 +151,8 @@ def ring_sensor_model(
     if dynamics == "passive":
         terms = []
         for hd in range(4):
-            for nh in range(4):
-                weight = np.where(stuck, 0.0, hp[hd, nh])
-                dr, dc = DIRECTIONS[nh]
-                terms.append(Term(hd, nh, int(dr), int(dc), weight))
+            terms += [Term(hd, nh, int(dr), int(dc), np.where(stuck, 0.0, hp[hd, nh]))
+                      for nh, (dr, dc) in enumerate(DIRECTIONS)]
             terms.append(Term(hd, hd, 0, 0, np.where(stuck, 1.0, 0.0)))
         return GridModel(grid, [terms] * 4, sensor, n_layers=4, name="RingSensor", params=params)
     # The action plays the current heading: the next heading is drawn by the rule, then one
@@ -200,18 +187,14 @@ def depth_maze_model(
         max_depth = max(grid.shape) - 2 if walled and min(grid.shape) > 2 else max(grid.shape)
     free = grid.free.astype(np.float64)
     blocked = grid.blocked()
-    turns = []
-    for step in (-1, 1):  # left, right
-        terms = []
-        for h in range(4):
-            terms.append(Term(h, (h + step) % 4, 0, 0, (1.0 - turn_fail) * free))
-            terms.append(Term(h, h, 0, 0, turn_fail * free))
-        turns.append(terms)
+    # Left (step -1) and right (+1): from heading h, the turned heading or (failing) h itself.
+    turns = [[Term(h, nh, 0, 0, p * free)
+              for h in range(4) for nh, p in (((h + step) % 4, 1.0 - turn_fail), (h, turn_fail))]
+             for step in (-1, 1)]
     forward = []
     for h, (dr, dc) in enumerate(DIRECTIONS):
         go = (1.0 - move_fail) * np.where(blocked[h], 0.0, free)
-        forward.append(Term(h, h, int(dr), int(dc), go))
-        forward.append(Term(h, h, 0, 0, free - go))
+        forward += [Term(h, h, int(dr), int(dc), go), Term(h, h, 0, 0, free - go)]
     sensor = DepthSensor(grid, max_depth, p_depth_error)
     return GridModel(grid, [*turns, forward], sensor, n_layers=4, name="DepthMaze",
                      action_names=("left", "right", "forward"),

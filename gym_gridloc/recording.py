@@ -108,12 +108,8 @@ def kidnap_steps(model, states, actions) -> list[int]:
     ``states`` are ``(layer, row, col)`` tuples, e.g. :attr:`Trajectory.states`."""
     if len(actions) != len(states) - 1:
         raise ValueError(f"actions must have one element fewer than states; got {len(actions)} and {len(states)}")
-    out = []
-    for k in range(1, len(states)):
-        reachable = {s for s, _ in model.outcomes(tuple(states[k - 1]), actions[k - 1])}
-        if tuple(states[k]) not in reachable:
-            out.append(k)
-    return out
+    return [k for k in range(1, len(states))
+            if tuple(states[k]) not in {s for s, _ in model.outcomes(tuple(states[k - 1]), actions[k - 1])}]
 
 
 def steps_to_recover(
@@ -147,16 +143,8 @@ def steps_to_recover(
         if localised_before and (k < 1 or not localised(k - 1)):
             out.append(None)
             continue
-        nxt = kidnaps[i + 1] if i + 1 < len(kidnaps) else n
-        result: int | None = None
-        for j in range(cap + 1):
-            step = k + j
-            if step >= nxt:
-                break
-            if localised(step):
-                result = j
-                break
-        else:
-            result = cap + 1
-        out.append(result)
+        # Look up to ``cap`` steps ahead, not past the next kidnap (or the end of the episode).
+        horizon = min(cap + 1, (kidnaps[i + 1] if i + 1 < len(kidnaps) else n) - k)
+        j = next((j for j in range(horizon) if localised(k + j)), None)
+        out.append(cap + 1 if j is None and horizon == cap + 1 else j)
     return out

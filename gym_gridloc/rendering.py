@@ -29,14 +29,11 @@ PATH_RGB = (200, 0, 200)
 def belief_table(belief: np.ndarray, free: np.ndarray, mark: tuple[int, int] | None = None) -> str:
     """A table of position beliefs in percent, ``####`` on obstacles (like seed 004's tables);
     ``mark`` puts a ``*`` after the true position."""
-    lines = []
-    for r in range(belief.shape[0]):
-        cells = []
-        for c in range(belief.shape[1]):
-            cell = f"{100 * belief[r, c]:.2f}" if free[r, c] else "####"
-            cells.append(f"{cell + ('*' if mark == (r, c) else ''):>7}")
-        lines.append(" ".join(cells))
-    return "\n".join(lines)
+    def cell(r: int, c: int) -> str:
+        text = f"{100 * belief[r, c]:.2f}" if free[r, c] else "####"
+        return f"{text + ('*' if mark == (r, c) else ''):>7}"
+
+    return "\n".join(" ".join(cell(r, c) for c in range(belief.shape[1])) for r in range(belief.shape[0]))
 
 
 class Frame(NamedTuple):
@@ -112,8 +109,7 @@ def rgb_frame(frame: Frame) -> np.ndarray:
     if frame.path is not None and len(frame.path) > 0:
         _path(image, frame.path, t, PATH_RGB)
     if frame.estimate is not None:
-        w = max(1, t // 10)
-        _outline(image, int(frame.estimate[0]), int(frame.estimate[1]), t, ESTIMATE_RGB, w, inset=max(1, t // 6) + 1)
+        _outline(image, *map(int, frame.estimate), t, ESTIMATE_RGB, max(1, t // 10), inset=max(1, t // 6) + 1)
     if frame.state is not None:
         if frame.heading:
             _arrow(image, frame.state[1], frame.state[2], frame.state[0], t, TRUTH_RGB)
@@ -124,9 +120,8 @@ def rgb_frame(frame: Frame) -> np.ndarray:
     if isinstance(sensor, ColourSensor) and reading is not None:
         strip[:] = COLOUR_RGB.get(sensor.colours[reading], (128, 128, 128))
     elif isinstance(sensor, WallSensor) and reading is not None:
-        bits = sensor.to_observation(reading)
         q = strip.shape[1] // 4
-        for i, b in enumerate(bits):
+        for i, b in enumerate(sensor.to_observation(reading)):
             strip[:, i * q : (i + 1) * q - 1] = OBSTACLE_RGB if b else FREE_RGB
     elif isinstance(sensor, RingSensor):
         strip[:] = FREE_RGB if reading == sensor.nothing else READING_RGB
@@ -146,10 +141,8 @@ def _outline(frame: np.ndarray, r: int, c: int, t: int, rgb, width: int, inset: 
     tile = frame[r * t : (r + 1) * t, c * t : (c + 1) * t]
     if inset and t - 2 * inset > 2 * width:
         tile = tile[inset:-inset, inset:-inset]
-    tile[:width] = rgb
-    tile[-width:] = rgb
-    tile[:, :width] = rgb
-    tile[:, -width:] = rgb
+    for edge in (np.s_[:width], np.s_[-width:], np.s_[:, :width], np.s_[:, -width:]):
+        tile[edge] = rgb
 
 
 def _arrow(frame: np.ndarray, r: int, c: int, heading: int, t: int, rgb) -> None:

@@ -87,8 +87,7 @@ def seed000(report: Report, verbose: bool) -> None:
     print("=" * 100)
     print("Seed 000: ColourGrid, slip=1.0, uniform prior, predict-then-update; readings",
           " ".join(SEED000_READINGS[:8]), "(Y unprinted)", " ".join(SEED000_READINGS[9:]))
-    beliefs = seed000_beliefs(SEED000_READINGS)
-    printed = [b for i, b in enumerate(beliefs) if i != SEED000_SKIPPED]
+    printed = [b for i, b in enumerate(seed000_beliefs(SEED000_READINGS)) if i != SEED000_SKIPPED]
     worst = 0.0
     for k, ((colour, table), ours) in enumerate(zip(SEED000_MOVES, printed), start=1):
         diff = float(np.abs(ours - np.array(table)).max())
@@ -129,10 +128,8 @@ def seed004_beliefs() -> list[np.ndarray]:
 def seed004(report: Report, verbose: bool) -> None:
     print("=" * 100)
     print("Seed 004: WindyMaze, tables in percent (#### = obstacle)")
-    beliefs = seed004_beliefs()
-    names = [("initial", None, SEED004_INITIAL), *SEED004_TABLES]
     worst = 0.0
-    for (kind, arg, table), ours in zip(names, beliefs):
+    for (kind, arg, table), ours in zip([("initial", None, SEED004_INITIAL), *SEED004_TABLES], seed004_beliefs()):
         seed = np.array([[np.nan if v is None else v for v in row] for row in table], dtype=float)
         diff = float(np.nanmax(np.abs(ours - seed)))
         if kind == "filter":
@@ -159,12 +156,8 @@ def seed004(report: Report, verbose: bool) -> None:
 
 # -- seed 001 --------------------------------------------------------------------------------------
 def seed001_expected(h: int = 8, w: int = 8) -> np.ndarray:
-    out = np.empty((h, w))
-    for r in range(h):
-        for c in range(w):
-            key = tuple(sorted((min(r, h - 1 - r, 2), min(c, w - 1 - c, 2))))
-            out[r, c] = SEED001_NOTHING[key]
-    return out
+    return np.array([[SEED001_NOTHING[tuple(sorted((min(r, h - 1 - r, 2), min(c, w - 1 - c, 2))))] for c in range(w)]
+                     for r in range(h)])
 
 
 def seed001(report: Report, verbose: bool) -> None:
@@ -184,14 +177,9 @@ def seed001(report: Report, verbose: bool) -> None:
 def max_sum_errors(model) -> tuple[float, float]:
     """Largest |row sum - 1| over every action's transition matrix (and the unknown action), and
     largest |sum of a state's reading distribution - 1|."""
-    t_err = 0.0
-    for a in [*range(model.n_actions), None]:
-        sums = np.asarray(model.transition_matrix(a).sum(axis=1)).ravel()
-        t_err = max(t_err, float(np.abs(sums - 1.0).max()))
-    o_err = 0.0
-    for r, c in model.grid.free_cells:
-        _, probs = model.sensor.distribution(int(r), int(c))
-        o_err = max(o_err, abs(float(probs.sum()) - 1.0))
+    t_err = max(float(np.abs(np.asarray(model.transition_matrix(a).sum(axis=1)).ravel() - 1.0).max())
+                for a in [*range(model.n_actions), None])
+    o_err = max(abs(float(model.sensor.distribution(int(r), int(c))[1].sum()) - 1.0) for r, c in model.grid.free_cells)
     return t_err, o_err
 
 
@@ -200,8 +188,7 @@ def track(model, runs: int, steps: int, seed: int) -> tuple[float, float]:
     probable position is the true one, mean Manhattan error of that estimate)."""
     rng = np.random.default_rng(seed)
     w = model.shape[1]
-    hits = 0
-    error = 0
+    hits = error = 0
     for _ in range(runs):
         states = engine.sample_initial(model, 1, rng)
         f = ForwardFilter(model).reset()
@@ -254,10 +241,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--runs and --steps must be at least 1, got --runs {args.runs} --steps {args.steps}")
 
     report = Report()
-    verbose = not args.quiet
-    seed000(report, verbose)
-    seed004(report, verbose)
-    seed001(report, verbose)
+    for check_seed in (seed000, seed004, seed001):
+        check_seed(report, not args.quiet)
     seed003(report, args.runs, args.steps, args.seed)
     failed = [name for name, ok in report.results if not ok]
     print("=" * 100)

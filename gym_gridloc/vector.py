@@ -83,27 +83,23 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         for name, value in (("flatten", flatten), ("full_state", full_state), ("map", map)):
             if not isinstance(value, bool):
                 raise TypeError(f"{name} must be True or False, got {value!r}")
+            setattr(self, name, value)
         self.lookahead = check_lookahead(lookahead)
         if self.lookahead and self.belief is None:
             raise ValueError("lookahead needs a belief (belief='exact')")
         if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
             raise ValueError(f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}")
         self.autoreset_mode = self._mode(autoreset_mode)
-        cls = env_class or self.env_class
         #: The single environment the N share the parameters of (and, without map redraws, the model).
-        self.template = template = cls(**env_kwargs)
+        self.template = template = (env_class or self.env_class)(**env_kwargs)
         model = template.model
         self.num_envs = n = int(num_envs)
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self.metadata = {"autoreset_mode": self.autoreset_mode, "render_modes": []}
         self.render_mode = None
-        self.flatten, self.full_state, self.map = flatten, full_state, map
-        if self.belief is not None:
-            self.single_observation_space = belief_observation_space(model, template.observation_space, flatten=flatten,
-                                                                     full_state=full_state, map=map,
-                                                                     lookahead=self.lookahead)
-        else:
-            self.single_observation_space = template.observation_space
+        inner = template.observation_space
+        self.single_observation_space = inner if self.belief is None else belief_observation_space(
+            model, inner, flatten=flatten, full_state=full_state, map=map, lookahead=self.lookahead)
         self.single_action_space = template.action_space
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
@@ -200,9 +196,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         obs = model.sensor.observations(self._readings)
         if self.belief is None:
             return obs
-        b = self._beliefs if self.full_state else self.position_beliefs
-        b = b.astype(np.float32)
-        np.clip(b, 0.0, 1.0, out=b)
+        b = np.clip((self._beliefs if self.full_state else self.position_beliefs).astype(np.float32), 0.0, 1.0)
         maps = None
         if self.map:
             channels = {id(m): map_channels(m) for m in self.models}
@@ -316,11 +310,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
 
     @staticmethod
     def _masked(info: dict, mask: np.ndarray) -> dict:
-        out = dict(info)
-        for key in info:
-            if not key.startswith("_") and f"_{key}" not in info:
-                out[f"_{key}"] = mask.copy()
-        return out
+        return {**info, **{f"_{key}": mask.copy() for key in info if not key.startswith("_") and f"_{key}" not in info}}
 
     # -- exposed for tests and tools ---------------------------------------------------------------
     @property

@@ -14,6 +14,7 @@ from gym_gridloc.core.model import GridModel
 from gym_gridloc.core.validation import check_choice
 from gym_gridloc.filter import ForwardFilter
 from gym_gridloc.lookahead import lookahead_features
+from gym_gridloc.particles import ParticleFilter
 
 
 _RESET_HINT = "pass on_impossible='reset' to HMMBeliefWrapper to restart the belief from the prior instead"
@@ -35,12 +36,7 @@ def map_channels(model: GridModel) -> np.ndarray:
     whose cells carry labels, such as colours) one channel per label."""
     grid = model.grid
     k = len(grid.symbols)
-    out = np.zeros((1 + (k if k > 1 else 0), *grid.shape), dtype=np.float32)
-    out[0] = grid.free
-    if k > 1:
-        for i in range(k):
-            out[1 + i] = grid.labels == i
-    return out
+    return np.stack([grid.free, *(grid.labels == i for i in range(k if k > 1 else 0))]).astype(np.float32)
 
 
 def check_lookahead(lookahead: Any) -> int:
@@ -69,10 +65,8 @@ def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: 
              + int(np.prod(look_shape)))
         return spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
     extra = {key: belief_space}
-    if map:
-        extra["map"] = spaces.Box(0.0, 1.0, shape=map_shape, dtype=np.float32)
-    if lookahead:
-        extra["lookahead"] = spaces.Box(0.0, 1.0, shape=look_shape, dtype=np.float32)
+    extra.update({name: spaces.Box(0.0, 1.0, shape=s, dtype=np.float32)
+                  for name, s, wanted in (("map", map_shape, map), ("lookahead", look_shape, lookahead)) if wanted})
     if isinstance(inner, spaces.Dict):
         clash = sorted(set(extra) & set(inner.spaces))
         if clash:
@@ -97,14 +91,8 @@ def batch_observation(model: GridModel, observations: Any, readings: np.ndarray,
         parts = [model.sensor.encode(readings), beliefs.reshape(n, -1)]
         parts += [x.reshape(n, -1) for x in (maps, lookahead) if x is not None]
         return np.concatenate(parts, axis=1)
-    extra = {key: beliefs}
-    if maps is not None:
-        extra["map"] = maps
-    if lookahead is not None:
-        extra["lookahead"] = lookahead
-    if isinstance(observations, dict):
-        return {**observations, **extra}
-    return {"observation": observations, **extra}
+    extra = {name: x for name, x in ((key, beliefs), ("map", maps), ("lookahead", lookahead)) if x is not None}
+    return {**(observations if isinstance(observations, dict) else {"observation": observations}), **extra}
 
 
 class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
@@ -175,7 +163,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         gym.ObservationWrapper.__init__(self, env)
         #: No model given: follow the environment's, also when it redraws its map at reset.
         self._follows_env = model is None
-        self._filter_args = (n_particles, resample_threshold)
+        self._filter_args = {"n_particles": n_particles, "resample_threshold": resample_threshold}
         if model is None:
             model = getattr(env.unwrapped, "model", None)
             if not isinstance(model, GridModel):
@@ -192,9 +180,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         for name, value in (("flatten", flatten), ("full_state", full_state), ("map", map)):
             if not isinstance(value, (bool, np.bool_)):
                 raise TypeError(f"{name} must be True or False, got {value!r}")
-        self.flatten = bool(flatten)
-        self.full_state = bool(full_state)
-        self.map = bool(map)
+            setattr(self, name, bool(value))
         self.lookahead = check_lookahead(lookahead)
         self.key = key
         inner = env.observation_space
@@ -216,16 +202,11 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     # -- filtering -------------------------------------------------------------------------------
     def _make_filter(self, model: GridModel):
         if self.belief == "particles":
-            from gym_gridloc.particles import ParticleFilter
-
-            n, threshold = self._filter_args
-            return ParticleFilter(model, n, resample_threshold=threshold)
+            return ParticleFilter(model, **self._filter_args)
         return ForwardFilter(model)
 
     def _sensor_obs(self, observation):
-        if isinstance(observation, dict):
-            return observation["observation"]
-        return observation
+        return observation["observation"] if isinstance(observation, dict) else observation
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
@@ -271,9 +252,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     def belief_array(self) -> np.ndarray:
         """The current belief as float32, (H, W) or (L, H, W) with ``full_state``."""
         b = self.filter.full_belief if self.full_state else self.filter.position_belief
-        b = b.astype(np.float32)
-        np.clip(b, 0.0, 1.0, out=b)
-        return b
+        return np.clip(b.astype(np.float32), 0.0, 1.0)
 
     def lookahead_array(self) -> np.ndarray | None:
         """The expected entropies per action of the current belief ``(lookahead, A)`` (None

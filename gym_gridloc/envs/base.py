@@ -192,8 +192,7 @@ def redraw(rng: np.random.Generator, *, build: Callable[[Any], GridModel], draw:
 
 def _int_tuple(value: Any) -> tuple[int, ...] | None:
     """``value`` as a tuple of ints if it is a sequence of whole numbers (not strings or bools)."""
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
-        return None
-    if any(isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) for v in value):
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or any(
+            isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) for v in value):
         return None
     return tuple(int(v) for v in value)

@@ -3,6 +3,7 @@ from __future__ import annotations
 import functools
 
 from gym_gridloc.envs.base import GridLocEnv, redraw
+from gym_gridloc.generators import colour_map
 from gym_gridloc.models import colour_grid_model
 
 
@@ -11,8 +12,6 @@ def _build(grid, *, slip, accuracy, kidnap_prob):
 
 
 def _draw(rng, *, size, obstacle_density, n_colours):
-    from gym_gridloc.generators import colour_map
-
     return colour_map(size, obstacle_density=obstacle_density, n_colours=n_colours, seed=rng)
 
 

@@ -2,7 +2,9 @@ from __future__ import annotations
 
 import functools
 
+from gym_gridloc.core.validation import check_int
 from gym_gridloc.envs.base import GridLocEnv, redraw
+from gym_gridloc.generators import perfect_maze
 from gym_gridloc.models import depth_maze_model
 
 
@@ -12,8 +14,6 @@ def _build(grid, *, p_turn_fail, p_move_fail, p_depth_error, max_depth, kidnap_p
 
 
 def _draw(rng, *, size):
-    from gym_gridloc.generators import perfect_maze
-
     return perfect_maze(size, seed=rng)
 
 
@@ -72,8 +72,6 @@ class DepthMazeEnv(GridLocEnv):
                  new_map_each_reset: bool | None = None, p_turn_fail: float = 0.0, p_move_fail: float = 0.0,
                  p_depth_error: float = 0.0, localise_threshold: float = 0.9, episode_length: int | None = None,
                  reward: str = "step", kidnap_prob: float = 0.0, render_mode: str | None = None) -> None:
-        from gym_gridloc.core.validation import check_int
-
         if new_map_each_reset is None:
             new_map_each_reset = layout is None and map_seed is None
         if not isinstance(new_map_each_reset, bool):

@@ -3,6 +3,7 @@ from __future__ import annotations
 import functools
 
 from gym_gridloc.envs.base import GridLocEnv, redraw
+from gym_gridloc.generators import maze_map
 from gym_gridloc.models import windy_maze_model
 
 
@@ -11,8 +12,6 @@ def _build(grid, *, drift, p_detect, p_false_alarm, kidnap_prob):
 
 
 def _draw(rng, *, size):
-    from gym_gridloc.generators import maze_map
-
     return maze_map(size, seed=rng)
 
 
