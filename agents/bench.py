@@ -315,14 +315,13 @@ def run_benchmark(
                 continue
             paths = models if name == "ppo" else [recurrent_model] if name == "recurrent" else [None]
             groups.append([Task(env_id, name, kwargs, p, dict(options.get(name, {}))) for p in paths])
-    for group in groups:  # fail before any long run if a model is missing or does not fit
-        for task in group:
-            if task.policy in LEARNED:
-                env = make_env(task.env_id, task.env_kwargs)
-                make_task_policy(task, env)
-                env.close()
-    specs = {env_id: episode_specs(env_id, kwargs, int(episodes), seed_start, test_set) for env_id in env_ids}
     tasks = [t for group in groups for t in group]
+    for task in tasks:  # fail before any long run if a model is missing or does not fit
+        if task.policy in LEARNED:
+            env = make_env(task.env_id, task.env_kwargs)
+            make_task_policy(task, env)
+            env.close()
+    specs = {env_id: episode_specs(env_id, kwargs, int(episodes), seed_start, test_set) for env_id in env_ids}
     if torch_threads is not None and any(t.policy in LEARNED for t in tasks):
         import torch
 
@@ -341,10 +340,10 @@ def run_benchmark(
             pool.close()  # let the workers exit on their own (``with`` alone terminates them)
             pool.join()
         parts = [[part for (j, _), part in zip(work, done) if j == i] for i in range(len(tasks))]
-    rows, i = [], 0
+    per_task = iter(parts)
+    rows = []
     for group in groups:
-        mine = parts[i: i + len(group)]
-        i += len(group)
+        mine = [next(per_task) for _ in group]
         if len(group) > 1:
             rows.append(seed_aggregate(group[0], mine, seed_start=seed_start, test_set=test_set))
         else:
