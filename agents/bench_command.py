@@ -121,12 +121,11 @@ def bench_main(args) -> int:
             raise ValueError("--plot takes one environment; --all writes results/bench_<env>.png")
         if args.update and not json_path:
             raise ValueError("--update needs --json PATH (or --all)")
-        outputs = [(json_path, "results JSON")] if json_path else []
-        outputs += [(args.plot, "plot")] if args.plot else []
-        outputs += [(frontier, "frontier plot")] if frontier else []
-        outputs += [(RESULTS / f"bench_{e}.png", "plot") for e in envs] if args.all else []
+        outputs = [(json_path, "results JSON"), (args.plot, "plot"), (frontier, "frontier plot")]
+        outputs += [(RESULTS / f"bench_{e}.png", "plot") for e in envs if args.all]
         for path, what in outputs:
-            writable_file(path, what)
+            if path:
+                writable_file(path, what)
         old_rows = read_rows(json_path) if args.update and Path(json_path).exists() else []
         ppo_model = expand_models(args.ppo_model) if args.ppo_model else None
         if ppo_model is not None and len(ppo_model) > 1 and len(envs) > 1:

@@ -216,7 +216,6 @@ class App(Inspector):
         model = s.model
         est = tuple(info["estimate"])
         lines = [(f"reading: {model.sensor.describe(s.reading)}" if s.reading is not None else "reading: -", INK)]
-        head = ""
         if "heading" in info:
             eh = info.get("estimate_heading")
             head = f", heading {HEADINGS[info['heading']] if model.n_layers == 4 else info['heading']}"

@@ -22,7 +22,6 @@ class PlayApp(App):
         self.seed = seed
         self.max_steps = max_steps
         self.episode = -1
-        self.keymap = self._keymap(env.unwrapped.model)
         self.reset()
 
     @staticmethod
@@ -145,14 +144,9 @@ class ViewApp(App):
         return self.ep.steps
 
     def on_key(self, name: str) -> bool:
-        if name == "right":
-            self.k = min(self.k + 1, self.last)
-        elif name == "left":
-            self.k = max(self.k - 1, 0)
-        elif name == "home":
-            self.k = 0
-        elif name == "end":
-            self.k = self.last
+        steps = {"right": min(self.k + 1, self.last), "left": max(self.k - 1, 0), "home": 0, "end": self.last}
+        if name in steps:
+            self.k = steps[name]
         elif name == "space":
             if not self.playing and self.k >= self.last:
                 self.k = 0
@@ -184,10 +178,8 @@ class ViewApp(App):
         k = self.k
         belief = self.smoothed[k] if self.show_smooth else self.filtered[k]
         info = self.ep.infos[k]
-        if self.show_smooth:
-            est = tuple(int(v) for v in np.unravel_index(int(np.argmax(belief)), belief.shape))
-        else:
-            est = tuple(info["estimate"])
+        est = (tuple(int(v) for v in np.unravel_index(int(np.argmax(belief)), belief.shape)) if self.show_smooth
+               else tuple(info["estimate"]))
         return Shown(self.model, belief, self.ep.states[k], self.readings[k],
                      self.ep.actions[k - 1] if k > 0 else None, info, estimate=est,
                      path=self.viterbi_path[: k + 1] if self.show_viterbi else None,

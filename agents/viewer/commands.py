@@ -88,25 +88,20 @@ def _run(command: str, build, argv: Sequence[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
         app, args = build(argv)
+        keys = args.keys
+        if keys is None and args.no_window:
+            if isinstance(app, ViewApp):
+                keys = ["right"] * app.last
+            elif args.steps is not None:
+                keys = _random_keys(app, args.steps, args.seed)
+            else:
+                raise UsageError("--no-window needs --keys K1,K2,... or --steps N (random arrow keys)")
+        loop = Loop(app, window=not args.no_window, record=args.record)
     except UsageError as exc:
         print(f"{command}: error: {exc}", file=sys.stderr)
         return 2
     except SystemExit as exc:  # --help
         return int(exc.code or 0)
-    keys = args.keys
-    if keys is None and args.no_window:
-        if isinstance(app, ViewApp):
-            keys = ["right"] * app.last
-        elif args.steps is not None:
-            keys = _random_keys(app, args.steps, args.seed)
-        else:
-            print(f"{command}: error: --no-window needs --keys K1,K2,... or --steps N (random arrow keys)", file=sys.stderr)
-            return 2
-    try:
-        loop = Loop(app, window=not args.no_window, record=args.record)
-    except UsageError as exc:
-        print(f"{command}: error: {exc}", file=sys.stderr)
-        return 2
     try:
         if keys is not None:
             loop.script(keys, args.delay / 1000.0)
