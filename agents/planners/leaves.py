@@ -78,8 +78,7 @@ class EntropyLeaf(Leaf):
                 vals[-1] = (vals[-1] * wts[-1] + y2 * w2) / (wts[-1] + w2)
                 wts[-1] += w2
                 xs_out[-1] += x2
-        kx = np.array([np.mean(v) for v in xs_out])
-        return cls(kx, np.array(vals))
+        return cls(np.array([np.mean(v) for v in xs_out]), np.array(vals))
 
 
 def load_leaf(spec: Any, env_id: str | None = None) -> Leaf:
