@@ -125,10 +125,8 @@ def simulate(task: Task, specs: Sequence[tuple[int, Any]], *, budgets: Sequence[
     policy = _Timed(make_task_policy(task, env))
     n = len(specs)
     steps = np.zeros(n, dtype=np.int64)
-    localised, success, truncated = (np.zeros(n, dtype=bool) for _ in range(3))
-    horizon = max(limit, max(budgets))
-    correct_at = np.zeros((n, horizon + 1), dtype=bool)
-    collapsed_end = np.zeros(n, dtype=bool)
+    localised, success, truncated, collapsed_end = (np.zeros(n, dtype=bool) for _ in range(4))
+    correct_at = np.zeros((n, max(limit, max(budgets)) + 1), dtype=bool)
     start = time.perf_counter()
     for i, (seed, options) in enumerate(tqdm(specs, desc=f"{task.env_id} {task.policy}", unit="ep", disable=not progress, leave=False)):
         ep = rollout(env, policy, int(seed), reset_options=options)

@@ -48,7 +48,6 @@ def episode_strips(env_ids: Sequence[str], seed: int, n_frames: int, out: str | 
                 ax.set_title(frames[j][1], fontsize=8)
         axes[i, 0].text(-0.08, 0.5, env_id, transform=axes[i, 0].transAxes, rotation=90,
                         ha="right", va="center", fontsize=9)
-    fig.tight_layout()
     _save(fig, out, dpi=80)
 
 

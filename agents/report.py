@@ -127,11 +127,15 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def _save(fig, path: str | Path, **savefig: Any) -> None:
+def _save(fig, path: str | Path, title: str | None = None, **savefig: Any) -> None:
+    """Give ``fig`` its ``title``, lay it out and write it atomically as a PNG; then close it."""
     import matplotlib.pyplot as plt
 
     from gym_gridloc_agents.files import atomic_path
 
+    if title is not None:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
     try:
         with atomic_path(path) as tmp:
             fig.savefig(tmp, format="png", **savefig)
@@ -175,9 +179,7 @@ def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None 
     for ax in (ax1, ax2):
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
-    fig.suptitle(title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy", fontsize=10)
-    fig.tight_layout()
-    _save(fig, path)
+    _save(fig, path, title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy")
 
 
 def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None = None) -> None:
@@ -208,9 +210,7 @@ def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path, *, title: st
         ax.set_ylabel("mean steps to localise")
         ax.set_title(env, fontsize=9)
         ax.grid(alpha=0.3, which="both")
-    fig.suptitle(title or "speed against quality: lower left is better", fontsize=10)
-    fig.tight_layout()
-    _save(fig, path)
+    _save(fig, path, title or "speed against quality: lower left is better")
 
 
 __all__ = ["ROW_KEYS", "env_label", "markdown_table", "merge_rows", "plot", "plot_frontier", "plot_training",
@@ -249,6 +249,4 @@ def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str 
         ax.set_ylabel("accuracy at L (validation maps)" if proto else "mean steps (held-out episodes)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle(title or "training curves: held-out evaluations (circled: the model kept)", fontsize=10)
-    fig.tight_layout()
-    _save(fig, path)
+    _save(fig, path, title or "training curves: held-out evaluations (circled: the model kept)")

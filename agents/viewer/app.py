@@ -151,8 +151,7 @@ class App(Inspector):
             x, y, tw, th = self.cell_rect(*self.pinned)
             pg.draw.rect(surf, (255, 140, 0), (x, y, tw + 1, th + 1), width=2)
         y = PAD + h + 6
-        y = self._text(surf, self.reading_label(s), PAD, y, self.small, DIM)
-        for line in self.legend(s):
+        for line in [self.reading_label(s), *self.legend(s)]:
             y = self._text(surf, line, PAD, y, self.small, DIM)
         self.draw_panel(surf, s, PAD * 2 + w, PAD)
         if not self.fits:  # a taller panel than any before: a taller window

@@ -87,11 +87,10 @@ class Inspector:
         reach = max([max(abs(r2 - r), abs(c2 - c)) for pos in data["positions"].values() for (r2, c2) in pos] + [1])
         side = 2 * reach + 1
         px = max(18, min(36, (width // n - 10) // side))
-        y_top = y
         bottom = y
         for a in range(n):
             x = x0 + a * (side * px + 10)
-            yy = self._text(surf, model.action_names[a], x, y_top, self.small, INK)
+            yy = self._text(surf, model.action_names[a], x, y, self.small, INK)
             pos = data["positions"][a]
             values = _window(r, c, reach, model.shape, lambda rr, cc: pos.get((rr, cc), 0.0), model.grid.free)
             yy = self._heat(surf, values, x, yy, px, centre=(reach, reach))
@@ -146,8 +145,7 @@ class Inspector:
         for k, (z, p) in enumerate(items):
             i, j = divmod(k, per_row)
             self._box(surf, x0 + j * colw, y + i * 24, colw - 6, p, z == current, f"{label(z)}: {_fmt(p)}")
-        rows = -(-len(items) // per_row)
-        return y + rows * 24
+        return y + -(-len(items) // per_row) * 24
 
     def _box(self, surf, x: int, y: int, width: int, p: float, framed: bool, text: str) -> None:
         """A box shaded by the probability ``p`` (framed: the reading received) with ``text`` on it."""
@@ -170,9 +168,8 @@ class Inspector:
                     continue
                 pg.draw.rect(surf, _shade(v), rect)
                 if v > 0:
-                    a = np.sqrt(v) * 0.85
                     text = _fmt(v)
-                    img = self.small.render(text, True, (255, 255, 255) if a > 0.5 else INK)
+                    img = self.small.render(text, True, (255, 255, 255) if np.sqrt(v) * 0.85 > 0.5 else INK)
                     self.texts.append(text)
                     surf.blit(img, (rect[0] + (px - 1 - img.get_width()) // 2, rect[1] + (px - 1 - img.get_height()) // 2))
         if centre is not None:
