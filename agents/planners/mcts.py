@@ -122,12 +122,11 @@ class MCTSPolicy(PlannerPolicy):
             post = node.preds[a] * self.ops.lik[z]
             post /= post.sum()
             if self.ops.max_position(post[None])[0] >= self.ops.threshold:
-                child = node.children[key] = "done"
+                node.children[key] = "done"
                 cost = 1.0
             else:
-                child = node.children[key] = _Node(post)
+                node.children[key] = _Node(post, n=1)  # the rollout counts as its first visit
                 cost = 1.0 + self._evaluate(post)
-                child.n = 1  # the rollout counts as its first visit
         elif isinstance(child, str):
             cost = 1.0
         elif depth + 1 >= self.max_depth:
@@ -140,8 +139,7 @@ class MCTSPolicy(PlannerPolicy):
         return cost
 
     def search(self, b: np.ndarray) -> _Node:
-        root = _Node(b)
-        root.n = 1
+        root = _Node(b, n=1)
         deadline = None if self.time_ms is None else time.perf_counter() + self.time_ms / 1000.0
         total, sims = 0.0, 0
         while True:

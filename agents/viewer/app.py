@@ -111,18 +111,14 @@ class App(Inspector):
     def click(self, x: int, y: int, button: int = 1) -> None:
         if button == 3:
             self.pinned = None
-            self.dirty = True
+        elif button == 1 and (cell := self.cell_at(x, y)) is not None:
+            s = self.shown()
+            self.pinned_layer = s.state[0]
+            if s.full is not None and s.full.shape[0] > 1 and s.full[:, cell[0], cell[1]].max() > 0:
+                self.pinned_layer = int(np.argmax(s.full[:, cell[0], cell[1]]))  # the most probable heading there
+            self.pinned = cell
+        else:
             return
-        if button != 1:
-            return
-        cell = self.cell_at(x, y)
-        if cell is None:
-            return
-        s = self.shown()
-        self.pinned_layer = s.state[0]
-        if s.full is not None and s.full.shape[0] > 1 and s.full[:, cell[0], cell[1]].max() > 0:
-            self.pinned_layer = int(np.argmax(s.full[:, cell[0], cell[1]]))  # the most probable heading there
-        self.pinned = cell
         self.dirty = True
 
     # -- drawing ---------------------------------------------------------------------------------------

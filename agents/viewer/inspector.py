@@ -35,15 +35,13 @@ class Inspector:
         layer, r, c = self.inspected()
         if not model.grid.free[r, c]:
             return None
-        transitions, positions = {}, {}
+        transitions = {a: {} for a in range(model.n_actions)}  # next (layer, row, col) -> probability
+        positions = {a: {} for a in range(model.n_actions)}  # next (row, col) -> probability
         for a in range(model.n_actions):
-            nxt: dict[tuple[int, int, int], float] = {}
-            pos: dict[tuple[int, int], float] = {}
             for (l2, r2, c2), p in model.outcomes((layer, r, c), a):
                 key = (int(l2), int(r2), int(c2))
-                nxt[key] = nxt.get(key, 0.0) + p
-                pos[key[1:]] = pos.get(key[1:], 0.0) + p
-            transitions[a], positions[a] = nxt, pos
+                transitions[a][key] = transitions[a].get(key, 0.0) + p
+                positions[a][key[1:]] = positions[a].get(key[1:], 0.0) + p
         zs, ps = model.sensor.distribution(r, c, layer)
         readings = {int(z): float(p) for z, p in zip(zs, ps)}
         return {"state": (layer, r, c), "transitions": transitions, "positions": positions, "readings": readings}
@@ -67,9 +65,7 @@ class Inspector:
             probs = "  ".join(f"{n} {_fmt(float(s.full[i, r, c]))}" for i, n in enumerate(names))
             y = self._text(surf, f"belief here by heading: {probs}", x0, y + 2, self.font)
         y += 4
-        note = ""
-        if model.kidnap_prob > 0:
-            note = f"  (then kidnapped w.p. {model.kidnap_prob:g})"
+        note = f"  (then kidnapped w.p. {model.kidnap_prob:g})" if model.kidnap_prob > 0 else ""
         given = "cell, heading" if model.n_layers == 4 else "cell, layer" if model.n_layers > 1 else "cell"
         y = self._text(surf, f"P(next position | {given}, action)" + note, x0, y, self.font)
         y = self.draw_transitions(surf, data, (layer, r, c), x0, y + 2, width)
