@@ -84,10 +84,9 @@ class PlayApp(App):
             (f"episode {self.episode + 1}{seed}   step {self.steps}   last action: {act}", INK),
         ]
         lines += self.referee_lines(s, self.env.unwrapped.localise_threshold)
-        if self.terminated:
-            lines.append(("episode over (localised): r starts a new one", DIM))
-        elif self.truncated:
-            lines.append(("episode over (step limit): r starts a new one", DIM))
+        if self.done:
+            why = "localised" if self.terminated else "step limit"
+            lines.append((f"episode over ({why}): r starts a new one", DIM))
         return lines
 
     def help_lines(self) -> list[str]:

@@ -117,8 +117,7 @@ class Inspector:
             for k, (z, p) in enumerate(readings.items()):
                 i, j = divmod(k, per_row)
                 x, yy = x0 + 2 + j * 100, y + 2 + i * 26
-                colour = COLOUR_RGB.get(sensor.colours[z], (128, 128, 128))
-                self.pg.draw.rect(surf, colour, (x, yy, 20, 20))
+                self.pg.draw.rect(surf, COLOUR_RGB.get(sensor.colours[z], (128, 128, 128)), (x, yy, 20, 20))
                 if z == current:
                     self.pg.draw.rect(surf, INK, (x - 2, yy - 2, 24, 24), width=2)
                 self._text(surf, f"{sensor.colours[z]} {_fmt(p)}", x + 24, yy + 2, self.font)
@@ -159,11 +158,8 @@ class Inspector:
             for j in range(values.shape[1]):
                 rect = (x + j * px, y + i * px, px - 1, px - 1)
                 v = values[i, j]
-                if np.isnan(v):
-                    pg.draw.rect(surf, OFF, rect)
-                    continue
-                pg.draw.rect(surf, _shade(v), rect)
-                if v > 0:
+                pg.draw.rect(surf, OFF if np.isnan(v) else _shade(v), rect)
+                if v > 0:  # (not NaN)
                     text = _fmt(v)
                     img = self.small.render(text, True, (255, 255, 255) if np.sqrt(v) * 0.85 > 0.5 else INK)
                     self.texts.append(text)

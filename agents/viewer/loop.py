@@ -141,8 +141,7 @@ class Loop:
         """Write the recording; returns a line saying what was written."""
         if self.recorder is None or not self.recorder.frames:
             return None
-        end = self.clock_now() if end is None else end
-        self.recorder.write(end)
+        self.recorder.write(self.clock_now() if end is None else end)
         size = self.recorder.path.stat().st_size
         return f"wrote {self.recorder.path} ({len(self.recorder.frames)} frames, {size / 1024:.0f} KiB)"
 
