@@ -238,8 +238,7 @@ def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str 
         ax = axes[0][0 if proto or all(not p for p in protocol) else 1]
         evals = sorted(meta["evaluations"], key=lambda e: e["num_timesteps"])
         key = "accuracy" if proto else "mean_steps"
-        x = [e["num_timesteps"] for e in evals]
-        (line,) = ax.plot(x, [e[key] for e in evals], "o-", ms=3, label=m.stem)
+        (line,) = ax.plot([e["num_timesteps"] for e in evals], [e[key] for e in evals], "o-", ms=3, label=m.stem)
         kept = meta.get("selected_timesteps")
         for e in evals:
             if kept is not None and e["num_timesteps"] == kept:

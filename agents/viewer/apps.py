@@ -15,6 +15,11 @@ class PlayApp(App):
     """``gridloc play``: the arrow keys command the robot of a live environment."""
 
     command = "gridloc play"
+    #: The arrow keys of the models with named moves (by their action names), and how the help names them.
+    _ARROWS = {("left", "right", "forward"): {"left": 0, "right": 1, "up": 2},
+               ("N", "E", "S", "W"): {"up": 0, "right": 1, "down": 2, "left": 3}}
+    _MOVES = {("left", "right", "forward"): "left/right arrows: turn   up arrow: move forward",
+              ("N", "E", "S", "W"): "arrows: move N / E / S / W (up / right / down / left)"}
 
     def __init__(self, pg, env, env_id: str, *, seed: int = 0, max_steps: int | None = None, **kwargs: Any) -> None:
         super().__init__(pg, env_id, **kwargs)
@@ -24,15 +29,10 @@ class PlayApp(App):
         self.episode = -1
         self.reset()
 
-    @staticmethod
-    def _keymap(model) -> dict[str, int]:
-        names = tuple(model.action_names)
-        keys: dict[str, int] = {str(a): a for a in range(min(model.n_actions, 10))}
-        if names == ("left", "right", "forward"):
-            keys.update({"left": 0, "right": 1, "up": 2})
-        elif names == ("N", "E", "S", "W"):
-            keys.update({"up": 0, "right": 1, "down": 2, "left": 3})
-        return keys
+    @classmethod
+    def _keymap(cls, model) -> dict[str, int]:
+        digits: dict[str, int] = {str(a): a for a in range(min(model.n_actions, 10))}
+        return digits | cls._ARROWS.get(tuple(model.action_names), {})
 
     def reset(self) -> None:
         self.episode += 1
@@ -90,13 +90,8 @@ class PlayApp(App):
         return lines
 
     def help_lines(self) -> list[str]:
-        names = tuple(self.shown().model.action_names)
-        if names == ("left", "right", "forward"):
-            move = "left/right arrows: turn   up arrow: move forward"
-        elif names == ("N", "E", "S", "W"):
-            move = "arrows: move N / E / S / W (up / right / down / left)"
-        else:
-            move = f"digits: actions ({self.shown().model.action_legend})"
+        model = self.shown().model
+        move = self._MOVES.get(tuple(model.action_names), f"digits: actions ({model.action_legend})")
         return [move, "click: inspect a cell   right click: follow the robot", "r: new episode   esc: quit"]
 
 
