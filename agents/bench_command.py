@@ -113,10 +113,9 @@ def bench_main(args) -> int:
             raise ValueError(f"--episodes must be >= 1, got {episodes}")
         if args.seed < 0 or args.seed + episodes > 2**32:
             raise ValueError(f"--seed must be in 0..{2**32 - episodes} (episode i uses seed+i), got {args.seed}")
-        if args.jobs < 1:
-            raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
-        if args.torch_threads < 1:
-            raise ValueError(f"--torch-threads must be >= 1, got {args.torch_threads}")
+        for flag, value in (("--jobs", args.jobs), ("--torch-threads", args.torch_threads)):
+            if value < 1:
+                raise ValueError(f"{flag} must be >= 1, got {value}")
         if args.plot and len(envs) > 1:
             raise ValueError("--plot takes one environment; --all writes results/bench_<env>.png")
         if args.update and not json_path:

@@ -161,12 +161,9 @@ class ViewApp(App):
     def tick(self, now: float) -> None:
         if self.playing and now - self._last_advance >= self.delay:
             self._last_advance = now
-            if self.k < self.last:
-                self.k += 1
-                self.dirty = True
-            if self.k >= self.last:
-                self.playing = False
-                self.dirty = True
+            self.k = min(self.k + 1, self.last)
+            self.playing = self.k < self.last
+            self.dirty = True
 
     def shown(self) -> Shown:
         k = self.k

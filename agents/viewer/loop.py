@@ -79,8 +79,7 @@ class Loop:
         self.window = window
         self.fps = fps
         self.recorder = Recorder(record) if record else None
-        self.screen = None
-        self.clock = None
+        self.screen = self.clock = None
         self.surface = None  # the last drawn surface
         self.clock_now = time.monotonic
         if window:
