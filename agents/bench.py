@@ -200,10 +200,7 @@ def summarise(task: Task | str, policy_name: str | None = None, parts: Sequence[
         "localised_curve": [float(np.mean(localised & (steps <= s))) for s in range(max_steps + 1)],
         "accuracy_curve": [float(x) for x in correct_at[:, : max_steps + 1].mean(axis=0)],
     }
-    if task.env_kwargs:
-        row["env_kwargs"] = dict(task.env_kwargs)
-    if task.options:
-        row["options"] = dict(task.options)
+    row.update({k: dict(v) for k, v in (("env_kwargs", task.env_kwargs), ("options", task.options)) if v})
     if test_set:
         row["test_set"] = True
     if length:

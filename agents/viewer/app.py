@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from gym_gridloc import rendering
+from gym_gridloc.core.ring import RingSensor
+from gym_gridloc.core.sensors import ColourSensor, WallSensor
 from gym_gridloc_agents.viewer.inspector import Inspector
 from gym_gridloc_agents.viewer.style import BAD, BG, DIM, GOOD, GRID_PX, HEADINGS, INK, MIN_H, PAD, PANEL_W, Shown, _font
 
@@ -123,8 +126,6 @@ class App(Inspector):
 
     # -- drawing ---------------------------------------------------------------------------------------
     def frame_image(self, s: Shown) -> np.ndarray:
-        from gym_gridloc import rendering
-
         t = self.tile(s.model)
         frame = rendering.Frame(s.model, s.belief, s.state, s.reading, s.action, estimate=s.estimate,
                                 path=s.path, heading=s.model.n_layers == 4, tile=t)
@@ -157,9 +158,6 @@ class App(Inspector):
         return surf
 
     def reading_label(self, s: Shown) -> str:
-        from gym_gridloc.core.ring import RingSensor
-        from gym_gridloc.core.sensors import ColourSensor, WallSensor
-
         sensor = s.model.sensor
         if isinstance(sensor, ColourSensor):
             return "strip under the grid: the colour read"
@@ -175,8 +173,6 @@ class App(Inspector):
                  "grey square: the estimate (most probable position)"]
         if s.path is not None:
             lines.append("magenta: the Viterbi path up to now (ringed)")
-        from gym_gridloc.core.ring import RingSensor
-
         if isinstance(s.model.sensor, RingSensor):
             lines.append("cyan outline: the cell the ring sensor reported")
         return lines

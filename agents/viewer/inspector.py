@@ -7,6 +7,9 @@ from typing import Any
 
 import numpy as np
 
+from gym_gridloc.core.ring import RingSensor
+from gym_gridloc.core.sensors import ColourSensor, DepthSensor, WallSensor
+from gym_gridloc.rendering import COLOUR_RGB
 from gym_gridloc_agents.viewer.style import DIM, HEADINGS, INK, OFF, Shown, _fmt, _shade
 
 
@@ -48,8 +51,6 @@ class Inspector:
 
     # -- drawing ------------------------------------------------------------------------------------
     def draw_inspector(self, surf, s: Shown, x0: int, y: int, width: int) -> int:
-        from gym_gridloc.core.ring import RingSensor
-
         model = s.model
         data = self.inspector()
         layer, r, c = self.inspected()
@@ -98,10 +99,6 @@ class Inspector:
         return bottom
 
     def draw_readings(self, surf, data, state, x0: int, y: int, width: int, current: int | None) -> int:
-        from gym_gridloc.core.ring import RingSensor
-        from gym_gridloc.core.sensors import ColourSensor, DepthSensor, WallSensor
-        from gym_gridloc.rendering import COLOUR_RGB
-
         model = self.shown().model
         sensor = model.sensor
         _, r, c = state
