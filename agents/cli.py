@@ -25,6 +25,7 @@ import sys
 from pathlib import Path
 
 from gym_gridloc_agents.bench_command import RESULTS, _fail, bench_main, bound_main
+from gym_gridloc_agents.files import OutputError, writable_file
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -132,8 +133,6 @@ def _plot(args) -> int:
     from gym_gridloc_agents.report import plot, plot_frontier, plot_training, read_rows
 
     if args.training:
-        from gym_gridloc_agents.files import OutputError, writable_file
-
         try:
             for m in args.training:
                 if not Path(m).is_file():

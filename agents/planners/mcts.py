@@ -212,16 +212,15 @@ class ExpectedMCTSPolicy(PlannerPolicy):
             vals[op] = self.leaf(ops, post[op])
         mass = np.bincount(ai, weights=p, minlength=self.n_actions)
         node.kids = []
-        q = np.empty(self.n_actions)
+        node.q = np.empty(self.n_actions)
         for a in range(self.n_actions):
             sel = np.flatnonzero(ai == a)
             w = p[sel] / mass[a]
             kids = [None if loc[j] else _ENode(post[j], vals[j]) for j in sel]
             node.kids.append((w, kids))
-            q[a] = 1.0 + float(w @ vals[sel])
-        node.q = q
+            node.q[a] = 1.0 + float(w @ vals[sel])
         node.na = np.zeros(self.n_actions)
-        node.value = float(q.min())
+        node.value = float(node.q.min())
 
     def _q(self, node: _ENode, a: int) -> float:
         w, kids = node.kids[a]

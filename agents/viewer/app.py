@@ -192,8 +192,7 @@ class App(Inspector):
             y = self._text(surf, self.message, x0, y, self.font, BAD)
         y += 6
         pg.draw.line(surf, (200, 200, 200), (x0, y), (x0 + width, y))
-        y += 6
-        y = self.draw_inspector(surf, s, x0, y, width)
+        y = self.draw_inspector(surf, s, x0, y + 6, width)
         bottom = surf.get_height() - PAD - len(self.help_lines()) * self.small.get_linesize()
         self.short = max(0, y + 6 - bottom)  # pixels the window lacks for the help lines
         self.fits = self.short == 0

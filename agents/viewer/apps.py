@@ -121,8 +121,7 @@ class ViewApp(App):
         from gym_gridloc.inference import forward_backward, viterbi
 
         self.seed = int(seed)
-        ep = rollout(self.env, self.policy, self.seed, keep=True, max_steps=self.max_steps)
-        self.ep = ep
+        self.ep = ep = rollout(self.env, self.policy, self.seed, keep=True, max_steps=self.max_steps)
         self.model = ep.model
         fb = forward_backward(self.model, ep.actions, ep.observations)
         self.filtered = fb.filtered_positions

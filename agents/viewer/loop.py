@@ -24,10 +24,9 @@ class Recorder:
         self.times: list[float] = []
 
     def add(self, image: np.ndarray, t: float) -> None:
-        if self.frames and np.array_equal(self.frames[-1], image):
-            return
-        self.frames.append(image)
-        self.times.append(t)
+        if not self.frames or not np.array_equal(self.frames[-1], image):  # a frame like the last adds nothing
+            self.frames.append(image)
+            self.times.append(t)
 
     def durations(self, end: float, hold: float) -> list[int]:
         ts = self.times + [max(end, self.times[-1]) + hold]
