@@ -156,7 +156,7 @@ class Inspector:
                 rect = (x + j * px, y + i * px, px - 1, px - 1)
                 v = values[i, j]
                 pg.draw.rect(surf, OFF if np.isnan(v) else _shade(v), rect)
-                if v > 0:  # (not NaN)
+                if v > 0:  # False for NaN too
                     text = _fmt(v)
                     img = self.small.render(text, True, (255, 255, 255) if np.sqrt(v) * 0.85 > 0.5 else INK)
                     self.texts.append(text)
