@@ -125,10 +125,8 @@ def simulate(task: Task, specs: Sequence[tuple[int, Any]], *, budgets: Sequence[
     policy = _Timed(make_task_policy(task, env))
     n = len(specs)
     steps = np.zeros(n, dtype=np.int64)
-    localised, success, truncated = (np.zeros(n, dtype=bool) for _ in range(3))
-    horizon = max(limit, max(budgets))
-    correct_at = np.zeros((n, horizon + 1), dtype=bool)
-    collapsed_end = np.zeros(n, dtype=bool)
+    localised, success, truncated, collapsed_end = (np.zeros(n, dtype=bool) for _ in range(4))
+    correct_at = np.zeros((n, max(limit, max(budgets)) + 1), dtype=bool)
     start = time.perf_counter()
     for i, (seed, options) in enumerate(tqdm(specs, desc=f"{task.env_id} {task.policy}", unit="ep", disable=not progress, leave=False)):
         ep = rollout(env, policy, int(seed), reset_options=options)
@@ -202,10 +200,7 @@ def summarise(task: Task | str, policy_name: str | None = None, parts: Sequence[
         "localised_curve": [float(np.mean(localised & (steps <= s))) for s in range(max_steps + 1)],
         "accuracy_curve": [float(x) for x in correct_at[:, : max_steps + 1].mean(axis=0)],
     }
-    if task.env_kwargs:
-        row["env_kwargs"] = dict(task.env_kwargs)
-    if task.options:
-        row["options"] = dict(task.options)
+    row.update({k: dict(v) for k, v in (("env_kwargs", task.env_kwargs), ("options", task.options)) if v})
     if test_set:
         row["test_set"] = True
     if length:
@@ -315,14 +310,13 @@ def run_benchmark(
                 continue
             paths = models if name == "ppo" else [recurrent_model] if name == "recurrent" else [None]
             groups.append([Task(env_id, name, kwargs, p, dict(options.get(name, {}))) for p in paths])
-    for group in groups:  # fail before any long run if a model is missing or does not fit
-        for task in group:
-            if task.policy in LEARNED:
-                env = make_env(task.env_id, task.env_kwargs)
-                make_task_policy(task, env)
-                env.close()
-    specs = {env_id: episode_specs(env_id, kwargs, int(episodes), seed_start, test_set) for env_id in env_ids}
     tasks = [t for group in groups for t in group]
+    for task in tasks:  # fail before any long run if a model is missing or does not fit
+        if task.policy in LEARNED:
+            env = make_env(task.env_id, task.env_kwargs)
+            make_task_policy(task, env)
+            env.close()
+    specs = {env_id: episode_specs(env_id, kwargs, int(episodes), seed_start, test_set) for env_id in env_ids}
     if torch_threads is not None and any(t.policy in LEARNED for t in tasks):
         import torch
 
@@ -341,10 +335,10 @@ def run_benchmark(
             pool.close()  # let the workers exit on their own (``with`` alone terminates them)
             pool.join()
         parts = [[part for (j, _), part in zip(work, done) if j == i] for i in range(len(tasks))]
-    rows, i = [], 0
+    per_task = iter(parts)
+    rows = []
     for group in groups:
-        mine = parts[i: i + len(group)]
-        i += len(group)
+        mine = [next(per_task) for _ in group]
         if len(group) > 1:
             rows.append(seed_aggregate(group[0], mine, seed_start=seed_start, test_set=test_set))
         else:

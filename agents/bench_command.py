@@ -60,25 +60,21 @@ def _available_defaults(envs: list[str], policies: list[str], env_kwargs: dict, 
     rows it leaves out on stderr."""
     from gym_gridloc_agents.policies import default_model_path
 
+    def shipped(env_id: str, algo: str) -> bool:
+        try:
+            return default_model_path(env_id, algo, env_kwargs).is_file()
+        except FileNotFoundError:
+            return False
+
     given = {"ppo": args.ppo_model, "recurrent": args.recurrent_model}
     keep = []
     for name in policies:
         algo = {"ppo": "ppo", "recurrent": "recurrent_ppo"}.get(name)
-        if algo is None or given[name]:
-            keep.append(name)
-            continue
-        missing = []
-        for e in envs:
-            try:
-                found = default_model_path(e, algo, env_kwargs).is_file()
-            except FileNotFoundError:
-                found = False
-            if not found:
-                missing.append(e)
+        missing = [] if algo is None or given[name] else [e for e in envs if not shipped(e, algo)]
         if missing:
             print(f"gridloc bench: no shipped {name} model for {', '.join(missing)}"
                   f"{' with ' + str(env_kwargs) if env_kwargs else ''}: its row is left out "
-                  f"(train one and pass --{'ppo' if name == 'ppo' else 'recurrent'}-model PATH)", file=sys.stderr)
+                  f"(train one and pass --{name}-model PATH)", file=sys.stderr)
         else:
             keep.append(name)
     return keep
@@ -117,20 +113,18 @@ def bench_main(args) -> int:
             raise ValueError(f"--episodes must be >= 1, got {episodes}")
         if args.seed < 0 or args.seed + episodes > 2**32:
             raise ValueError(f"--seed must be in 0..{2**32 - episodes} (episode i uses seed+i), got {args.seed}")
-        if args.jobs < 1:
-            raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
-        if args.torch_threads < 1:
-            raise ValueError(f"--torch-threads must be >= 1, got {args.torch_threads}")
+        for flag, value in (("--jobs", args.jobs), ("--torch-threads", args.torch_threads)):
+            if value < 1:
+                raise ValueError(f"{flag} must be >= 1, got {value}")
         if args.plot and len(envs) > 1:
             raise ValueError("--plot takes one environment; --all writes results/bench_<env>.png")
         if args.update and not json_path:
             raise ValueError("--update needs --json PATH (or --all)")
-        outputs = [(json_path, "results JSON")] if json_path else []
-        outputs += [(args.plot, "plot")] if args.plot else []
-        outputs += [(frontier, "frontier plot")] if frontier else []
-        outputs += [(RESULTS / f"bench_{e}.png", "plot") for e in envs] if args.all else []
+        outputs = [(json_path, "results JSON"), (args.plot, "plot"), (frontier, "frontier plot")]
+        outputs += [(RESULTS / f"bench_{e}.png", "plot") for e in envs if args.all]
         for path, what in outputs:
-            writable_file(path, what)
+            if path:
+                writable_file(path, what)
         old_rows = read_rows(json_path) if args.update and Path(json_path).exists() else []
         ppo_model = expand_models(args.ppo_model) if args.ppo_model else None
         if ppo_model is not None and len(ppo_model) > 1 and len(envs) > 1:
@@ -154,21 +148,18 @@ def bench_main(args) -> int:
     if args.update:  # the gaps are recomputed over the merged rows: a planner run earlier still counts
         rows = add_gaps(merge_rows(old_rows, rows))
     print(markdown_table(rows))
+    # (path or None, write, what, text before "wrote"); --all: a plot per environment
+    writes = [(json_path, lambda p: atomic_write_json(p, rows), "results JSON", "\n"),
+              (args.plot, lambda p: plot([r for r in rows if r["env"] == envs[0]], p), "plot", ""),
+              (frontier, lambda p: plot_frontier(rows, p), "frontier plot", "")]
+    writes += [(RESULTS / f"bench_{e}.png", lambda p, e=e: plot([r for r in rows if r["env"] == e], p), "plot", "")
+               for e in sorted({r["env"] for r in rows}) if args.all]
     try:  # the rows are computed: a failing write puts them elsewhere and says where
-        if json_path:
-            rescue_write(lambda p: atomic_write_json(p, rows), Path(json_path), "results JSON")
-            print(f"\nwrote {json_path}", file=sys.stderr)
-        if args.plot:
-            rescue_write(lambda p: plot([r for r in rows if r["env"] == envs[0]], p), Path(args.plot), "plot")
-            print(f"wrote {args.plot}", file=sys.stderr)
-        if frontier:
-            rescue_write(lambda p: plot_frontier(rows, p), Path(frontier), "frontier plot")
-            print(f"wrote {frontier}", file=sys.stderr)
+        for path, write, what, before in writes:
+            if path:
+                rescue_write(write, Path(path), what)
+                print(f"{before}wrote {path}", file=sys.stderr)
         if args.all:
-            for e in sorted({r["env"] for r in rows}):
-                path = RESULTS / f"bench_{e}.png"
-                rescue_write(lambda p, e=e: plot([r for r in rows if r["env"] == e], p), path, "plot")
-                print(f"wrote {path}", file=sys.stderr)
             rescue_write(lambda p: atomic_write_json(p, [public_row(r) for r in rows]), RESULTS / "bench_table.json", "table JSON")
     except OutputError as exc:
         return _fail("bench", str(exc))

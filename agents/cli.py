@@ -25,6 +25,7 @@ import sys
 from pathlib import Path
 
 from gym_gridloc_agents.bench_command import RESULTS, _fail, bench_main, bound_main
+from gym_gridloc_agents.files import OutputError, writable_file
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -132,8 +133,6 @@ def _plot(args) -> int:
     from gym_gridloc_agents.report import plot, plot_frontier, plot_training, read_rows
 
     if args.training:
-        from gym_gridloc_agents.files import OutputError, writable_file
-
         try:
             for m in args.training:
                 if not Path(m).is_file():
@@ -156,7 +155,7 @@ def _plot(args) -> int:
         plot([r for r in rows if r["env"] == env], out)
         print(f"wrote {out}")
     if any(r.get("ms_per_decision") for r in rows):
-        out = src.parent / f"{src.stem}_frontier.png" if src.stem != "bench" else src.parent / "bench_frontier.png"
+        out = src.parent / f"{src.stem}_frontier.png"  # bench.json: bench_frontier.png
         plot_frontier(rows, out)
         print(f"wrote {out}")
     return 0
@@ -240,20 +239,13 @@ def main(argv: list[str] | None = None) -> int:
         return (viewer.view_main if argv[0] == "view" else viewer.play_main)(argv[1:])
     args = _parser().parse_args(argv)
     missing = missing_modules(args.command)
-    if missing and args.command == "sweep":
-        print(
-            f"gridloc sweep needs the 'rl' and 'sweep' extras (missing: {', '.join(missing)}). Install them with\n"
-            "  pip install torch==2.13.0 && pip install 'gym_gridloc[rl,sweep]'",
-            file=sys.stderr,
-        )
-        return 2
-    if missing:
-        print(
-            f"gridloc {args.command} needs the 'rl' extra (missing: {', '.join(missing)}). Install it with\n"
-            "  pip install torch==2.13.0 && pip install 'gym_gridloc[rl]'\n"
-            "(torch first and pinned: an unpinned torch resolves to a multi-GB CUDA build).",
-            file=sys.stderr,
-        )
+    if missing:  # sweep: its own extra too, without the note on torch
+        sweep = args.command == "sweep"
+        extras, them, names = ("'rl' and 'sweep' extras", "them", "rl,sweep") if sweep else ("'rl' extra", "it", "rl")
+        print(f"gridloc {args.command} needs the {extras} (missing: {', '.join(missing)}). Install {them} with\n"
+              f"  pip install torch==2.13.0 && pip install 'gym_gridloc[{names}]'"
+              + ("" if sweep else "\n(torch first and pinned: an unpinned torch resolves to a multi-GB CUDA build)."),
+              file=sys.stderr)
         return 2
     return globals()[COMMANDS[args.command]](args)
 

@@ -33,13 +33,9 @@ def episode_frames(env_id: str, seed: int, max_frames: int, env_kwargs: dict | N
 
 def episode_strips(env_ids: Sequence[str], seed: int, n_frames: int, out: str | Path) -> None:
     """One row of ``n_frames`` frames per environment, written to the PNG ``out`` (atomically)."""
-    import matplotlib
+    from gym_gridloc_agents.report import _pyplot, _save
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from gym_gridloc_agents.files import atomic_path
-
+    plt = _pyplot()
     rows = [episode_frames(env_id, seed, n_frames) for env_id in env_ids]
     ncol = max(len(r) for r in rows)
     fig, axes = plt.subplots(len(rows), ncol, figsize=(2.1 * ncol, 2.4 * len(rows)), squeeze=False)
@@ -52,12 +48,7 @@ def episode_strips(env_ids: Sequence[str], seed: int, n_frames: int, out: str | 
                 ax.set_title(frames[j][1], fontsize=8)
         axes[i, 0].text(-0.08, 0.5, env_id, transform=axes[i, 0].transAxes, rotation=90,
                         ha="right", va="center", fontsize=9)
-    fig.tight_layout()
-    try:
-        with atomic_path(out) as tmp:
-            fig.savefig(tmp, dpi=80, format="png")
-    finally:
-        plt.close(fig)
+    _save(fig, out, dpi=80)
 
 
 def write_gif(frames: Sequence[np.ndarray], out: str | Path, *, duration_ms: int = 500) -> None:

@@ -4,6 +4,7 @@ rows of a results JSON."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
@@ -85,6 +86,11 @@ def _interval(lo: float, hi: float, digits: int = 2) -> str:
     return f"{lo:.{digits}f}-{hi:.{digits}f}"
 
 
+def _or_dash(value: Any, spec: str) -> str:
+    """``value`` formatted with ``spec``, ``-`` for None."""
+    return "-" if value is None else format(value, spec)
+
+
 def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     """The rows as a markdown table.  Columns that no row has (accuracy at the episode length,
     the gap to the best planner) are left out."""
@@ -100,11 +106,10 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     head += ["seconds"]
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] * len(head)) + "|"]
     for r in rows:
-        lc = r["localised_correct_rate"]
         cells = [
             env_label(r), policy_label(r), str(r["episodes"]),
             f"{r['mean_steps']:.2f} ({_interval(*r['mean_steps_ci95'])})", f"{r['median_steps']:g}",
-            f"{r['success_rate']:.3f}", f"{r['truncated_rate']:.3f}", "-" if lc is None else f"{lc:.3f}",
+            f"{r['success_rate']:.3f}", f"{r['truncated_rate']:.3f}", _or_dash(r["localised_correct_rate"], ".3f"),
             *[f"{r['accuracy_at'][b]:.3f}" if b in r["accuracy_at"] else "-" for b in budgets],
         ]
         if with_L:
@@ -114,24 +119,26 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
             else:
                 cells += ["-", "-", "-"]
         if with_gap:
-            gap = r.get("gap_to_best_planner")
-            cells.append("-" if gap is None else f"{gap:.3f}")
+            cells.append(_or_dash(r.get("gap_to_best_planner"), ".3f"))
         if with_ms:
-            ms = r.get("ms_per_decision")
-            cells.append("-" if ms is None else f"{ms:.3g}")
+            cells.append(_or_dash(r.get("ms_per_decision"), ".3g"))
         cells.append(f"{r['seconds']:.1f}")
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
-def _save(fig, path: str | Path) -> None:
+def _save(fig, path: str | Path, title: str | None = None, **savefig: Any) -> None:
+    """Give ``fig`` its ``title``, lay it out and write it atomically as a PNG; then close it."""
     import matplotlib.pyplot as plt
 
     from gym_gridloc_agents.files import atomic_path
 
+    if title is not None:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, format="png")
+            fig.savefig(tmp, format="png", **savefig)
     finally:
         plt.close(fig)
 
@@ -160,24 +167,19 @@ def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None 
         ks = [int(k) for k in r["accuracy_at"]]
         ax2.plot(ks, [r["accuracy_at"][str(k)] for k in ks], "o", color=line.get_color(), ms=4)
     # Show the steps where the curves still move (short episodes would be squeezed to the left).
-    last = 0
-    for r in rows:
-        c = np.asarray(r["localised_curve"])
-        last = max(last, int(np.searchsorted(c, 0.995 * c[-1])) if c[-1] > 0 else len(c) - 1)
+    curves = [np.asarray(r["localised_curve"]) for r in rows]
+    last = max([int(np.searchsorted(c, 0.995 * c[-1])) if c[-1] > 0 else len(c) - 1 for c in curves], default=0)
     ax1.set_xlim(0, min(len(rows[0]["localised_curve"]) - 1, max(10, int(last * 1.15) + 1)))
     ax1.set_xlabel("steps from reset")
     ax1.set_ylabel("fraction of episodes localised")
-    ax1.set_ylim(0, 1.02)
-    ax1.grid(alpha=0.3)
     ax1.legend(fontsize=7, loc="lower right")
     ax2.set_xlabel("step budget")
     ax2.set_ylabel("P(most probable position = truth)")
-    ax2.set_ylim(0, 1.02)
-    ax2.set_xlim(0, max(60, 1))
-    ax2.grid(alpha=0.3)
-    fig.suptitle(title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy", fontsize=10)
-    fig.tight_layout()
-    _save(fig, path)
+    ax2.set_xlim(0, 60)
+    for ax in (ax1, ax2):
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+    _save(fig, path, title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy")
 
 
 def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None = None) -> None:
@@ -198,12 +200,9 @@ def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path, *, title: st
                         fmt="o", ms=5, capsize=2)
             ax.annotate(policy_label(r).split(" (")[0], (r["ms_per_decision"], r["mean_steps"]), fontsize=7,
                         textcoords="offset points", xytext=(4, 4))
-        # the frontier: rows no faster-and-better row dominates
-        best, front = math.inf, []
-        for r in mine:
-            if r["mean_steps"] < best:
-                best = r["mean_steps"]
-                front.append(r)
+        # the frontier: rows no faster-and-better row dominates (fewer steps than every faster row)
+        faster_best = itertools.accumulate((r["mean_steps"] for r in mine), min, initial=math.inf)
+        front = [r for r, best in zip(mine, faster_best) if r["mean_steps"] < best]
         ax.step([r["ms_per_decision"] for r in front], [r["mean_steps"] for r in front], where="post", color="grey",
                 alpha=0.5, lw=1)
         ax.set_xscale("log")
@@ -211,9 +210,7 @@ def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path, *, title: st
         ax.set_ylabel("mean steps to localise")
         ax.set_title(env, fontsize=9)
         ax.grid(alpha=0.3, which="both")
-    fig.suptitle(title or "speed against quality: lower left is better", fontsize=10)
-    fig.tight_layout()
-    _save(fig, path)
+    _save(fig, path, title or "speed against quality: lower left is better")
 
 
 __all__ = ["ROW_KEYS", "env_label", "markdown_table", "merge_rows", "plot", "plot_frontier", "plot_training",
@@ -241,8 +238,7 @@ def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str 
         ax = axes[0][0 if proto or all(not p for p in protocol) else 1]
         evals = sorted(meta["evaluations"], key=lambda e: e["num_timesteps"])
         key = "accuracy" if proto else "mean_steps"
-        x = [e["num_timesteps"] for e in evals]
-        (line,) = ax.plot(x, [e[key] for e in evals], "o-", ms=3, label=m.stem)
+        (line,) = ax.plot([e["num_timesteps"] for e in evals], [e[key] for e in evals], "o-", ms=3, label=m.stem)
         kept = meta.get("selected_timesteps")
         for e in evals:
             if kept is not None and e["num_timesteps"] == kept:
@@ -252,6 +248,4 @@ def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str 
         ax.set_ylabel("accuracy at L (validation maps)" if proto else "mean steps (held-out episodes)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle(title or "training curves: held-out evaluations (circled: the model kept)", fontsize=10)
-    fig.tight_layout()
-    _save(fig, path)
+    _save(fig, path, title or "training curves: held-out evaluations (circled: the model kept)")

@@ -26,8 +26,7 @@ def expectimax_q(ops: BeliefOps, root: np.ndarray, depth: int, leaf: Leaf, *, pr
     once per batch (``memo``).  Batched level by level, depth first over batches of nodes so that
     at most about ``max_pairs`` (node, action, reading) posteriors are held per level.
     """
-    q = _q_values(ops, root[None], depth, leaf, prune, renormalise, memo, slack, stats, max_pairs)
-    return q[0]
+    return _q_values(ops, root[None], depth, leaf, prune, renormalise, memo, slack, stats, max_pairs)[0]
 
 
 def _q_values(ops, nodes, depth, leaf, prune, renormalise, memo, slack, stats, max_pairs):

@@ -78,8 +78,7 @@ class EntropyLeaf(Leaf):
                 vals[-1] = (vals[-1] * wts[-1] + y2 * w2) / (wts[-1] + w2)
                 wts[-1] += w2
                 xs_out[-1] += x2
-        kx = np.array([np.mean(v) for v in xs_out])
-        return cls(kx, np.array(vals))
+        return cls(np.array([np.mean(v) for v in xs_out]), np.array(vals))
 
 
 def load_leaf(spec: Any, env_id: str | None = None) -> Leaf:
@@ -125,7 +124,6 @@ def belief_rollouts(model, policy, episodes: int, *, seed: int = 1_000_000, max_
         policy.reset(seed=seed + i)
         b = b0[int(rng.choice(len(p0), p=p0))]
         seen = []
-        t = 0
         while True:
             seen.append(b)
             a = policy.act(None, b)
@@ -134,13 +132,12 @@ def belief_rollouts(model, policy, episodes: int, *, seed: int = 1_000_000, max_
             z = int(rng.choice(len(pz), p=pz / pz.sum()))
             post = pred * ops.lik[z]
             b = post / post.sum()
-            t += 1
-            if ops.max_position(b[None])[0] >= threshold or t >= max_steps:
+            if ops.max_position(b[None])[0] >= threshold or len(seen) >= max_steps:
                 break
-        steps[i] = t
+        steps[i] = len(seen)
         if record:
             beliefs.extend(seen)
-            remaining.extend(t - np.arange(len(seen)))
+            remaining.extend(len(seen) - np.arange(len(seen)))
     out = {"steps": steps}
     if record:
         out["beliefs"] = np.array(beliefs)

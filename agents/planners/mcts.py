@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -28,17 +29,15 @@ def _choose(policy: PlannerPolicy, n: int, na: np.ndarray, q: np.ndarray, c: flo
     return policy._break_ties(q - c * np.sqrt(math.log(n) / na))
 
 
+@dataclass(eq=False, slots=True)
 class _Node:
-    __slots__ = ("belief", "n", "na", "qa", "preds", "pz", "children")
-
-    def __init__(self, belief):
-        self.belief = belief
-        self.n = 0
-        self.na = None
-        self.qa = None
-        self.preds = None
-        self.pz = None
-        self.children = {}
+    belief: np.ndarray
+    n: int = 0
+    na: np.ndarray | None = None
+    qa: np.ndarray | None = None
+    preds: np.ndarray | None = None
+    pz: np.ndarray | None = None
+    children: dict = field(default_factory=dict)
 
 
 class MCTSPolicy(PlannerPolicy):
@@ -88,12 +87,11 @@ class MCTSPolicy(PlannerPolicy):
             return int(self.rng.integers(A))
         if self.rollout == "central":
             return self._break_ties(preds.reshape(A, -1) @ self.lik_nothing)
-        # greedy: expected posterior position entropy E_z[H(b_az)] via H(joint) identity
-        pos = preds.sum(axis=1).reshape(A, -1)  # (A, HW)
-        joint = pos[:, None, :] * self.ops.lik[:, 0].reshape(1, self.ops.Z, -1) if self.ops.shape[0] == 1 else None
-        if joint is None:  # layered: marginalise layers after weighting by the likelihood
-            j = preds[:, None] * self.ops.lik[None]  # (A, Z, L, H, W)
-            joint = j.sum(axis=2).reshape(A, self.ops.Z, -1)
+        # greedy: expected posterior position entropy E_z[H(b_az)] via H(joint) identity; joint: (A, Z, HW)
+        if self.ops.shape[0] == 1:
+            joint = preds.sum(axis=1).reshape(A, -1)[:, None, :] * self.ops.lik[:, 0].reshape(1, self.ops.Z, -1)
+        else:  # layered: marginalise layers after weighting by the likelihood (A, Z, L, H, W)
+            joint = (preds[:, None] * self.ops.lik[None]).sum(axis=2).reshape(A, self.ops.Z, -1)
         return self._break_ties(-xlogx(joint).sum(axis=(1, 2)) + xlogx(pz).sum(axis=1))
 
     def _evaluate(self, b: np.ndarray) -> float:
@@ -124,12 +122,11 @@ class MCTSPolicy(PlannerPolicy):
             post = node.preds[a] * self.ops.lik[z]
             post /= post.sum()
             if self.ops.max_position(post[None])[0] >= self.ops.threshold:
-                child = node.children[key] = "done"
+                node.children[key] = "done"
                 cost = 1.0
             else:
-                child = node.children[key] = _Node(post)
+                node.children[key] = _Node(post, n=1)  # the rollout counts as its first visit
                 cost = 1.0 + self._evaluate(post)
-                child.n = 1  # the rollout counts as its first visit
         elif isinstance(child, str):
             cost = 1.0
         elif depth + 1 >= self.max_depth:
@@ -142,8 +139,7 @@ class MCTSPolicy(PlannerPolicy):
         return cost
 
     def search(self, b: np.ndarray) -> _Node:
-        root = _Node(b)
-        root.n = 1
+        root = _Node(b, n=1)
         deadline = None if self.time_ms is None else time.perf_counter() + self.time_ms / 1000.0
         total, sims = 0.0, 0
         while True:
@@ -164,16 +160,14 @@ class MCTSPolicy(PlannerPolicy):
         return -root.na + 1e-6 * root.qa / max(1.0, float(np.abs(root.qa).max()))
 
 
+@dataclass(eq=False, slots=True)
 class _ENode:
-    __slots__ = ("belief", "q", "na", "n", "kids", "value")
-
-    def __init__(self, belief, value):
-        self.belief = belief
-        self.value = value  # leaf estimate until expanded, then min_a q
-        self.q = None
-        self.na = None
-        self.n = 0
-        self.kids = None  # per action: (probs (k,), children list: _ENode or None for localised)
+    belief: np.ndarray
+    value: float  # leaf estimate until expanded, then min_a q
+    q: np.ndarray | None = None
+    na: np.ndarray | None = None
+    n: int = 0
+    kids: list | None = None  # per action: (probs (k,), children list: _ENode or None for localised)
 
 
 class ExpectedMCTSPolicy(PlannerPolicy):
@@ -218,16 +212,15 @@ class ExpectedMCTSPolicy(PlannerPolicy):
             vals[op] = self.leaf(ops, post[op])
         mass = np.bincount(ai, weights=p, minlength=self.n_actions)
         node.kids = []
-        q = np.empty(self.n_actions)
+        node.q = np.empty(self.n_actions)
         for a in range(self.n_actions):
             sel = np.flatnonzero(ai == a)
             w = p[sel] / mass[a]
             kids = [None if loc[j] else _ENode(post[j], vals[j]) for j in sel]
             node.kids.append((w, kids))
-            q[a] = 1.0 + float(w @ vals[sel])
-        node.q = q
+            node.q[a] = 1.0 + float(w @ vals[sel])
         node.na = np.zeros(self.n_actions)
-        node.value = float(q.min())
+        node.value = float(node.q.min())
 
     def _q(self, node: _ENode, a: int) -> float:
         w, kids = node.kids[a]
@@ -253,9 +246,7 @@ class ExpectedMCTSPolicy(PlannerPolicy):
                 path.append((node, a))
                 if not open_:
                     break
-                pw = w[open_]
-                i = open_[_sample(self.rng, pw)]
-                node = kids[i]
+                node = kids[open_[_sample(self.rng, w[open_])]]
             for nd, a in reversed(path):
                 nd.n += 1
                 nd.na[a] += 1

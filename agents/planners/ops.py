@@ -30,13 +30,11 @@ class BeliefOps:
         if self.Z * L * H * W > 50_000_000:
             raise ValueError(f"{model!r}: a (readings x cells) likelihood table of {self.Z} x {L * H * W} is too large")
         table = engine.likelihoods(model, np.arange(self.Z))
-        lik = np.empty((self.Z, L, H, W))
-        lik[:] = table.reshape(self.Z, -1, H, W)  # broadcast over layers for position sensors
-        self.lik = lik
-        self.lik_flat_t = np.ascontiguousarray(lik.reshape(self.Z, -1).T)  # (LHW, Z)
-        free = np.asarray(model.grid.free, dtype=bool)
-        self.free = free
-        self.n_free = int(free.sum())
+        self.lik = np.empty((self.Z, L, H, W))
+        self.lik[:] = table.reshape(self.Z, -1, H, W)  # broadcast over layers for position sensors
+        self.lik_flat_t = np.ascontiguousarray(self.lik.reshape(self.Z, -1).T)  # (LHW, Z)
+        self.free = np.asarray(model.grid.free, dtype=bool)
+        self.n_free = int(self.free.sum())
 
     # -- basic quantities -------------------------------------------------------------------------
     def full(self, belief: np.ndarray) -> np.ndarray:

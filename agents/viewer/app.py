@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from gym_gridloc import rendering
+from gym_gridloc.core.ring import RingSensor
+from gym_gridloc.core.sensors import ColourSensor, WallSensor
 from gym_gridloc_agents.viewer.inspector import Inspector
 from gym_gridloc_agents.viewer.style import BAD, BG, DIM, GOOD, GRID_PX, HEADINGS, INK, MIN_H, PAD, PANEL_W, Shown, _font
 
@@ -111,24 +114,18 @@ class App(Inspector):
     def click(self, x: int, y: int, button: int = 1) -> None:
         if button == 3:
             self.pinned = None
-            self.dirty = True
+        elif button == 1 and (cell := self.cell_at(x, y)) is not None:
+            s = self.shown()
+            self.pinned_layer = s.state[0]
+            if s.full is not None and s.full.shape[0] > 1 and s.full[:, cell[0], cell[1]].max() > 0:
+                self.pinned_layer = int(np.argmax(s.full[:, cell[0], cell[1]]))  # the most probable heading there
+            self.pinned = cell
+        else:
             return
-        if button != 1:
-            return
-        cell = self.cell_at(x, y)
-        if cell is None:
-            return
-        s = self.shown()
-        self.pinned_layer = s.state[0]
-        if s.full is not None and s.full.shape[0] > 1 and s.full[:, cell[0], cell[1]].max() > 0:
-            self.pinned_layer = int(np.argmax(s.full[:, cell[0], cell[1]]))  # the most probable heading there
-        self.pinned = cell
         self.dirty = True
 
     # -- drawing ---------------------------------------------------------------------------------------
     def frame_image(self, s: Shown) -> np.ndarray:
-        from gym_gridloc import rendering
-
         t = self.tile(s.model)
         frame = rendering.Frame(s.model, s.belief, s.state, s.reading, s.action, estimate=s.estimate,
                                 path=s.path, heading=s.model.n_layers == 4, tile=t)
@@ -151,8 +148,7 @@ class App(Inspector):
             x, y, tw, th = self.cell_rect(*self.pinned)
             pg.draw.rect(surf, (255, 140, 0), (x, y, tw + 1, th + 1), width=2)
         y = PAD + h + 6
-        y = self._text(surf, self.reading_label(s), PAD, y, self.small, DIM)
-        for line in self.legend(s):
+        for line in [self.reading_label(s), *self.legend(s)]:
             y = self._text(surf, line, PAD, y, self.small, DIM)
         self.draw_panel(surf, s, PAD * 2 + w, PAD)
         if not self.fits:  # a taller panel than any before: a taller window
@@ -162,9 +158,6 @@ class App(Inspector):
         return surf
 
     def reading_label(self, s: Shown) -> str:
-        from gym_gridloc.core.ring import RingSensor
-        from gym_gridloc.core.sensors import ColourSensor, WallSensor
-
         sensor = s.model.sensor
         if isinstance(sensor, ColourSensor):
             return "strip under the grid: the colour read"
@@ -180,8 +173,6 @@ class App(Inspector):
                  "grey square: the estimate (most probable position)"]
         if s.path is not None:
             lines.append("magenta: the Viterbi path up to now (ringed)")
-        from gym_gridloc.core.ring import RingSensor
-
         if isinstance(s.model.sensor, RingSensor):
             lines.append("cyan outline: the cell the ring sensor reported")
         return lines
@@ -201,8 +192,7 @@ class App(Inspector):
             y = self._text(surf, self.message, x0, y, self.font, BAD)
         y += 6
         pg.draw.line(surf, (200, 200, 200), (x0, y), (x0 + width, y))
-        y += 6
-        y = self.draw_inspector(surf, s, x0, y, width)
+        y = self.draw_inspector(surf, s, x0, y + 6, width)
         bottom = surf.get_height() - PAD - len(self.help_lines()) * self.small.get_linesize()
         self.short = max(0, y + 6 - bottom)  # pixels the window lacks for the help lines
         self.fits = self.short == 0
@@ -216,7 +206,6 @@ class App(Inspector):
         model = s.model
         est = tuple(info["estimate"])
         lines = [(f"reading: {model.sensor.describe(s.reading)}" if s.reading is not None else "reading: -", INK)]
-        head = ""
         if "heading" in info:
             eh = info.get("estimate_heading")
             head = f", heading {HEADINGS[info['heading']] if model.n_layers == 4 else info['heading']}"

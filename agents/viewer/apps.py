@@ -15,6 +15,11 @@ class PlayApp(App):
     """``gridloc play``: the arrow keys command the robot of a live environment."""
 
     command = "gridloc play"
+    #: The arrow keys of the models with named moves (by their action names), and how the help names them.
+    _ARROWS = {("left", "right", "forward"): {"left": 0, "right": 1, "up": 2},
+               ("N", "E", "S", "W"): {"up": 0, "right": 1, "down": 2, "left": 3}}
+    _MOVES = {("left", "right", "forward"): "left/right arrows: turn   up arrow: move forward",
+              ("N", "E", "S", "W"): "arrows: move N / E / S / W (up / right / down / left)"}
 
     def __init__(self, pg, env, env_id: str, *, seed: int = 0, max_steps: int | None = None, **kwargs: Any) -> None:
         super().__init__(pg, env_id, **kwargs)
@@ -22,18 +27,12 @@ class PlayApp(App):
         self.seed = seed
         self.max_steps = max_steps
         self.episode = -1
-        self.keymap = self._keymap(env.unwrapped.model)
         self.reset()
 
-    @staticmethod
-    def _keymap(model) -> dict[str, int]:
-        names = tuple(model.action_names)
-        keys: dict[str, int] = {str(a): a for a in range(min(model.n_actions, 10))}
-        if names == ("left", "right", "forward"):
-            keys.update({"left": 0, "right": 1, "up": 2})
-        elif names == ("N", "E", "S", "W"):
-            keys.update({"up": 0, "right": 1, "down": 2, "left": 3})
-        return keys
+    @classmethod
+    def _keymap(cls, model) -> dict[str, int]:
+        digits: dict[str, int] = {str(a): a for a in range(min(model.n_actions, 10))}
+        return digits | cls._ARROWS.get(tuple(model.action_names), {})
 
     def reset(self) -> None:
         self.episode += 1
@@ -85,20 +84,14 @@ class PlayApp(App):
             (f"episode {self.episode + 1}{seed}   step {self.steps}   last action: {act}", INK),
         ]
         lines += self.referee_lines(s, self.env.unwrapped.localise_threshold)
-        if self.terminated:
-            lines.append(("episode over (localised): r starts a new one", DIM))
-        elif self.truncated:
-            lines.append(("episode over (step limit): r starts a new one", DIM))
+        if self.done:
+            why = "localised" if self.terminated else "step limit"
+            lines.append((f"episode over ({why}): r starts a new one", DIM))
         return lines
 
     def help_lines(self) -> list[str]:
-        names = tuple(self.shown().model.action_names)
-        if names == ("left", "right", "forward"):
-            move = "left/right arrows: turn   up arrow: move forward"
-        elif names == ("N", "E", "S", "W"):
-            move = "arrows: move N / E / S / W (up / right / down / left)"
-        else:
-            move = f"digits: actions ({self.shown().model.action_legend})"
+        model = self.shown().model
+        move = self._MOVES.get(tuple(model.action_names), f"digits: actions ({model.action_legend})")
         return [move, "click: inspect a cell   right click: follow the robot", "r: new episode   esc: quit"]
 
 
@@ -128,8 +121,7 @@ class ViewApp(App):
         from gym_gridloc.inference import forward_backward, viterbi
 
         self.seed = int(seed)
-        ep = rollout(self.env, self.policy, self.seed, keep=True, max_steps=self.max_steps)
-        self.ep = ep
+        self.ep = ep = rollout(self.env, self.policy, self.seed, keep=True, max_steps=self.max_steps)
         self.model = ep.model
         fb = forward_backward(self.model, ep.actions, ep.observations)
         self.filtered = fb.filtered_positions
@@ -145,14 +137,9 @@ class ViewApp(App):
         return self.ep.steps
 
     def on_key(self, name: str) -> bool:
-        if name == "right":
-            self.k = min(self.k + 1, self.last)
-        elif name == "left":
-            self.k = max(self.k - 1, 0)
-        elif name == "home":
-            self.k = 0
-        elif name == "end":
-            self.k = self.last
+        steps = {"right": min(self.k + 1, self.last), "left": max(self.k - 1, 0), "home": 0, "end": self.last}
+        if name in steps:
+            self.k = steps[name]
         elif name == "space":
             if not self.playing and self.k >= self.last:
                 self.k = 0
@@ -173,21 +160,16 @@ class ViewApp(App):
     def tick(self, now: float) -> None:
         if self.playing and now - self._last_advance >= self.delay:
             self._last_advance = now
-            if self.k < self.last:
-                self.k += 1
-                self.dirty = True
-            if self.k >= self.last:
-                self.playing = False
-                self.dirty = True
+            self.k = min(self.k + 1, self.last)
+            self.playing = self.k < self.last
+            self.dirty = True
 
     def shown(self) -> Shown:
         k = self.k
         belief = self.smoothed[k] if self.show_smooth else self.filtered[k]
         info = self.ep.infos[k]
-        if self.show_smooth:
-            est = tuple(int(v) for v in np.unravel_index(int(np.argmax(belief)), belief.shape))
-        else:
-            est = tuple(info["estimate"])
+        est = (tuple(int(v) for v in np.unravel_index(int(np.argmax(belief)), belief.shape)) if self.show_smooth
+               else tuple(info["estimate"]))
         return Shown(self.model, belief, self.ep.states[k], self.readings[k],
                      self.ep.actions[k - 1] if k > 0 else None, info, estimate=est,
                      path=self.viterbi_path[: k + 1] if self.show_viterbi else None,

@@ -62,7 +62,9 @@ def _cell(text: str, what: str) -> tuple[int, int]:
     return value
 
 
-def _common_arguments(p: argparse.ArgumentParser) -> None:
+def _parser(prog: str, description: str) -> _Parser:
+    """The parser of ``prog`` with the arguments both commands take."""
+    p = _Parser(prog=prog, description=description)
     p.add_argument("env", help="environment id, e.g. WindyMaze-v0")
     p.add_argument("--kw", action="append", metavar="KEY=VALUE",
                    help="an environment keyword (repeatable): int, float, bool or comma-separated tuple, e.g. size=16,16")
@@ -76,6 +78,7 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--delay", type=int, default=600, metavar="MS",
                    help="milliseconds per step when playing and per frame of a scripted recording (default 600)")
     p.add_argument("--tile", type=int, metavar="PX", help=f"pixels per cell (default: about {GRID_PX} pixels for the grid)")
+    return p
 
 
 def _checked(args: argparse.Namespace) -> None:

@@ -9,22 +9,16 @@ from pathlib import Path
 
 import numpy as np
 
+from gym_gridloc.wrappers import HMMBeliefWrapper
 from gym_gridloc_agents.viewer.app import App
 from gym_gridloc_agents.viewer.apps import PlayApp, ViewApp
-from gym_gridloc_agents.viewer.args import UsageError, _checked, _common_arguments, _env_kwargs, _Parser, build_env, import_pygame
+from gym_gridloc_agents.viewer.args import UsageError, _checked, _env_kwargs, _parser, build_env, import_pygame
 from gym_gridloc_agents.viewer.loop import Loop
-
-def _play_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="gridloc play", description="drive the robot with the arrow keys and watch the exact belief")
-    _common_arguments(p)
-    return p
-
 
 def _view_parser() -> argparse.ArgumentParser:
     from gym_gridloc_agents.policies import POLICY_NAMES
 
-    p = _Parser(prog="gridloc view", description="step through an episode of a policy: belief, smoothing, Viterbi, inspector")
-    _common_arguments(p)
+    p = _parser("gridloc view", "step through an episode of a policy: belief, smoothing, Viterbi, inspector")
     p.add_argument("--policy", default="greedy", choices=POLICY_NAMES, help="the policy (default greedy)")
     p.add_argument("--ppo-model", metavar="PATH", help="the model file of --policy ppo (default: the shipped one for ENV)")
     p.add_argument("--smooth", action="store_true", help="start with the smoothed belief shown (key s)")
@@ -34,10 +28,9 @@ def _view_parser() -> argparse.ArgumentParser:
 
 def play_app(argv: Sequence[str]) -> tuple[PlayApp, argparse.Namespace]:
     """Parse ``gridloc play``'s arguments and build the app (raises :class:`UsageError`)."""
-    args = _play_parser().parse_args(list(argv))
+    parser = _parser("gridloc play", "drive the robot with the arrow keys and watch the exact belief")
+    args = parser.parse_args(list(argv))
     _checked(args)
-    from gym_gridloc.wrappers import HMMBeliefWrapper
-
     pg = import_pygame("gridloc play")
     env = HMMBeliefWrapper(build_env(args.env, _env_kwargs(args)))  # its filter: the headings' belief
     app = PlayApp(pg, env, args.env, seed=args.seed, max_steps=args.steps, tile=args.tile, inspect=args.inspect)
@@ -48,8 +41,6 @@ def play_app(argv: Sequence[str]) -> tuple[PlayApp, argparse.Namespace]:
 def view_app(argv: Sequence[str]) -> tuple[ViewApp, argparse.Namespace]:
     """Parse ``gridloc view``'s arguments, run the episode and build the app (raises :class:`UsageError`)."""
     from gym_gridloc_agents.policies import make_policy
-
-    from gym_gridloc.wrappers import HMMBeliefWrapper
 
     args = _view_parser().parse_args(list(argv))
     _checked(args)
@@ -88,25 +79,20 @@ def _run(command: str, build, argv: Sequence[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
         app, args = build(argv)
+        keys = args.keys
+        if keys is None and args.no_window:
+            if isinstance(app, ViewApp):
+                keys = ["right"] * app.last
+            elif args.steps is not None:
+                keys = _random_keys(app, args.steps, args.seed)
+            else:
+                raise UsageError("--no-window needs --keys K1,K2,... or --steps N (random arrow keys)")
+        loop = Loop(app, window=not args.no_window, record=args.record)
     except UsageError as exc:
         print(f"{command}: error: {exc}", file=sys.stderr)
         return 2
     except SystemExit as exc:  # --help
         return int(exc.code or 0)
-    keys = args.keys
-    if keys is None and args.no_window:
-        if isinstance(app, ViewApp):
-            keys = ["right"] * app.last
-        elif args.steps is not None:
-            keys = _random_keys(app, args.steps, args.seed)
-        else:
-            print(f"{command}: error: --no-window needs --keys K1,K2,... or --steps N (random arrow keys)", file=sys.stderr)
-            return 2
-    try:
-        loop = Loop(app, window=not args.no_window, record=args.record)
-    except UsageError as exc:
-        print(f"{command}: error: {exc}", file=sys.stderr)
-        return 2
     try:
         if keys is not None:
             loop.script(keys, args.delay / 1000.0)

@@ -7,6 +7,9 @@ from typing import Any
 
 import numpy as np
 
+from gym_gridloc.core.ring import RingSensor
+from gym_gridloc.core.sensors import ColourSensor, DepthSensor, WallSensor
+from gym_gridloc.rendering import COLOUR_RGB
 from gym_gridloc_agents.viewer.style import DIM, HEADINGS, INK, OFF, Shown, _fmt, _shade
 
 
@@ -35,23 +38,19 @@ class Inspector:
         layer, r, c = self.inspected()
         if not model.grid.free[r, c]:
             return None
-        transitions, positions = {}, {}
+        transitions = {a: {} for a in range(model.n_actions)}  # next (layer, row, col) -> probability
+        positions = {a: {} for a in range(model.n_actions)}  # next (row, col) -> probability
         for a in range(model.n_actions):
-            nxt: dict[tuple[int, int, int], float] = {}
-            pos: dict[tuple[int, int], float] = {}
             for (l2, r2, c2), p in model.outcomes((layer, r, c), a):
                 key = (int(l2), int(r2), int(c2))
-                nxt[key] = nxt.get(key, 0.0) + p
-                pos[key[1:]] = pos.get(key[1:], 0.0) + p
-            transitions[a], positions[a] = nxt, pos
+                transitions[a][key] = transitions[a].get(key, 0.0) + p
+                positions[a][key[1:]] = positions[a].get(key[1:], 0.0) + p
         zs, ps = model.sensor.distribution(r, c, layer)
         readings = {int(z): float(p) for z, p in zip(zs, ps)}
         return {"state": (layer, r, c), "transitions": transitions, "positions": positions, "readings": readings}
 
     # -- drawing ------------------------------------------------------------------------------------
     def draw_inspector(self, surf, s: Shown, x0: int, y: int, width: int) -> int:
-        from gym_gridloc.core.ring import RingSensor
-
         model = s.model
         data = self.inspector()
         layer, r, c = self.inspected()
@@ -67,9 +66,7 @@ class Inspector:
             probs = "  ".join(f"{n} {_fmt(float(s.full[i, r, c]))}" for i, n in enumerate(names))
             y = self._text(surf, f"belief here by heading: {probs}", x0, y + 2, self.font)
         y += 4
-        note = ""
-        if model.kidnap_prob > 0:
-            note = f"  (then kidnapped w.p. {model.kidnap_prob:g})"
+        note = f"  (then kidnapped w.p. {model.kidnap_prob:g})" if model.kidnap_prob > 0 else ""
         given = "cell, heading" if model.n_layers == 4 else "cell, layer" if model.n_layers > 1 else "cell"
         y = self._text(surf, f"P(next position | {given}, action)" + note, x0, y, self.font)
         y = self.draw_transitions(surf, data, (layer, r, c), x0, y + 2, width)
@@ -87,11 +84,10 @@ class Inspector:
         reach = max([max(abs(r2 - r), abs(c2 - c)) for pos in data["positions"].values() for (r2, c2) in pos] + [1])
         side = 2 * reach + 1
         px = max(18, min(36, (width // n - 10) // side))
-        y_top = y
         bottom = y
         for a in range(n):
             x = x0 + a * (side * px + 10)
-            yy = self._text(surf, model.action_names[a], x, y_top, self.small, INK)
+            yy = self._text(surf, model.action_names[a], x, y, self.small, INK)
             pos = data["positions"][a]
             values = _window(r, c, reach, model.shape, lambda rr, cc: pos.get((rr, cc), 0.0), model.grid.free)
             yy = self._heat(surf, values, x, yy, px, centre=(reach, reach))
@@ -103,10 +99,6 @@ class Inspector:
         return bottom
 
     def draw_readings(self, surf, data, state, x0: int, y: int, width: int, current: int | None) -> int:
-        from gym_gridloc.core.ring import RingSensor
-        from gym_gridloc.core.sensors import ColourSensor, DepthSensor, WallSensor
-        from gym_gridloc.rendering import COLOUR_RGB
-
         model = self.shown().model
         sensor = model.sensor
         _, r, c = state
@@ -122,8 +114,7 @@ class Inspector:
             for k, (z, p) in enumerate(readings.items()):
                 i, j = divmod(k, per_row)
                 x, yy = x0 + 2 + j * 100, y + 2 + i * 26
-                colour = COLOUR_RGB.get(sensor.colours[z], (128, 128, 128))
-                self.pg.draw.rect(surf, colour, (x, yy, 20, 20))
+                self.pg.draw.rect(surf, COLOUR_RGB.get(sensor.colours[z], (128, 128, 128)), (x, yy, 20, 20))
                 if z == current:
                     self.pg.draw.rect(surf, INK, (x - 2, yy - 2, 24, 24), width=2)
                 self._text(surf, f"{sensor.colours[z]} {_fmt(p)}", x + 24, yy + 2, self.font)
@@ -146,8 +137,7 @@ class Inspector:
         for k, (z, p) in enumerate(items):
             i, j = divmod(k, per_row)
             self._box(surf, x0 + j * colw, y + i * 24, colw - 6, p, z == current, f"{label(z)}: {_fmt(p)}")
-        rows = -(-len(items) // per_row)
-        return y + rows * 24
+        return y + -(-len(items) // per_row) * 24
 
     def _box(self, surf, x: int, y: int, width: int, p: float, framed: bool, text: str) -> None:
         """A box shaded by the probability ``p`` (framed: the reading received) with ``text`` on it."""
@@ -165,14 +155,10 @@ class Inspector:
             for j in range(values.shape[1]):
                 rect = (x + j * px, y + i * px, px - 1, px - 1)
                 v = values[i, j]
-                if np.isnan(v):
-                    pg.draw.rect(surf, OFF, rect)
-                    continue
-                pg.draw.rect(surf, _shade(v), rect)
-                if v > 0:
-                    a = np.sqrt(v) * 0.85
+                pg.draw.rect(surf, OFF if np.isnan(v) else _shade(v), rect)
+                if v > 0:  # False for NaN too
                     text = _fmt(v)
-                    img = self.small.render(text, True, (255, 255, 255) if a > 0.5 else INK)
+                    img = self.small.render(text, True, (255, 255, 255) if np.sqrt(v) * 0.85 > 0.5 else INK)
                     self.texts.append(text)
                     surf.blit(img, (rect[0] + (px - 1 - img.get_width()) // 2, rect[1] + (px - 1 - img.get_height()) // 2))
         if centre is not None:

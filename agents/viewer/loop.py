@@ -24,10 +24,9 @@ class Recorder:
         self.times: list[float] = []
 
     def add(self, image: np.ndarray, t: float) -> None:
-        if self.frames and np.array_equal(self.frames[-1], image):
-            return
-        self.frames.append(image)
-        self.times.append(t)
+        if not self.frames or not np.array_equal(self.frames[-1], image):  # a frame like the last adds nothing
+            self.frames.append(image)
+            self.times.append(t)
 
     def durations(self, end: float, hold: float) -> list[int]:
         ts = self.times + [max(end, self.times[-1]) + hold]
@@ -79,8 +78,7 @@ class Loop:
         self.window = window
         self.fps = fps
         self.recorder = Recorder(record) if record else None
-        self.screen = None
-        self.clock = None
+        self.screen = self.clock = None
         self.surface = None  # the last drawn surface
         self.clock_now = time.monotonic
         if window:
@@ -141,8 +139,7 @@ class Loop:
         """Write the recording; returns a line saying what was written."""
         if self.recorder is None or not self.recorder.frames:
             return None
-        end = self.clock_now() if end is None else end
-        self.recorder.write(end)
+        self.recorder.write(self.clock_now() if end is None else end)
         size = self.recorder.path.stat().st_size
         return f"wrote {self.recorder.path} ({len(self.recorder.frames)} frames, {size / 1024:.0f} KiB)"
 
