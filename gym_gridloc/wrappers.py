@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import warnings
-from typing import Any, Sequence, SupportsFloat
+from typing import Any, Callable, Sequence, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -217,36 +217,32 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             self.filter = self._make_filter(env_model)
             if self.belief == "particles":  # the particles' stream goes on (seeded or not) across maps
                 self.filter.rng = previous.rng
-        self._reset_flag = False
         if seed is not None and self.belief == "particles":  # a stream of its own, fixed by the seed
             self.filter.seed(np.random.SeedSequence(seed, spawn_key=(1,)))
-        try:
-            self.filter.reset(self._sensor_obs(obs))
-        except ImpossibleObservationError as exc:
-            if self.on_impossible == "raise":
-                raise ImpossibleObservationError(f"{exc}; {_RESET_HINT}") from exc
-            self.filter.reset()
-            self._reset_flag = True
-        if self.on_impossible == "reset":
-            info = {**info, "belief_reset": self._reset_flag}
+        info = self._filtered(lambda: self.filter.reset(self._sensor_obs(obs)), info)
         return self.observation(obs), info
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
+        info = self._filtered(lambda: self.filter.step(action, self._sensor_obs(obs)), info, self._sensor_obs(obs))
+        return self.observation(obs), reward, terminated, truncated, info
+
+    def _filtered(self, update: Callable[[], Any], info: dict[str, Any], retry: Any = None) -> dict[str, Any]:
+        """Run ``update`` (the filter's reset or step with an observation).  When the model calls
+        the observation impossible: raise, or (``on_impossible="reset"``) restart the belief from
+        the prior, updated with ``retry`` when that is possible, and say so in ``info["belief_reset"]``."""
         self._reset_flag = False
         try:
-            self.filter.step(action, self._sensor_obs(obs))
+            update()
         except ImpossibleObservationError as exc:
             if self.on_impossible == "raise":
                 raise ImpossibleObservationError(f"{exc}; {_RESET_HINT}") from exc
             try:
-                self.filter.reset(self._sensor_obs(obs))
+                self.filter.reset(retry)
             except ImpossibleObservationError:
                 self.filter.reset()
             self._reset_flag = True
-        if self.on_impossible == "reset":
-            info = {**info, "belief_reset": self._reset_flag}
-        return self.observation(obs), reward, terminated, truncated, info
+        return {**info, "belief_reset": self._reset_flag} if self.on_impossible == "reset" else info
 
     # -- the observation -------------------------------------------------------------------------
     def belief_array(self) -> np.ndarray:
