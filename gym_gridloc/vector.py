@@ -160,9 +160,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._regroup()
         for model, sub in self._by_model(idx):
             self._states[sub] = engine.sample_initial(model, sub.size, rng)
-        for model, sub in self._by_model(idx):
+        for model, sub in self._by_model(idx):  # the beliefs draw nothing: each group's follow its readings
             self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
-        for model, sub in self._by_model(idx):
             post = np.broadcast_to(model.prior(), (sub.size, *model.belief_shape)).copy()
             engine.update(model, post, self._readings[sub])
             self._beliefs[sub] = post
@@ -175,19 +174,15 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._states[sub] = engine.sample_next(model, self._states[sub], actions[sub], rng)
         for model, sub in self._by_model(idx):
             self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
-        n = self.num_envs
+            if len(self._groups) > 1:  # the beliefs draw nothing: each group's follow its readings
+                self._beliefs[sub] = engine.step(model, self._beliefs[sub], actions[sub], self._readings[sub])[0]
         if len(self._groups) == 1:
             mask = None
-            if idx.size != n:  # rows of the envs that reset keep their values (overwritten later)
-                mask = np.zeros(n, dtype=bool)
-                mask[idx] = True
+            if idx.size != self.num_envs:  # rows of the envs that reset keep their values (overwritten later)
+                mask = np.isin(np.arange(self.num_envs), idx)
                 self._spare[...] = self._beliefs
             engine.step(self.models[0], self._beliefs, actions, self._readings, out=self._spare, mask=mask)
             self._beliefs, self._spare = self._spare, self._beliefs
-        else:
-            for model, sub in self._by_model(idx):
-                out, _ = engine.step(model, self._beliefs[sub], actions[sub], self._readings[sub])
-                self._beliefs[sub] = out
         self._elapsed[idx] += 1
 
     # -- observations and infos -------------------------------------------------------------------
@@ -266,12 +261,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._restart(np.flatnonzero(resetting))
         info = self._infos()
         stepped = ~resetting
-        if self.template.episode_length is None:
-            terminated = info["localised"] & stepped
-            limit = self.max_episode_steps
-        else:
-            terminated = np.zeros(n, dtype=bool)
-            limit = min(self.template.episode_length, self.max_episode_steps or self.template.episode_length)
+        length = self.template.episode_length  # a fixed length: truncated there, never terminated
+        terminated = info["localised"] & stepped & (length is None)
+        limit = min((v for v in (length, self.max_episode_steps) if v is not None), default=None)
         truncated = stepped & (self._elapsed >= limit) if limit else np.zeros(n, dtype=bool)
         rewards = np.where(stepped, referee.rewards(self.template.reward_kind, info), 0.0)
         obs = self._observations()
