@@ -127,10 +127,9 @@ def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:
         free[2 * rr, 2 * cc] = True
         stack.append(nxt)
     # Dead ends into the extra row (column) only next to lattice cells: corridors stay one wide.
-    if h % 2 == 0 and h > 1:
-        free[h - 1] = free[h - 2] & (rng.random(w) < 0.5) & (np.arange(w) % 2 == 0)
-    if w % 2 == 0 and w > 1:
-        free[:, w - 1] = free[:, w - 2] & (rng.random(h) < 0.5) & (np.arange(h) % 2 == 0)
+    for rows, n_rows, n_cols in ((free, h, w), (free.T, w, h)):  # free.T: the columns, as a view
+        if n_rows % 2 == 0 and n_rows > 1:
+            rows[n_rows - 1] = rows[n_rows - 2] & (rng.random(n_cols) < 0.5) & (np.arange(n_cols) % 2 == 0)
     return GridMap(np.where(free, 0, -1), ("O",))
 
 
