@@ -192,19 +192,12 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         if self.belief is None:
             return obs
         b = np.clip((self._beliefs if self.full_state else self.position_beliefs).astype(np.float32), 0.0, 1.0)
-        maps = None
-        if self.map:
-            channels = {id(m): map_channels(m) for m in self.models}
-            maps = np.stack([channels[id(m)] for m in self.models])
-        return batch_observation(model, obs, self._readings, b, flatten=self.flatten, maps=maps,
-                                 lookahead=self._lookahead_features())
-
-    def _lookahead_features(self) -> np.ndarray | None:
-        """``(N, lookahead, A)`` expected entropies per action."""
-        if not self.lookahead:
-            return None
-        return np.stack([lookahead_features(m, b, self.lookahead, pose=self.full_state)
-                         for m, b in zip(self.models, self._beliefs)])
+        channels = {id(m): map_channels(m) for m in self.models} if self.map else {}  # once per distinct map
+        maps = np.stack([channels[id(m)] for m in self.models]) if channels else None
+        # (N, lookahead, A) expected entropies per action
+        look = np.stack([lookahead_features(m, f, self.lookahead, pose=self.full_state)
+                         for m, f in zip(self.models, self._beliefs)]) if self.lookahead else None
+        return batch_observation(model, obs, self._readings, b, flatten=self.flatten, maps=maps, lookahead=look)
 
     def _infos(self) -> dict[str, np.ndarray]:
         t = self.template
@@ -276,10 +269,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
                 final_obs[i] = {k: v[i].copy() for k, v in obs.items()} if isinstance(obs, dict) else obs[i].copy()
                 final_info[i] = {k: v[i] for k, v in info.items()}
             self._restart(ended)
-            info = dict(self._infos())
             obs = self._observations()
-            info["final_obs"], info["_final_obs"] = final_obs, done.copy()
-            info["final_info"], info["_final_info"] = final_info, done.copy()
+            info = {**self._infos(), "final_obs": final_obs, "_final_obs": done.copy(),
+                    "final_info": final_info, "_final_info": done.copy()}
         else:
             self._autoreset = done
         return obs, rewards, terminated, truncated, self._masked(info, np.ones(n, dtype=bool))
