@@ -201,9 +201,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 
     # -- filtering -------------------------------------------------------------------------------
     def _make_filter(self, model: GridModel):
-        if self.belief == "particles":
-            return ParticleFilter(model, **self._filter_args)
-        return ForwardFilter(model)
+        return ParticleFilter(model, **self._filter_args) if self.belief == "particles" else ForwardFilter(model)
 
     def _sensor_obs(self, observation):
         return observation["observation"] if isinstance(observation, dict) else observation
