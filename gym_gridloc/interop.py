@@ -359,9 +359,7 @@ class PomdpPy:
         """The referee's confidence in an exact belief ``(L, H, W)``: the largest position (pose,
         with ``pose``) probability."""
         b = np.asarray(belief)
-        if self.pose or b.shape[0] == 1:
-            return float(b.max())
-        return float(b.sum(axis=0).max())
+        return float((b if self.pose or b.shape[0] == 1 else b.sum(axis=0)).max())
 
     def localised(self, belief: np.ndarray) -> bool:
         """The referee's test: :meth:`confidence` reaches ``threshold``."""
