@@ -53,7 +53,6 @@ def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: 
     ``map``; the expected entropies per action, with ``lookahead``), as :class:`HMMBeliefWrapper`
     and the native vector env give it."""
     shape = model.belief_shape if full_state else model.shape
-    belief_space = spaces.Box(0.0, 1.0, shape=shape, dtype=np.float32)
     map_shape = map_channels(model).shape
     look_shape = (lookahead, model.n_actions)
     if flatten:
@@ -64,9 +63,8 @@ def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: 
         n = (model.sensor.encoded_size + int(np.prod(shape)) + (int(np.prod(map_shape)) if map else 0)
              + int(np.prod(look_shape)))
         return spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
-    extra = {key: belief_space}
-    extra.update({name: spaces.Box(0.0, 1.0, shape=s, dtype=np.float32)
-                  for name, s, wanted in (("map", map_shape, map), ("lookahead", look_shape, lookahead)) if wanted})
+    parts = ((key, shape, True), ("map", map_shape, map), ("lookahead", look_shape, lookahead))
+    extra = {name: spaces.Box(0.0, 1.0, shape=s, dtype=np.float32) for name, s, wanted in parts if wanted}
     if isinstance(inner, spaces.Dict):
         clash = sorted(set(extra) & set(inner.spaces))
         if clash:
