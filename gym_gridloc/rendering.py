@@ -199,8 +199,7 @@ class Window:
         if self.screen is None:
             self.screen = pg.display.set_mode((w, h))
             pg.display.set_caption(self.title)
-        surface = pg.surfarray.make_surface(np.transpose(frame, (1, 0, 2)))
-        self.screen.blit(surface, (0, 0))
+        self.screen.blit(pg.surfarray.make_surface(np.transpose(frame, (1, 0, 2))), (0, 0))
         pg.event.pump()
         pg.display.flip()
         self.clock.tick(self.fps)
