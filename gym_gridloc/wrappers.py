@@ -198,8 +198,9 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self._reset_flag = False
 
     # -- filtering -------------------------------------------------------------------------------
-    def _make_filter(self, model: GridModel):
-        return ParticleFilter(model, **self._filter_args) if self.belief == "particles" else ForwardFilter(model)
+    def _make_filter(self, model: GridModel, rng: np.random.Generator | None = None):
+        return (ParticleFilter(model, **self._filter_args, rng=rng) if self.belief == "particles"
+                else ForwardFilter(model))
 
     def _sensor_obs(self, observation):
         return observation["observation"] if isinstance(observation, dict) else observation
@@ -208,11 +209,9 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options)
         env_model = getattr(self.env.unwrapped, "model", None) if self._follows_env else None
         if env_model is not None and env_model is not self.model:  # the map was redrawn at reset
-            previous = self.filter
             self.model = env_model
-            self.filter = self._make_filter(env_model)
-            if self.belief == "particles":  # the particles' stream goes on (seeded or not) across maps
-                self.filter.rng = previous.rng
+            # The particles' stream (with particles) goes on, seeded or not, across maps.
+            self.filter = self._make_filter(env_model, rng=getattr(self.filter, "rng", None))
         if seed is not None and self.belief == "particles":  # a stream of its own, fixed by the seed
             self.filter.seed(np.random.SeedSequence(seed, spawn_key=(1,)))
         info = self._filtered(lambda: self.filter.reset(self._sensor_obs(obs)), info)
