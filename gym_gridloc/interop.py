@@ -178,8 +178,7 @@ def _classes() -> dict[str, type]:
 
         def get_all_states(self) -> list:
             """Every hidden state (a list of ``n_states``: small models only)."""
-            m = self.pp.model
-            return [State(*m.state_of_index(i)) for i in range(m.n_states)]
+            return [State(*self.pp.model.state_of_index(i)) for i in range(self.pp.model.n_states)]
 
         def argmax(self, state, action):
             return self.pp.to_state(max(self.pp.model.outcomes(state.tuple, action.index), key=lambda o: o[1])[0])
