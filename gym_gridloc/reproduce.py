@@ -137,10 +137,7 @@ def seed004(report: Report, verbose: bool) -> None:
         if verbose:
             print(label)
             left = fmt_table(table, lambda v: f"{v:6.2f}", "  ####")
-            right = fmt_table(
-                [[None if np.isnan(s) else o for s, o in zip(srow, orow)] for srow, orow in zip(seed, ours)],
-                lambda v: f"{v:6.2f}", "  ####",
-            )
+            right = fmt_table(np.where(np.isnan(seed), None, ours), lambda v: f"{v:6.2f}", "  ####")
             print(side_by_side(left, right, ("seed", "ours (rounded to 2 decimals)")))
         print(f"  {label:<40s} largest |ours - seed| = {diff:.4f} percent")
         if kind != "initial":
