@@ -99,8 +99,7 @@ def rgb_frame(frame: Frame) -> np.ndarray:
     reading = frame.reading
     sensor = model.sensor
     if isinstance(sensor, RingSensor) and reading is not None and reading != sensor.nothing:
-        rr, cc = divmod(reading, model.shape[1])
-        _outline(image, rr, cc, t, READING_RGB, max(1, t // 6))
+        _outline(image, *divmod(reading, model.shape[1]), t, READING_RGB, max(1, t // 6))
     if frame.path is not None and len(frame.path) > 0:
         _path(image, frame.path, t, PATH_RGB)
     if frame.estimate is not None:
