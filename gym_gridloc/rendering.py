@@ -159,14 +159,13 @@ def _arrow(frame: np.ndarray, r: int, c: int, heading: int, t: int, rgb) -> None
 def _path(frame: np.ndarray, cells: Sequence[tuple[int, int]], t: int, rgb) -> None:
     """Line segments through the centres of ``cells`` and a ring round the last one."""
     width = max(1.0, t / 12)
-    h, w = frame.shape[:2]
     pts = [((int(r) + 0.5) * t, (int(c) + 0.5) * t) for r, c in cells]
     for (y0, x0), (y1, x1) in itertools.pairwise(pts):
         n = int(max(abs(y1 - y0), abs(x1 - x0))) + 1
         for s in np.linspace(0.0, 1.0, n):
             y, x = y0 + s * (y1 - y0), x0 + s * (x1 - x0)
-            frame[max(0, int(y - width / 2)) : min(h, int(y + width / 2) + 1),
-                  max(0, int(x - width / 2)) : min(w, int(x + width / 2) + 1)] = rgb
+            frame[max(0, int(y - width / 2)) : int(y + width / 2) + 1,  # (slices stop at the frame's edge)
+                  max(0, int(x - width / 2)) : int(x + width / 2) + 1] = rgb
     d = np.hypot(*_centred(t))
     ring = (d <= t * 0.42) & (d >= t * 0.42 - width)
     if t < 6:
