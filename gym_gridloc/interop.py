@@ -368,8 +368,7 @@ class PomdpPy:
     def to_state(self, state: Any):
         """``(layer, row, col)`` (a tuple or an array) of a free state as a :class:`State`."""
         layer, r, c = (int(v) for v in np.asarray(state).reshape(3))
-        L, h, w = self.model.belief_shape
-        if not (0 <= layer < L and 0 <= r < h and 0 <= c < w and self.model.grid.free[r, c]):
+        if not (all(0 <= v < n for v, n in zip((layer, r, c), self.model.belief_shape)) and self.model.grid.free[r, c]):
             raise ValueError(f"{(layer, r, c)} is not a free state (layer, row, col) of {self.model!r}")
         return self.State(layer, r, c)
 
