@@ -160,7 +160,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._regroup()
         for model, sub in self._by_model(idx):
             self._states[sub] = engine.sample_initial(model, sub.size, rng)
-        for model, sub in self._by_model(idx):  # the beliefs draw nothing: each group's follow its readings
+        for model, sub in self._by_model(idx):  # each group's beliefs after its readings (they draw nothing)
             self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
             post = np.broadcast_to(model.prior(), (sub.size, *model.belief_shape)).copy()
             engine.update(model, post, self._readings[sub])
@@ -174,7 +174,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._states[sub] = engine.sample_next(model, self._states[sub], actions[sub], rng)
         for model, sub in self._by_model(idx):
             self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
-            if len(self._groups) > 1:  # the beliefs draw nothing: each group's follow its readings
+            if len(self._groups) > 1:  # as in _restart; with one model, one batch step below
                 self._beliefs[sub] = engine.step(model, self._beliefs[sub], actions[sub], self._readings[sub])[0]
         if len(self._groups) == 1:
             mask = None
