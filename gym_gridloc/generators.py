@@ -98,11 +98,9 @@ def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:
     h, w = check_size("size", size, MAX_SIDE)
     rng = as_rng(seed)
     ch, cw = (h + 1) // 2, (w + 1) // 2  # lattice cells
-    free = np.zeros((h, w), dtype=bool)
+    free = np.zeros((h, w), dtype=bool)  # lattice cell (r, c) is visited when free[2r, 2c]
     n = ch * cw
-    visited = np.zeros(n, dtype=bool)
     start = int(rng.integers(n))
-    visited[start] = True
     free[2 * (start // cw), 2 * (start % cw)] = True
     stack = [start]
     # Random draws in blocks: one uniform per visit to a cell on the stack.
@@ -110,10 +108,9 @@ def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:
     k = 0
     steps = ((-1, 0), (0, 1), (1, 0), (0, -1))
     while stack:
-        cell = stack[-1]
-        r, c = divmod(cell, cw)
+        r, c = divmod(stack[-1], cw)
         near = [(r + dr, c + dc) for dr, dc in steps]
-        options = [(rr, cc) for rr, cc in near if 0 <= rr < ch and 0 <= cc < cw and not visited[rr * cw + cc]]
+        options = [(rr, cc) for rr, cc in near if 0 <= rr < ch and 0 <= cc < cw and not free[2 * rr, 2 * cc]]
         if not options:
             stack.pop()
             continue
@@ -121,16 +118,13 @@ def maze_map(size: int | tuple[int, int], *, seed: Any = None) -> GridMap:
             block, k = rng.random(4 * n + 16), 0
         rr, cc = options[int(block[k] * len(options))]
         k += 1
-        nxt = rr * cw + cc
-        visited[nxt] = True
         free[r + rr, c + cc] = True  # the wall between (2r, 2c) and (2rr, 2cc)
         free[2 * rr, 2 * cc] = True
-        stack.append(nxt)
+        stack.append(rr * cw + cc)
     # Dead ends into the extra row (column) only next to lattice cells: corridors stay one wide.
-    if h % 2 == 0 and h > 1:
-        free[h - 1] = free[h - 2] & (rng.random(w) < 0.5) & (np.arange(w) % 2 == 0)
-    if w % 2 == 0 and w > 1:
-        free[:, w - 1] = free[:, w - 2] & (rng.random(h) < 0.5) & (np.arange(h) % 2 == 0)
+    for rows, n_rows, n_cols in ((free, h, w), (free.T, w, h)):  # free.T: the columns, as a view
+        if n_rows % 2 == 0 and n_rows > 1:
+            rows[n_rows - 1] = rows[n_rows - 2] & (rng.random(n_cols) < 0.5) & (np.arange(n_cols) % 2 == 0)
     return GridMap(np.where(free, 0, -1), ("O",))
 
 

@@ -121,16 +121,15 @@ def _classes() -> dict[str, type]:
         the planning model (see the module docstring).  Equal when both agree."""
 
         __slots__ = ("node",)
+        KEY = "key"
 
         def __init__(self, layer: int, row: int, col: int, node: _Node) -> None:
             State.__init__(self, layer, row, col)
             self.node = node
 
-        def __hash__(self) -> int:
-            return hash((self.layer, self.row, self.col, id(self.node)))
-
-        def __eq__(self, other: object) -> bool:
-            return type(other) is type(self) and self.tuple == other.tuple and self.node is other.node
+        @property
+        def key(self) -> tuple[int, int, int, int]:
+            return (self.layer, self.row, self.col, id(self.node))
 
         def __repr__(self) -> str:
             return f"PlanState{self.tuple}{' done' if self.node.done else ''}"
@@ -179,8 +178,7 @@ def _classes() -> dict[str, type]:
 
         def get_all_states(self) -> list:
             """Every hidden state (a list of ``n_states``: small models only)."""
-            m = self.pp.model
-            return [State(*m.state_of_index(i)) for i in range(m.n_states)]
+            return [State(*self.pp.model.state_of_index(i)) for i in range(self.pp.model.n_states)]
 
         def argmax(self, state, action):
             return self.pp.to_state(max(self.pp.model.outcomes(state.tuple, action.index), key=lambda o: o[1])[0])
@@ -233,7 +231,7 @@ def _classes() -> dict[str, type]:
             node = getattr(state, "node", None)
             if node is not None and node.done:  # the episode is over: every action is the same
                 return self.pp.actions[0]
-            return self.pp.actions[self.pp.random_action()]
+            return self.sample(state)
 
     class LocalisationModel(_Served, pomdp_py.BlackboxModel):
         """The planning model ``(s', o, r, 1) ~ G(s, a)`` on :class:`PlanState`: the plain POMDP's
@@ -241,14 +239,11 @@ def _classes() -> dict[str, type]:
         simulated history passes the referee's test (see the module docstring)."""
 
         def sample(self, state, action):
-            node = state.node
-            if node.done:
+            if state.node.done:
                 return state, self.pp.done, 0.0, 1
-            pp = self.pp
-            a = action.index
-            layer, r, c = pp.sample_next((state.layer, state.row, state.col), a)
-            z = pp.sample_reading((layer, r, c))
-            return PlanState(layer, r, c, node.child(a, z)), pp.observations[z], -1.0, 1
+            nxt = self.pp.sample_next(state.tuple, action.index)
+            z = self.pp.sample_reading(nxt)
+            return PlanState(*nxt, state.node.child(action.index, z)), self.pp.observations[z], -1.0, 1
 
     class ParticleBelief(pomdp_py.Particles):
         """Unweighted particles that draw with the adapter's generator (pomdp_py's draw with
@@ -316,18 +311,16 @@ class PomdpPy:
         c = self.classes
         self.State, self.PlanState, self.Action, self.Observation = c["State"], c["PlanState"], c["Action"], c["Observation"]
         self.ParticleBelief = c["ParticleBelief"]
-        m = self.model
-        self.n_readings = int(m.sensor.n_readings)
-        self.actions = tuple(c["Action"](i, n) for i, n in enumerate(m.action_names))
-        self.observations = tuple(c["Observation"](z) for z in range(self.n_readings))
-        self.done = c["Observation"](-1)
+        self.n_readings = int(self.model.sensor.n_readings)
+        self.actions = tuple(self.Action(i, n) for i, n in enumerate(self.model.action_names))
+        self.observations = tuple(self.Observation(z) for z in range(self.n_readings))
+        self.done = self.Observation(-1)
         self.transition_model = c["TransitionModel"](self)
         self.observation_model = c["ObservationModel"](self)
         self.reward_model = c["RewardModel"]()
         self.policy_model = c["PolicyModel"](self)
         self.blackbox_model = c["LocalisationModel"](self)
-        self._step = engine.stepper(m)
-        self._table: np.ndarray | None = None
+        self._step = engine.stepper(self.model)
         self.seed(self.rng)
 
     # -- randomness ------------------------------------------------------------------------------
@@ -354,21 +347,18 @@ class PomdpPy:
         return int(engine.sample_readings(self.model, np.array([state], dtype=np.int64), self.rng)[0])
 
     # -- numbers ---------------------------------------------------------------------------------
-    @property
+    @functools.cached_property
     def likelihood_table(self) -> np.ndarray:
         """``P(reading | state)`` as a ``(n_readings, n_states)`` array (built on first use)."""
-        if self._table is None:
-            self._table = np.stack([self.model.likelihood_vector(z) for z in range(self.n_readings)])
-            self._table.setflags(write=False)
-        return self._table
+        table = np.stack([self.model.likelihood_vector(z) for z in range(self.n_readings)])
+        table.setflags(write=False)
+        return table
 
     def confidence(self, belief: np.ndarray) -> float:
         """The referee's confidence in an exact belief ``(L, H, W)``: the largest position (pose,
         with ``pose``) probability."""
         b = np.asarray(belief)
-        if self.pose or b.shape[0] == 1:
-            return float(b.max())
-        return float(b.sum(axis=0).max())
+        return float((b if self.pose or b.shape[0] == 1 else b.sum(axis=0)).max())
 
     def localised(self, belief: np.ndarray) -> bool:
         """The referee's test: :meth:`confidence` reaches ``threshold``."""
@@ -378,8 +368,7 @@ class PomdpPy:
     def to_state(self, state: Any):
         """``(layer, row, col)`` (a tuple or an array) of a free state as a :class:`State`."""
         layer, r, c = (int(v) for v in np.asarray(state).reshape(3))
-        L, h, w = self.model.belief_shape
-        if not (0 <= layer < L and 0 <= r < h and 0 <= c < w and self.model.grid.free[r, c]):
+        if not (all(0 <= v < n for v, n in zip((layer, r, c), self.model.belief_shape)) and self.model.grid.free[r, c]):
             raise ValueError(f"{(layer, r, c)} is not a free state (layer, row, col) of {self.model!r}")
         return self.State(layer, r, c)
 
@@ -427,11 +416,8 @@ class PomdpPy:
         """A :class:`ParticleBelief` of ``n`` states drawn from an exact belief: :class:`PlanState`
         at the root of a new history tree (``plan``) or plain :class:`State`."""
         b = self._belief(belief)
-        states = self.draw_states(b, n)
-        if plan:
-            root = _Node(self, b)
-            return self.ParticleBelief([self.PlanState(*s, root) for s in states], self)
-        return self.ParticleBelief([self.State(*s) for s in states], self)
+        make = functools.partial(self.PlanState, node=_Node(self, b)) if plan else self.State
+        return self.ParticleBelief([make(*s) for s in self.draw_states(b, n)], self)
 
     def agent(self, belief: np.ndarray, *, n_particles: int = 1000, plan: bool = True):
         """A ``pomdp_py.Agent`` whose belief is ``n_particles`` particles drawn from the exact
@@ -461,5 +447,4 @@ def to_pomdp_py(model: GridModel, *, threshold: float = 0.9, discount: float = 1
     d = float(discount)
     if not 0.0 < d <= 1.0:
         raise ValueError(f"discount must be in (0, 1], got {discount!r}")
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    return PomdpPy(model=model, threshold=thr, pose=bool(pose), discount=d, rng=rng, classes=classes)
+    return PomdpPy(model=model, threshold=thr, pose=bool(pose), discount=d, rng=seed, classes=classes)

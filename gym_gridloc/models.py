@@ -95,17 +95,14 @@ def heading_probs(grid: GridMap, keep: float) -> np.ndarray:
         others_open[hd] = False
         n_others = others_open.sum(axis=0)
         facing_free = open_[hd]
-        for nh in range(4):
-            if nh == hd:
-                out[hd, nh] = np.where(facing_free, np.where(n_others > 0, keep, 1.0), 0.0)
-            else:
-                out[hd, nh] = np.where(
-                    facing_free,
-                    np.where(others_open[nh], (1.0 - keep) / np.maximum(n_others, 1), 0.0),
-                    np.where(open_[nh], 1.0 / np.maximum(n_open, 1), 0.0),
-                )
+        # The turns to every heading at once; keeping heading hd is set below.
+        out[hd] = np.where(
+            facing_free,
+            np.where(others_open, (1.0 - keep) / np.maximum(n_others, 1), 0.0),
+            np.where(open_, 1.0 / np.maximum(n_open, 1), 0.0),
+        )
         # Nowhere to go: keep the heading (and stay; see ring_sensor_model).
-        out[hd, hd] = np.where(n_open == 0, 1.0, out[hd, hd])
+        out[hd, hd] = np.where(n_open == 0, 1.0, np.where(facing_free, np.where(n_others > 0, keep, 1.0), 0.0))
     out[:, :, ~grid.free] = 0.0
     return out
 

@@ -133,18 +133,16 @@ def steps_to_recover(
     is a localised robot carried off) the filter was not localised at step ``k - 1``.
     """
     cap = check_int("cap", cap, minimum=0)
-    n = len(positions)
-    out: list[int | None] = []
 
     def localised(step: int) -> bool:
         return tuple(estimates[step]) == tuple(positions[step]) and confidences[step] >= min_confidence
 
-    for i, k in enumerate(kidnaps):
+    def recovery(i: int, k: int) -> int | None:
         if localised_before and (k < 1 or not localised(k - 1)):
-            out.append(None)
-            continue
+            return None
         # Look up to ``cap`` steps ahead, not past the next kidnap (or the end of the episode).
-        horizon = min(cap + 1, (kidnaps[i + 1] if i + 1 < len(kidnaps) else n) - k)
+        horizon = min(cap + 1, (kidnaps[i + 1] if i + 1 < len(kidnaps) else len(positions)) - k)
         j = next((j for j in range(horizon) if localised(k + j)), None)
-        out.append(cap + 1 if j is None and horizon == cap + 1 else j)
-    return out
+        return cap + 1 if j is None and horizon == cap + 1 else j
+
+    return [recovery(i, k) for i, k in enumerate(kidnaps)]

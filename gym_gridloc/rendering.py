@@ -72,15 +72,10 @@ def ansi(frame: Frame) -> str:
     return f"{header}\nposition belief (%), * = true position\n{table}\n"
 
 
-def _tile_size(shape: tuple[int, int]) -> int:
-    return int(max(1, min(32, 512 // max(shape))))
-
-
 def base_image(model) -> np.ndarray:
     """(H, W, 3) float colours of the cells before the belief is drawn."""
     grid = model.grid
-    img = np.empty((*grid.shape, 3))
-    img[:] = FREE_RGB
+    img = np.full((*grid.shape, 3), FREE_RGB, dtype=np.float64)
     if isinstance(model.sensor, ColourSensor):
         for i, sym in enumerate(grid.symbols):
             img[grid.labels == i] = COLOUR_RGB.get(sym, FREE_RGB)
@@ -96,7 +91,7 @@ def rgb_frame(frame: Frame) -> np.ndarray:
     peak = max(float(belief.max()), 1e-12)
     alpha = np.sqrt(np.clip(belief / peak, 0.0, 1.0))[..., None] * 0.85
     img = np.where(model.grid.free[..., None], (1 - alpha) * img + alpha * BELIEF_RGB, img)
-    t = _tile_size(model.shape) if frame.tile is None else max(1, int(frame.tile))
+    t = int(max(1, min(32, 512 // max(model.shape)))) if frame.tile is None else max(1, int(frame.tile))
     image = np.kron(img, np.ones((t, t, 1))).astype(np.uint8)
     if t >= 4:  # grid lines
         image[::t, :, :] = 90
@@ -104,8 +99,7 @@ def rgb_frame(frame: Frame) -> np.ndarray:
     reading = frame.reading
     sensor = model.sensor
     if isinstance(sensor, RingSensor) and reading is not None and reading != sensor.nothing:
-        rr, cc = divmod(reading, model.shape[1])
-        _outline(image, rr, cc, t, READING_RGB, max(1, t // 6))
+        _outline(image, *divmod(reading, model.shape[1]), t, READING_RGB, max(1, t // 6))
     if frame.path is not None and len(frame.path) > 0:
         _path(image, frame.path, t, PATH_RGB)
     if frame.estimate is not None:
@@ -128,10 +122,14 @@ def rgb_frame(frame: Frame) -> np.ndarray:
     return np.ascontiguousarray(np.concatenate([image, strip], axis=0))
 
 
+def _centred(t: int) -> np.ndarray:
+    """``(y, x)`` of a cell's pixel centres relative to the cell's centre, each ``(t, t)``."""
+    return np.mgrid[0:t, 0:t] + 0.5 - t / 2
+
+
 def _dot(frame: np.ndarray, r: int, c: int, t: int, rgb) -> None:
-    cy, cx = r * t + t / 2, c * t + t / 2
-    yy, xx = np.mgrid[r * t : (r + 1) * t, c * t : (c + 1) * t]
-    mask = (yy + 0.5 - cy) ** 2 + (xx + 0.5 - cx) ** 2 <= (max(t, 2) * 0.3) ** 2
+    yy, xx = _centred(t)
+    mask = yy**2 + xx**2 <= (max(t, 2) * 0.3) ** 2
     if t < 3:
         mask[:] = True
     frame[r * t : (r + 1) * t, c * t : (c + 1) * t][mask] = rgb
@@ -151,9 +149,7 @@ def _arrow(frame: np.ndarray, r: int, c: int, heading: int, t: int, rgb) -> None
     if t < 5:
         _dot(frame, r, c, t, rgb)
         return
-    yy, xx = np.mgrid[0:t, 0:t] + 0.5
-    u = (xx - t / 2) / (t * 0.4)  # -1..1 across the cell, 0.8 of it
-    v = (yy - t / 2) / (t * 0.4)
+    v, u = _centred(t) / (t * 0.4)  # -1..1 across the cell, 0.8 of it
     # along: +1 at the tip; across: the distance from the axis
     along, across = {0: (-v, u), 1: (u, v), 2: (v, u), 3: (-u, v)}[int(heading) % 4]
     mask = (along <= 1.0) & (along >= -0.7) & (np.abs(across) <= (1.0 - along) * 0.45)
@@ -163,20 +159,18 @@ def _arrow(frame: np.ndarray, r: int, c: int, heading: int, t: int, rgb) -> None
 def _path(frame: np.ndarray, cells: Sequence[tuple[int, int]], t: int, rgb) -> None:
     """Line segments through the centres of ``cells`` and a ring round the last one."""
     width = max(1.0, t / 12)
-    h, w = frame.shape[:2]
     pts = [((int(r) + 0.5) * t, (int(c) + 0.5) * t) for r, c in cells]
     for (y0, x0), (y1, x1) in itertools.pairwise(pts):
         n = int(max(abs(y1 - y0), abs(x1 - x0))) + 1
         for s in np.linspace(0.0, 1.0, n):
             y, x = y0 + s * (y1 - y0), x0 + s * (x1 - x0)
-            frame[max(0, int(y - width / 2)) : min(h, int(y + width / 2) + 1),
-                  max(0, int(x - width / 2)) : min(w, int(x + width / 2) + 1)] = rgb
-    r, c = int(cells[-1][0]), int(cells[-1][1])
-    yy, xx = np.mgrid[r * t : (r + 1) * t, c * t : (c + 1) * t] + 0.5
-    d = np.hypot(yy - (r + 0.5) * t, xx - (c + 0.5) * t)
+            frame[max(0, int(y - width / 2)) : int(y + width / 2) + 1,  # (slices stop at the frame's edge)
+                  max(0, int(x - width / 2)) : int(x + width / 2) + 1] = rgb
+    d = np.hypot(*_centred(t))
     ring = (d <= t * 0.42) & (d >= t * 0.42 - width)
     if t < 6:
         ring[:] = True
+    r, c = int(cells[-1][0]), int(cells[-1][1])
     frame[r * t : (r + 1) * t, c * t : (c + 1) * t][ring] = rgb
 
 
@@ -203,8 +197,7 @@ class Window:
         if self.screen is None:
             self.screen = pg.display.set_mode((w, h))
             pg.display.set_caption(self.title)
-        surface = pg.surfarray.make_surface(np.transpose(frame, (1, 0, 2)))
-        self.screen.blit(surface, (0, 0))
+        self.screen.blit(pg.surfarray.make_surface(np.transpose(frame, (1, 0, 2))), (0, 0))
         pg.event.pump()
         pg.display.flip()
         self.clock.tick(self.fps)

@@ -132,19 +132,12 @@ def seed004(report: Report, verbose: bool) -> None:
     for (kind, arg, table), ours in zip([("initial", None, SEED004_INITIAL), *SEED004_TABLES], seed004_beliefs()):
         seed = np.array([[np.nan if v is None else v for v in row] for row in table], dtype=float)
         diff = float(np.nanmax(np.abs(ours - seed)))
-        if kind == "filter":
-            label = "filter [" + ", ".join("o" if b else "-" for b in arg) + "] (W, N, E, S)"
-        elif kind == "predict":
-            label = f"predict {arg}"
-        else:
-            label = "initial (uniform)"
+        label = ("filter [" + ", ".join("o" if b else "-" for b in arg) + "] (W, N, E, S)" if kind == "filter"
+                 else f"predict {arg}" if kind == "predict" else "initial (uniform)")
         if verbose:
             print(label)
             left = fmt_table(table, lambda v: f"{v:6.2f}", "  ####")
-            right = fmt_table(
-                [[None if np.isnan(s) else o for s, o in zip(srow, orow)] for srow, orow in zip(seed, ours)],
-                lambda v: f"{v:6.2f}", "  ####",
-            )
+            right = fmt_table(np.where(np.isnan(seed), None, ours), lambda v: f"{v:6.2f}", "  ####")
             print(side_by_side(left, right, ("seed", "ours (rounded to 2 decimals)")))
         print(f"  {label:<40s} largest |ours - seed| = {diff:.4f} percent")
         if kind != "initial":

@@ -160,9 +160,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._regroup()
         for model, sub in self._by_model(idx):
             self._states[sub] = engine.sample_initial(model, sub.size, rng)
-        for model, sub in self._by_model(idx):
+        for model, sub in self._by_model(idx):  # each group's beliefs after its readings (they draw nothing)
             self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
-        for model, sub in self._by_model(idx):
             post = np.broadcast_to(model.prior(), (sub.size, *model.belief_shape)).copy()
             engine.update(model, post, self._readings[sub])
             self._beliefs[sub] = post
@@ -175,19 +174,15 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._states[sub] = engine.sample_next(model, self._states[sub], actions[sub], rng)
         for model, sub in self._by_model(idx):
             self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
-        n = self.num_envs
+            if len(self._groups) > 1:  # as in _restart; with one model, one batch step below
+                self._beliefs[sub] = engine.step(model, self._beliefs[sub], actions[sub], self._readings[sub])[0]
         if len(self._groups) == 1:
             mask = None
-            if idx.size != n:  # rows of the envs that reset keep their values (overwritten later)
-                mask = np.zeros(n, dtype=bool)
-                mask[idx] = True
+            if idx.size != self.num_envs:  # rows of the envs that reset keep their values (overwritten later)
+                mask = np.isin(np.arange(self.num_envs), idx)
                 self._spare[...] = self._beliefs
             engine.step(self.models[0], self._beliefs, actions, self._readings, out=self._spare, mask=mask)
             self._beliefs, self._spare = self._spare, self._beliefs
-        else:
-            for model, sub in self._by_model(idx):
-                out, _ = engine.step(model, self._beliefs[sub], actions[sub], self._readings[sub])
-                self._beliefs[sub] = out
         self._elapsed[idx] += 1
 
     # -- observations and infos -------------------------------------------------------------------
@@ -197,19 +192,12 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         if self.belief is None:
             return obs
         b = np.clip((self._beliefs if self.full_state else self.position_beliefs).astype(np.float32), 0.0, 1.0)
-        maps = None
-        if self.map:
-            channels = {id(m): map_channels(m) for m in self.models}
-            maps = np.stack([channels[id(m)] for m in self.models])
-        return batch_observation(model, obs, self._readings, b, flatten=self.flatten, maps=maps,
-                                 lookahead=self._lookahead_features())
-
-    def _lookahead_features(self) -> np.ndarray | None:
-        """``(N, lookahead, A)`` expected entropies per action."""
-        if not self.lookahead:
-            return None
-        return np.stack([lookahead_features(m, b, self.lookahead, pose=self.full_state)
-                         for m, b in zip(self.models, self._beliefs)])
+        channels = {id(m): map_channels(m) for m in self.models} if self.map else {}  # once per distinct map
+        maps = np.stack([channels[id(m)] for m in self.models]) if channels else None
+        # (N, lookahead, A) expected entropies per action
+        look = np.stack([lookahead_features(m, f, self.lookahead, pose=self.full_state)
+                         for m, f in zip(self.models, self._beliefs)]) if self.lookahead else None
+        return batch_observation(model, obs, self._readings, b, flatten=self.flatten, maps=maps, lookahead=look)
 
     def _infos(self) -> dict[str, np.ndarray]:
         t = self.template
@@ -266,12 +254,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._restart(np.flatnonzero(resetting))
         info = self._infos()
         stepped = ~resetting
-        if self.template.episode_length is None:
-            terminated = info["localised"] & stepped
-            limit = self.max_episode_steps
-        else:
-            terminated = np.zeros(n, dtype=bool)
-            limit = min(self.template.episode_length, self.max_episode_steps or self.template.episode_length)
+        length = self.template.episode_length  # a fixed length: truncated there, never terminated
+        terminated = info["localised"] & stepped & (length is None)
+        limit = min((v for v in (length, self.max_episode_steps) if v is not None), default=None)
         truncated = stepped & (self._elapsed >= limit) if limit else np.zeros(n, dtype=bool)
         rewards = np.where(stepped, referee.rewards(self.template.reward_kind, info), 0.0)
         obs = self._observations()
@@ -284,10 +269,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
                 final_obs[i] = {k: v[i].copy() for k, v in obs.items()} if isinstance(obs, dict) else obs[i].copy()
                 final_info[i] = {k: v[i] for k, v in info.items()}
             self._restart(ended)
-            info = dict(self._infos())
             obs = self._observations()
-            info["final_obs"], info["_final_obs"] = final_obs, done.copy()
-            info["final_info"], info["_final_info"] = final_info, done.copy()
+            info = {**self._infos(), "final_obs": final_obs, "_final_obs": done.copy(),
+                    "final_info": final_info, "_final_info": done.copy()}
         else:
             self._autoreset = done
         return obs, rewards, terminated, truncated, self._masked(info, np.ones(n, dtype=bool))

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import warnings
-from typing import Any, Sequence, SupportsFloat
+from typing import Any, Callable, Sequence, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -53,7 +53,6 @@ def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: 
     ``map``; the expected entropies per action, with ``lookahead``), as :class:`HMMBeliefWrapper`
     and the native vector env give it."""
     shape = model.belief_shape if full_state else model.shape
-    belief_space = spaces.Box(0.0, 1.0, shape=shape, dtype=np.float32)
     map_shape = map_channels(model).shape
     look_shape = (lookahead, model.n_actions)
     if flatten:
@@ -64,9 +63,8 @@ def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: 
         n = (model.sensor.encoded_size + int(np.prod(shape)) + (int(np.prod(map_shape)) if map else 0)
              + int(np.prod(look_shape)))
         return spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
-    extra = {key: belief_space}
-    extra.update({name: spaces.Box(0.0, 1.0, shape=s, dtype=np.float32)
-                  for name, s, wanted in (("map", map_shape, map), ("lookahead", look_shape, lookahead)) if wanted})
+    parts = ((key, shape, True), ("map", map_shape, map), ("lookahead", look_shape, lookahead))
+    extra = {name: spaces.Box(0.0, 1.0, shape=s, dtype=np.float32) for name, s, wanted in parts if wanted}
     if isinstance(inner, spaces.Dict):
         clash = sorted(set(extra) & set(inner.spaces))
         if clash:
@@ -200,10 +198,9 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self._reset_flag = False
 
     # -- filtering -------------------------------------------------------------------------------
-    def _make_filter(self, model: GridModel):
-        if self.belief == "particles":
-            return ParticleFilter(model, **self._filter_args)
-        return ForwardFilter(model)
+    def _make_filter(self, model: GridModel, rng: np.random.Generator | None = None):
+        return (ParticleFilter(model, **self._filter_args, rng=rng) if self.belief == "particles"
+                else ForwardFilter(model))
 
     def _sensor_obs(self, observation):
         return observation["observation"] if isinstance(observation, dict) else observation
@@ -212,41 +209,35 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options)
         env_model = getattr(self.env.unwrapped, "model", None) if self._follows_env else None
         if env_model is not None and env_model is not self.model:  # the map was redrawn at reset
-            previous = self.filter
             self.model = env_model
-            self.filter = self._make_filter(env_model)
-            if self.belief == "particles":  # the particles' stream goes on (seeded or not) across maps
-                self.filter.rng = previous.rng
-        self._reset_flag = False
+            # The particles' stream (with particles) goes on, seeded or not, across maps.
+            self.filter = self._make_filter(env_model, rng=getattr(self.filter, "rng", None))
         if seed is not None and self.belief == "particles":  # a stream of its own, fixed by the seed
             self.filter.seed(np.random.SeedSequence(seed, spawn_key=(1,)))
-        try:
-            self.filter.reset(self._sensor_obs(obs))
-        except ImpossibleObservationError as exc:
-            if self.on_impossible == "raise":
-                raise ImpossibleObservationError(f"{exc}; {_RESET_HINT}") from exc
-            self.filter.reset()
-            self._reset_flag = True
-        if self.on_impossible == "reset":
-            info = {**info, "belief_reset": self._reset_flag}
+        info = self._filtered(lambda: self.filter.reset(self._sensor_obs(obs)), info)
         return self.observation(obs), info
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
+        info = self._filtered(lambda: self.filter.step(action, self._sensor_obs(obs)), info, self._sensor_obs(obs))
+        return self.observation(obs), reward, terminated, truncated, info
+
+    def _filtered(self, update: Callable[[], Any], info: dict[str, Any], retry: Any = None) -> dict[str, Any]:
+        """Run ``update`` (the filter's reset or step with an observation).  When the model calls
+        the observation impossible: raise, or (``on_impossible="reset"``) restart the belief from
+        the prior, updated with ``retry`` when that is possible, and say so in ``info["belief_reset"]``."""
         self._reset_flag = False
         try:
-            self.filter.step(action, self._sensor_obs(obs))
+            update()
         except ImpossibleObservationError as exc:
             if self.on_impossible == "raise":
                 raise ImpossibleObservationError(f"{exc}; {_RESET_HINT}") from exc
             try:
-                self.filter.reset(self._sensor_obs(obs))
+                self.filter.reset(retry)
             except ImpossibleObservationError:
                 self.filter.reset()
             self._reset_flag = True
-        if self.on_impossible == "reset":
-            info = {**info, "belief_reset": self._reset_flag}
-        return self.observation(obs), reward, terminated, truncated, info
+        return {**info, "belief_reset": self._reset_flag} if self.on_impossible == "reset" else info
 
     # -- the observation -------------------------------------------------------------------------
     def belief_array(self) -> np.ndarray:

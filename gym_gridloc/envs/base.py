@@ -68,8 +68,11 @@ class GridLocEnv(gym.Env):
         unknown = set(options) - {"state", "map"}
         if unknown:
             raise ValueError(f"unknown reset option(s) {sorted(unknown)}; allowed: 'state' (row, col) or (layer, row, col), 'map'")
-        if "map" in options:  # this episode's map, given
-            self._set_model(self._model_on(options["map"]))
+        if "map" in options:  # this episode's map, given: the family's model on it
+            if self._builder is None:
+                raise ValueError(
+                    f"{type(self).__name__} takes no 'map' reset option (it has no builder for other maps)")
+            self._set_model(self._builder(options["map"]))
         elif self._map_factory is not None:  # a new map from np_random: same seed, same map
             self._set_model(self._map_factory(self.np_random))
         elif self.model is not self._fixed_model:
@@ -138,12 +141,6 @@ class GridLocEnv(gym.Env):
         if model is not self.model:
             self.model = model
             self._referee = ForwardFilter(model)
-
-    def _model_on(self, layout: Any) -> GridModel:
-        """The family's model on the map ``layout`` (the ``map`` reset option)."""
-        if self._builder is None:
-            raise ValueError(f"{type(self).__name__} takes no 'map' reset option (it has no builder for other maps)")
-        return self._builder(layout)
 
     def _start_state(self, options) -> np.ndarray | None:
         """The start state a reset option asks for, as (1, 3), or None (draw it)."""
