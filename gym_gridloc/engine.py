@@ -132,8 +132,7 @@ def terms(model: GridModel, action: int | None) -> tuple[Term, ...]:
 def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
     """``actions`` as ``n`` plan indices (int64): each an action in ``0..A-1``, or ``A`` for an
     unknown action (``None``, alone or as an element).  A scalar applies to all ``n``."""
-    _checked_model(model)
-    A = model.n_actions
+    A = _checked_model(model).n_actions
     if actions is None:
         return np.full(n, A, dtype=np.int64)
     if np.ndim(actions) == 0:
@@ -237,8 +236,7 @@ def likelihood(model: GridModel, reading: int) -> np.ndarray:
 def likelihoods(model: GridModel, readings: Any, out: np.ndarray | None = None) -> np.ndarray:
     """P(reading_i | state) for N readings as ``(N, H*W)`` (position sensors) or ``(N, L*H*W)``
     (sensors whose reading depends on the layer), zero on obstacles."""
-    _checked_model(model)
-    return model.sensor.likelihoods(np.asarray(readings, dtype=np.int64).reshape(-1), out=out)
+    return _checked_model(model).sensor.likelihoods(np.asarray(readings, dtype=np.int64).reshape(-1), out=out)
 
 
 def impossible(model: GridModel, reading: int, *, label: str | None = None,
@@ -253,11 +251,9 @@ def impossible(model: GridModel, reading: int, *, label: str | None = None,
     )
 
 
-def _check_z(model: GridModel, z: np.ndarray, readings: np.ndarray, sel: np.ndarray | None = None) -> None:
-    """Raise for the first belief of a batch (of those in ``sel``) whose normaliser ``z`` is not positive."""
+def _check_z(model: GridModel, z: np.ndarray, readings: np.ndarray) -> None:
+    """Raise for the first belief of a batch whose normaliser ``z`` is not positive (1.0 where masked out)."""
     ok = (z > 0.0) & np.isfinite(z)
-    if sel is not None:
-        ok |= ~sel
     if not ok.all():
         i = int(np.flatnonzero(~ok)[0])
         text = model.sensor.observation_text(int(readings[i]))
@@ -314,15 +310,15 @@ def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out
         raise ValueError(f"step() needs one reading per belief: {n} beliefs, {rs.size} readings")
     sel = _all(n) if mask is None else np.asarray(mask, dtype=bool)
     if mask is not None:
-        acts = np.where(sel, acts, 0)
+        acts, rs = np.where(sel, acts, 0), np.where(sel, rs, 0)
     res = _out(out, flat, (n, *model.belief_shape))
     res2 = res.reshape(n, -1)
-    lik = likelihoods(model, rs if mask is None else np.where(sel, rs, 0))
+    lik = likelihoods(model, rs)
     if model.kidnap_prob > 0.0:
         z = _mixed_step(model, d, flat, acts, lik, res2, normalise, sel)
     else:
         z = d.plan.run(flat, acts, lik, d.layered, res2, 1 if normalise else 2, sel)
-    _check_z(model, z, rs, None if mask is None else sel)
+    _check_z(model, z, rs)
     return res, z
 
 
@@ -406,8 +402,7 @@ def states_of(model: GridModel, indices: np.ndarray) -> np.ndarray:
 
 def sample_initial(model: GridModel, n: int, rng: np.random.Generator) -> np.ndarray:
     """``n`` hidden states drawn uniformly over the free states, ``(n, 3)`` (layer, row, col)."""
-    _checked_model(model)
-    return states_of(model, rng.integers(model.n_states, size=n))
+    return states_of(_checked_model(model), rng.integers(model.n_states, size=n))
 
 
 def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.random.Generator) -> np.ndarray:
@@ -419,10 +414,9 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     state, which picks the next state by the cumulative probabilities of the action's terms in
     their order.
     """
-    _checked_model(model)
+    transitions = _derived(model).transitions  # checks the model
     st = np.asarray(states, dtype=np.int64).reshape(-1, 3)
     n = st.shape[0]
-    transitions = _derived(model).transitions
     if n == 1 and model.kidnap_prob == 0.0 and type(actions) is int and 0 <= actions < model.n_actions:
         # one state: the same draw, without array overheads
         return np.array([_next_one(transitions[actions], st[0], rng)], dtype=np.int64)
@@ -472,8 +466,7 @@ def _next_one(ts: tuple[Term, ...], state: np.ndarray, rng: np.random.Generator)
 
 def sample_readings(model: GridModel, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """One reading per state ``(N, 3)``, drawn from the sensor (N,) int64."""
-    _checked_model(model)
-    return model.sensor.sample(np.asarray(states, dtype=np.int64).reshape(-1, 3), rng)
+    return _checked_model(model).sensor.sample(np.asarray(states, dtype=np.int64).reshape(-1, 3), rng)
 
 
 def simulate(model: GridModel, steps: int, rng: np.random.Generator, actions: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

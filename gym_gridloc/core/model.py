@@ -153,22 +153,19 @@ class GridModel:
         action_names: Sequence[str] | None = None,
         kidnap_prob: float = 0.0,
     ) -> None:
-        set_ = object.__setattr__
-        set_(self, "kidnap_prob", check_probability("kidnap_prob", kidnap_prob))
-        set_(self, "grid", grid)
-        set_(self, "sensor", sensor)
-        set_(self, "n_layers", int(n_layers))
-        set_(self, "name", name)
-        set_(self, "params", dict(params or {}))
-        # No copies: merge_terms keeps the given arrays (read-only) where nothing merges.
-        set_(self, "transitions", _share_equal(tuple(merge_terms(t) for t in transitions)))
+        self.__dict__.update(
+            kidnap_prob=check_probability("kidnap_prob", kidnap_prob), grid=grid, sensor=sensor, n_layers=int(n_layers),
+            name=name, params=dict(params or {}),
+            # No copies: merge_terms keeps the given arrays (read-only) where nothing merges.
+            transitions=_share_equal(tuple(merge_terms(t) for t in transitions)),
+        )
         if not self.transitions:
             raise ValueError("a model needs at least one action")
         if action_names is None:
             action_names = ("N", "E", "S", "W") if len(self.transitions) == 4 else tuple(map(str, range(len(self.transitions))))
         if len(action_names) != len(self.transitions):
             raise ValueError(f"action_names needs one name per action ({len(self.transitions)}), got {list(action_names)}")
-        set_(self, "action_names", tuple(action_names))
+        self.__dict__["action_names"] = tuple(action_names)
         self._check()
 
     def __setattr__(self, name: str, value: Any) -> None:
