@@ -39,6 +39,7 @@ import numpy as np
 
 from gym_gridloc import kernels
 from gym_gridloc.core.errors import ImpossibleObservationError
+from gym_gridloc.core.grid import read_only
 from gym_gridloc.core.model import GridModel, Term, mean_transition
 
 __all__ = [
@@ -65,8 +66,7 @@ class _Derived:
         """The flat likelihood of one reading (cached while the cache is small)."""
         lik = self._liks.get(reading)
         if lik is None:
-            lik = np.ascontiguousarray(self.model().sensor.likelihood(reading), dtype=np.float64).reshape(-1)
-            lik.setflags(write=False)
+            lik = read_only(np.ascontiguousarray(self.model().sensor.likelihood(reading), dtype=np.float64).reshape(-1))
             if self._lik_bytes + lik.nbytes <= self.LIK_CACHE_BYTES:
                 self._liks[reading] = lik
                 self._lik_bytes += lik.nbytes
@@ -387,9 +387,7 @@ def _no_liks(n: int) -> np.ndarray:
 
 @functools.cache
 def _all(n: int) -> np.ndarray:
-    arr = np.ones(n, dtype=bool)
-    arr.setflags(write=False)
-    return arr
+    return read_only(np.ones(n, dtype=bool))
 
 
 # -- the simulator's side -----------------------------------------------------------------------------

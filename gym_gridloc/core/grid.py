@@ -19,6 +19,12 @@ from gym_gridloc.core.errors import MapError
 DIRECTIONS = np.array([(-1, 0), (0, 1), (1, 0), (0, -1)], dtype=np.int64)
 
 
+def read_only(arr: np.ndarray) -> np.ndarray:
+    """``arr``, made read-only (the arrays that maps, models and sensors keep)."""
+    arr.setflags(write=False)
+    return arr
+
+
 @dataclass(frozen=True, eq=False)
 class GridMap:
     """A rectangular grid of free cells and obstacles, with an optional label per cell.
@@ -43,8 +49,7 @@ class GridMap:
         index = np.full(labels.shape, -1, dtype=np.int64)
         index[free] = np.arange(len(cells))
         for name, arr in (("labels", labels), ("free", free), ("free_cells", cells), ("cell_index", index)):
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+            object.__setattr__(self, name, read_only(arr))
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -22,7 +22,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from gym_gridloc.core.grid import DIRECTIONS, GridMap
+from gym_gridloc.core.grid import DIRECTIONS, GridMap, read_only
 from gym_gridloc.core.sensors import Sensor
 from gym_gridloc.core.validation import check_probability
 
@@ -58,13 +58,8 @@ def merge_terms(terms: Sequence[Term], scale: float = 1.0) -> tuple[Term, ...]:
             merged[key] = merged[key] + t.weight * scale
         else:  # no copy at scale 1 (the weights are made read-only below)
             merged[key] = t.weight if scale == 1.0 else t.weight * scale
-    out = []
-    for (src, dst, dr, dc), weight in merged.items():
-        if np.any(weight):
-            weight = np.ascontiguousarray(weight, dtype=np.float64)
-            weight.setflags(write=False)
-            out.append(Term(src, dst, dr, dc, weight))
-    return tuple(out)
+    return tuple(Term(*key, read_only(np.ascontiguousarray(w, dtype=np.float64)))
+                 for key, w in merged.items() if np.any(w))
 
 
 def mean_transition(transitions: Sequence[Sequence[Term]]) -> tuple[Term, ...]:
@@ -79,17 +74,16 @@ def _share_equal(transitions: tuple[tuple[Term, ...], ...]) -> tuple[tuple[Term,
     same ``(src, dst, dr, dc)`` replaced by that array (held once: e.g. on a colour grid the
     three actions that slip north share one north weight)."""
     seen: dict[tuple[int, int, int, int], list[np.ndarray]] = {}
-    out = []
-    for terms in transitions:
-        shared = []
-        for t in terms:
-            key = (t.src, t.dst, t.dr, t.dc)
-            same = next((w for w in seen.get(key, ()) if np.array_equal(w, t.weight)), None)
-            if same is None:
-                seen.setdefault(key, []).append(t.weight)
-            shared.append(t if same is None else Term(t.src, t.dst, t.dr, t.dc, same))
-        out.append(tuple(shared))
-    return tuple(out)
+
+    def share(t: Term) -> Term:
+        key = (t.src, t.dst, t.dr, t.dc)
+        same = next((w for w in seen.get(key, ()) if np.array_equal(w, t.weight)), None)
+        if same is None:
+            seen.setdefault(key, []).append(t.weight)
+            return t
+        return Term(*key, same)
+
+    return tuple(tuple(share(t) for t in terms) for terms in transitions)
 
 
 def move_terms(grid: GridMap, direction_probs: np.ndarray, layer: int = 0, dst_layer: int | None = None) -> list[Term]:
@@ -100,16 +94,11 @@ def move_terms(grid: GridMap, direction_probs: np.ndarray, layer: int = 0, dst_l
     dst_layer = layer if dst_layer is None else dst_layer
     h, w = grid.shape
     probs = np.broadcast_to(np.asarray(direction_probs, dtype=np.float64).reshape(4, -1, 1) if np.ndim(direction_probs) == 1 else direction_probs, (4, h, w))
-    blocked = grid.blocked()
-    free = grid.free
-    terms = []
-    stay = np.zeros((h, w))
-    for d, (dr, dc) in enumerate(DIRECTIONS):
-        p = np.where(free, probs[d], 0.0)
-        terms.append(Term(layer, dst_layer, int(dr), int(dc), np.where(blocked[d], 0.0, p)))
-        stay += np.where(blocked[d], p, 0.0)
-    terms.append(Term(layer, dst_layer, 0, 0, stay))
-    return terms
+    blocked, p = grid.blocked(), np.where(grid.free, probs, 0.0)  # (4, H, W)
+    moves = [Term(layer, dst_layer, int(dr), int(dc), np.where(blocked[d], 0.0, p[d]))
+             for d, (dr, dc) in enumerate(DIRECTIONS)]
+    stay = sum(np.where(blocked, p, 0.0), np.zeros((h, w)))  # the blocked moves', in direction order
+    return [*moves, Term(layer, dst_layer, 0, 0, stay)]
 
 
 class GridModel:
