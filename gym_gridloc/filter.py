@@ -207,8 +207,7 @@ class BatchFilter:
         post = np.broadcast_to(self.model.prior(), (idx.size, *self.model.belief_shape)).copy()
         z = np.ones(idx.size)
         if observations is not None or readings is not None:
-            rs = self._readings(observations, readings)
-            z = engine.update(self.model, post, rs[idx])
+            z = engine.update(self.model, post, self._readings(observations, readings)[idx])
         self._b[idx] = post
         self.log_likelihood[idx] = np.log(z)
         self._ready[idx] = True

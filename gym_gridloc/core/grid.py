@@ -161,9 +161,8 @@ def parse_rows(
             raise MapError(f"{source}, line {line_no}: empty row")
         if len(cells) > MAX_SIDE:
             raise MapError(f"{source}, line {line_no}: {len(cells)} cells, more than the {MAX_SIDE} a map may have")
-        if width is None:
-            width = len(cells)
-        elif len(cells) != width:
+        width = width or len(cells)  # line 1's (a row has at least one cell here)
+        if len(cells) != width:
             raise MapError(
                 f"{source}, line {line_no}: ragged row: {len(cells)} cells where line 1 has {width}"
             )

@@ -77,10 +77,8 @@ class RingSensor(Sensor):
         "nothing" its (H, W) row."""
         h, w = self.grid.shape
         readings = np.asarray(readings, dtype=np.int64).reshape(-1)
-        if out is None:
-            out = np.zeros((readings.size, h * w))
-        else:
-            out.fill(0.0)
+        out = np.empty((readings.size, h * w)) if out is None else out
+        out.fill(0.0)
         nothing = readings == self.nothing
         out[nothing] = self._nothing.reshape(-1)
         cells = np.flatnonzero(~nothing)
@@ -132,9 +130,7 @@ class RingSensor(Sensor):
         rr = r[:, None] + di[None, :] - 2
         cc = c[:, None] + dj[None, :] - 2
         inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-        probs = np.empty((states.shape[0], 26))
-        probs[:, :25] = np.where(inside, self.kernel.reshape(-1)[None, :], 0.0)
-        probs[:, 25] = self._nothing[r, c]
+        probs = np.column_stack((np.where(inside, self.kernel.reshape(-1)[None, :], 0.0), self._nothing[r, c]))
         k = self._categorical(probs, rng)
         cell = np.take_along_axis(rr * w + cc, np.minimum(k, 24)[:, None], axis=1)[:, 0]
         return np.where(k == 25, self.nothing, cell)

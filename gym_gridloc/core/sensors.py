@@ -190,10 +190,7 @@ class TableSensor(Sensor):
 
     def likelihoods(self, readings: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         flat = self.table.reshape(self.table.shape[0], -1)
-        readings = np.asarray(readings, dtype=np.int64).reshape(-1)
-        if out is None:
-            return flat[readings]
-        return np.take(flat, readings, axis=0, out=out)
+        return np.take(flat, np.asarray(readings, dtype=np.int64).reshape(-1), axis=0, out=out)
 
     def distribution(self, row: int, col: int, layer: int = 0) -> tuple[np.ndarray, np.ndarray]:
         column = self.table[:, layer, row, col] if self.layered else self.table[:, row, col]
