@@ -82,18 +82,10 @@ class _Derived:
     @functools.cached_property
     def moves(self) -> tuple[np.ndarray, np.ndarray]:
         """The sampler's tables, every action's terms in their order padded to ``K`` (zero weight):
-        ``weights`` ``(A + 1, H*W, K)`` and ``keys`` ``(A + 1, 4, K)`` (source layer, destination
-        layer, row shift, column shift; a padding term's source is -1)."""
-        ts, (h, w) = self.transitions, self.model().shape
-        k = max(1, max(len(terms) for terms in ts))
-        weights = np.zeros((len(ts), h * w, k))
-        keys = np.zeros((len(ts), 4, k), dtype=np.int64)
-        keys[:, 0] = -1
-        for a, terms in enumerate(ts):
-            for i, t in enumerate(terms):
-                weights[a, :, i] = t.weight.reshape(-1)
-                keys[a, :, i] = (t.src, t.dst, t.dr, t.dc)
-        return weights, keys
+        ``weights`` ``(A + 1, K, H*W)`` and ``keys`` ``(A + 1, 4, K)`` (source layer, destination
+        layer, row shift, column shift; a padding term's source is -1): :func:`kernels.padded`."""
+        weights, keys = kernels.padded(self.transitions, self.model().shape)
+        return weights, keys[:, :4]
 
     @functools.cached_property
     def plan(self) -> kernels.NumbaPlan | kernels.NumpyPlan:
@@ -280,9 +272,8 @@ def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
             raise impossible(model, int(rs[0]))
         np.divide(post, z1, out=flat[0])
         return np.array([z1])
-    lik = likelihoods(model, rs)
-    post = flat * lik if lik.shape[1] == flat.shape[1] else (flat.reshape(n, model.n_layers, -1) * lik[:, None, :]).reshape(n, -1)
-    z = post.sum(axis=1)
+    post = flat.copy()
+    z = kernels.weigh(post, likelihoods(model, rs), _derived(model).layered, model.n_layers, 2)
     _check_z(model, z, rs)
     np.divide(post, z[:, None], out=flat)
     return z
@@ -435,7 +426,7 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     u = rng.random(moving.size)
     weights, keys = _derived(model).moves
     acts, st_m = acts[moving], st[moving]
-    p = weights[acts, st_m[:, 1] * model.shape[1] + st_m[:, 2]]  # (n, K): each state's action's terms
+    p = weights[acts, :, st_m[:, 1] * model.shape[1] + st_m[:, 2]]  # (n, K): each state's action's terms
     key = keys[acts]  # (n, 4, K)
     p[key[:, 0] != st_m[:, :1]] = 0.0  # terms of another source layer
     cum = np.cumsum(p, axis=1)
