@@ -105,9 +105,7 @@ class ParticleFilter:
         """Draw the particles from the prior (uniform over free states), then update with
         ``observation`` if given."""
         self._draw_prior()
-        self.log_likelihood = 0.0
-        self.n_resamples = 0
-        self.n_reinitialisations = 0
+        self.log_likelihood, self.n_resamples, self.n_reinitialisations = 0.0, 0, 0
         if observation is not None:
             self.update(observation)
         return self

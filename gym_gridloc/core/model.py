@@ -288,18 +288,12 @@ class GridModel:
         row is dense)."""
         from scipy import sparse
 
-        rows, cols, vals = [], [], []
-        index = self.grid.cell_index
-        n = self.grid.n_free
-        for t in self.terms(action):
-            rr, cc = np.nonzero(t.weight)
-            rows.append(t.src * n + index[rr, cc])
-            cols.append(t.dst * n + index[rr + t.dr, cc + t.dc])
-            vals.append(t.weight[rr, cc])
-        S = self.n_states
-        m = sparse.coo_matrix(
-            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(S, S)
-        ).tocsr()
+        index, n, S = self.grid.cell_index, self.grid.n_free, self.n_states
+        cells = [(t, *np.nonzero(t.weight)) for t in self.terms(action)]  # each term's non-zero cells
+        vals = np.concatenate([t.weight[rr, cc] for t, rr, cc in cells])
+        rows = np.concatenate([t.src * n + index[rr, cc] for t, rr, cc in cells])
+        cols = np.concatenate([t.dst * n + index[rr + t.dr, cc + t.dc] for t, rr, cc in cells])
+        m = sparse.coo_matrix((vals, (rows, cols)), shape=(S, S)).tocsr()
         if self.kidnap_prob > 0.0:  # teleporting makes every row dense
             m = sparse.csr_matrix((1.0 - self.kidnap_prob) * m.toarray() + self.kidnap_prob / S)
         return m
