@@ -95,9 +95,8 @@ class ForwardFilter:
         belief as it was) when the observation has probability zero under the model."""
         reading = self.model.sensor.to_reading(observation)
         post = self._belief().copy()
-        z = engine.update(self.model, post, reading)
+        self.log_likelihood += math.log(float(engine.update(self.model, post, reading)[0]))
         self._f = post
-        self.log_likelihood += math.log(float(z[0]))
         return self
 
     def step(self, action: int | None, observation: Any) -> "ForwardFilter":

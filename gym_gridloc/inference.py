@@ -211,8 +211,7 @@ class FixedLagSmoother:
         _condition(self.model, f, reading, self.t + 1)
         self.t += 1
         self._f.append(f)
-        if self.lag > 0:
-            self._links.append((a, reading))
+        self._links.append((a, reading))  # nothing is kept at lag 0 (maxlen 0)
         k = self.t - self.lag
         return self._smoothed(k) if k >= 0 else None
 
