@@ -39,6 +39,7 @@ import numpy as np
 
 from gym_gridloc import kernels
 from gym_gridloc.core.errors import ImpossibleObservationError
+from gym_gridloc.core.grid import read_only
 from gym_gridloc.core.model import GridModel, Term, mean_transition
 
 __all__ = [
@@ -65,8 +66,7 @@ class _Derived:
         """The flat likelihood of one reading (cached while the cache is small)."""
         lik = self._liks.get(reading)
         if lik is None:
-            lik = np.ascontiguousarray(self.model().sensor.likelihood(reading), dtype=np.float64).reshape(-1)
-            lik.setflags(write=False)
+            lik = read_only(np.ascontiguousarray(self.model().sensor.likelihood(reading), dtype=np.float64).reshape(-1))
             if self._lik_bytes + lik.nbytes <= self.LIK_CACHE_BYTES:
                 self._liks[reading] = lik
                 self._lik_bytes += lik.nbytes
@@ -82,18 +82,10 @@ class _Derived:
     @functools.cached_property
     def moves(self) -> tuple[np.ndarray, np.ndarray]:
         """The sampler's tables, every action's terms in their order padded to ``K`` (zero weight):
-        ``weights`` ``(A + 1, H*W, K)`` and ``keys`` ``(A + 1, 4, K)`` (source layer, destination
-        layer, row shift, column shift; a padding term's source is -1)."""
-        ts, (h, w) = self.transitions, self.model().shape
-        k = max(1, max(len(terms) for terms in ts))
-        weights = np.zeros((len(ts), h * w, k))
-        keys = np.zeros((len(ts), 4, k), dtype=np.int64)
-        keys[:, 0] = -1
-        for a, terms in enumerate(ts):
-            for i, t in enumerate(terms):
-                weights[a, :, i] = t.weight.reshape(-1)
-                keys[a, :, i] = (t.src, t.dst, t.dr, t.dc)
-        return weights, keys
+        ``weights`` ``(A + 1, K, H*W)`` and ``keys`` ``(A + 1, 4, K)`` (source layer, destination
+        layer, row shift, column shift; a padding term's source is -1): :func:`kernels.padded`."""
+        weights, keys = kernels.padded(self.transitions, self.model().shape)
+        return weights, keys[:, :4]
 
     @functools.cached_property
     def plan(self) -> kernels.NumbaPlan | kernels.NumpyPlan:
@@ -132,8 +124,7 @@ def terms(model: GridModel, action: int | None) -> tuple[Term, ...]:
 def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
     """``actions`` as ``n`` plan indices (int64): each an action in ``0..A-1``, or ``A`` for an
     unknown action (``None``, alone or as an element).  A scalar applies to all ``n``."""
-    _checked_model(model)
-    A = model.n_actions
+    A = _checked_model(model).n_actions
     if actions is None:
         return np.full(n, A, dtype=np.int64)
     if np.ndim(actions) == 0:
@@ -237,8 +228,7 @@ def likelihood(model: GridModel, reading: int) -> np.ndarray:
 def likelihoods(model: GridModel, readings: Any, out: np.ndarray | None = None) -> np.ndarray:
     """P(reading_i | state) for N readings as ``(N, H*W)`` (position sensors) or ``(N, L*H*W)``
     (sensors whose reading depends on the layer), zero on obstacles."""
-    _checked_model(model)
-    return model.sensor.likelihoods(np.asarray(readings, dtype=np.int64).reshape(-1), out=out)
+    return _checked_model(model).sensor.likelihoods(np.asarray(readings, dtype=np.int64).reshape(-1), out=out)
 
 
 def impossible(model: GridModel, reading: int, *, label: str | None = None,
@@ -253,11 +243,9 @@ def impossible(model: GridModel, reading: int, *, label: str | None = None,
     )
 
 
-def _check_z(model: GridModel, z: np.ndarray, readings: np.ndarray, sel: np.ndarray | None = None) -> None:
-    """Raise for the first belief of a batch (of those in ``sel``) whose normaliser ``z`` is not positive."""
+def _check_z(model: GridModel, z: np.ndarray, readings: np.ndarray) -> None:
+    """Raise for the first belief of a batch whose normaliser ``z`` is not positive (1.0 where masked out)."""
     ok = (z > 0.0) & np.isfinite(z)
-    if sel is not None:
-        ok |= ~sel
     if not ok.all():
         i = int(np.flatnonzero(~ok)[0])
         text = model.sensor.observation_text(int(readings[i]))
@@ -284,9 +272,8 @@ def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
             raise impossible(model, int(rs[0]))
         np.divide(post, z1, out=flat[0])
         return np.array([z1])
-    lik = likelihoods(model, rs)
-    post = flat * lik if lik.shape[1] == flat.shape[1] else (flat.reshape(n, model.n_layers, -1) * lik[:, None, :]).reshape(n, -1)
-    z = post.sum(axis=1)
+    post = flat.copy()
+    z = kernels.weigh(post, likelihoods(model, rs), _derived(model).layered, model.n_layers, 2)
     _check_z(model, z, rs)
     np.divide(post, z[:, None], out=flat)
     return z
@@ -314,15 +301,15 @@ def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out
         raise ValueError(f"step() needs one reading per belief: {n} beliefs, {rs.size} readings")
     sel = _all(n) if mask is None else np.asarray(mask, dtype=bool)
     if mask is not None:
-        acts = np.where(sel, acts, 0)
+        acts, rs = np.where(sel, acts, 0), np.where(sel, rs, 0)
     res = _out(out, flat, (n, *model.belief_shape))
     res2 = res.reshape(n, -1)
-    lik = likelihoods(model, rs if mask is None else np.where(sel, rs, 0))
+    lik = likelihoods(model, rs)
     if model.kidnap_prob > 0.0:
         z = _mixed_step(model, d, flat, acts, lik, res2, normalise, sel)
     else:
         z = d.plan.run(flat, acts, lik, d.layered, res2, 1 if normalise else 2, sel)
-    _check_z(model, z, rs, None if mask is None else sel)
+    _check_z(model, z, rs)
     return res, z
 
 
@@ -391,9 +378,7 @@ def _no_liks(n: int) -> np.ndarray:
 
 @functools.cache
 def _all(n: int) -> np.ndarray:
-    arr = np.ones(n, dtype=bool)
-    arr.setflags(write=False)
-    return arr
+    return read_only(np.ones(n, dtype=bool))
 
 
 # -- the simulator's side -----------------------------------------------------------------------------
@@ -406,8 +391,7 @@ def states_of(model: GridModel, indices: np.ndarray) -> np.ndarray:
 
 def sample_initial(model: GridModel, n: int, rng: np.random.Generator) -> np.ndarray:
     """``n`` hidden states drawn uniformly over the free states, ``(n, 3)`` (layer, row, col)."""
-    _checked_model(model)
-    return states_of(model, rng.integers(model.n_states, size=n))
+    return states_of(_checked_model(model), rng.integers(model.n_states, size=n))
 
 
 def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.random.Generator) -> np.ndarray:
@@ -419,10 +403,9 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     state, which picks the next state by the cumulative probabilities of the action's terms in
     their order.
     """
-    _checked_model(model)
+    transitions = _derived(model).transitions  # checks the model
     st = np.asarray(states, dtype=np.int64).reshape(-1, 3)
     n = st.shape[0]
-    transitions = _derived(model).transitions
     if n == 1 and model.kidnap_prob == 0.0 and type(actions) is int and 0 <= actions < model.n_actions:
         # one state: the same draw, without array overheads
         return np.array([_next_one(transitions[actions], st[0], rng)], dtype=np.int64)
@@ -443,7 +426,7 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     u = rng.random(moving.size)
     weights, keys = _derived(model).moves
     acts, st_m = acts[moving], st[moving]
-    p = weights[acts, st_m[:, 1] * model.shape[1] + st_m[:, 2]]  # (n, K): each state's action's terms
+    p = weights[acts, :, st_m[:, 1] * model.shape[1] + st_m[:, 2]]  # (n, K): each state's action's terms
     key = keys[acts]  # (n, 4, K)
     p[key[:, 0] != st_m[:, :1]] = 0.0  # terms of another source layer
     cum = np.cumsum(p, axis=1)
@@ -472,8 +455,7 @@ def _next_one(ts: tuple[Term, ...], state: np.ndarray, rng: np.random.Generator)
 
 def sample_readings(model: GridModel, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """One reading per state ``(N, 3)``, drawn from the sensor (N,) int64."""
-    _checked_model(model)
-    return model.sensor.sample(np.asarray(states, dtype=np.int64).reshape(-1, 3), rng)
+    return _checked_model(model).sensor.sample(np.asarray(states, dtype=np.int64).reshape(-1, 3), rng)
 
 
 def simulate(model: GridModel, steps: int, rng: np.random.Generator, actions: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -95,9 +95,8 @@ class ForwardFilter:
         belief as it was) when the observation has probability zero under the model."""
         reading = self.model.sensor.to_reading(observation)
         post = self._belief().copy()
-        z = engine.update(self.model, post, reading)
+        self.log_likelihood += math.log(float(engine.update(self.model, post, reading)[0]))
         self._f = post
-        self.log_likelihood += math.log(float(z[0]))
         return self
 
     def step(self, action: int | None, observation: Any) -> "ForwardFilter":
@@ -207,8 +206,7 @@ class BatchFilter:
         post = np.broadcast_to(self.model.prior(), (idx.size, *self.model.belief_shape)).copy()
         z = np.ones(idx.size)
         if observations is not None or readings is not None:
-            rs = self._readings(observations, readings)
-            z = engine.update(self.model, post, rs[idx])
+            z = engine.update(self.model, post, self._readings(observations, readings)[idx])
         self._b[idx] = post
         self.log_likelihood[idx] = np.log(z)
         self._ready[idx] = True

@@ -100,18 +100,6 @@ class ForwardBackwardResult:
         return _positions(self.smoothed)
 
 
-def _forward(model: GridModel, acts: list[int | None], readings: list[int]) -> tuple[np.ndarray, float]:
-    n = len(readings)
-    f = np.empty((n, *model.belief_shape))
-    loglik = 0.0
-    f[0] = model.prior()
-    for k in range(n):
-        if k > 0:
-            engine.predict(model, f[k - 1], acts[k - 1], out=f[k])
-        loglik += float(np.log(_condition(model, f[k], readings[k], k)))
-    return f, loglik
-
-
 def forward_backward(model: GridModel, actions: Sequence[Any] | None, observations: Sequence[Any]) -> ForwardBackwardResult:
     """Filtered and smoothed beliefs of a recorded episode and its log likelihood.
 
@@ -121,7 +109,12 @@ def forward_backward(model: GridModel, actions: Sequence[Any] | None, observatio
     zero under the model given what came before.
     """
     acts, readings = _episode(model, actions, observations)
-    f, loglik = _forward(model, acts, readings)
+    f = np.empty((len(readings), *model.belief_shape))  # the forward pass: filtered beliefs
+    f[0], loglik = model.prior(), 0.0
+    for k in range(len(readings)):
+        if k > 0:
+            engine.predict(model, f[k - 1], acts[k - 1], out=f[k])
+        loglik += float(np.log(_condition(model, f[k], readings[k], k)))
     smoothed = np.empty_like(f)
     mask = model.state_mask
     b = mask / float(mask.sum())
@@ -218,8 +211,7 @@ class FixedLagSmoother:
         _condition(self.model, f, reading, self.t + 1)
         self.t += 1
         self._f.append(f)
-        if self.lag > 0:
-            self._links.append((a, reading))
+        self._links.append((a, reading))  # nothing is kept at lag 0 (maxlen 0)
         k = self.t - self.lag
         return self._smoothed(k) if k >= 0 else None
 

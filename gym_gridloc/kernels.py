@@ -66,6 +66,20 @@ def weigh(out, liks, layered: int, n_layers: int, mode: int) -> np.ndarray:
     return z
 
 
+def padded(transitions, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Every action's terms padded to ``K`` (a padding term has zero weight and every key -1):
+    weights ``(A, K, H*W)`` (a copy) and keys ``(A, 5, K)``: source layer, destination layer,
+    row shift, column shift, flat offset."""
+    h, w = shape
+    weights = np.zeros((len(transitions), max(1, max(len(terms) for terms in transitions)), h * w))
+    keys = np.full((len(transitions), 5, weights.shape[1]), -1, dtype=np.int64)
+    for a, terms in enumerate(transitions):
+        for i, t in enumerate(terms):
+            weights[a, i] = t.weight.reshape(-1)
+            keys[a, :, i] = (t.src, t.dst, t.dr, t.dc, t.dr * w + t.dc)
+    return weights, keys
+
+
 def _compiled():
     """:mod:`gym_gridloc._numba_kernels`, imported (with numba) on first use; None (with a
     warning, and :data:`AVAILABLE` set to False) if numba is installed but fails to import."""
@@ -106,18 +120,11 @@ class NumbaPlan:
     path = "numba"
 
     def __init__(self, transitions, n_layers: int, shape: tuple[int, int]) -> None:
-        h, w = shape
-        hw = h * w
+        hw = shape[0] * shape[1]
         self.n_layers = n_layers
-        k = max(1, max(len(terms) for terms in transitions))
-        self.w = np.zeros((len(transitions), k, hw))  # a copy: this path is for small models only
-        self.meta = np.zeros((len(transitions), 5, k), dtype=np.int64)
-        self.meta[:, 1, :] = -1  # padding terms feed no layer
-        for a, terms in enumerate(transitions):
-            for i, t in enumerate(terms):
-                off = t.dr * w + t.dc
-                self.w[a, i] = t.weight.reshape(hw)
-                self.meta[a, :, i] = (t.src, t.dst, off, max(off, 0), min(hw + off, hw))
+        self.w, keys = padded(transitions, shape)  # a copy: this path is for small models only
+        off = keys[:, 4]  # padding terms feed no layer (destination -1)
+        self.meta = np.stack((keys[:, 0], keys[:, 1], off, np.maximum(off, 0), np.minimum(hw + off, hw)), axis=1)
         kernels = _compiled()
         self.batch = kernels.batch_update
         one, n = kernels.stencil_update, n_layers

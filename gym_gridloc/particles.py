@@ -80,9 +80,7 @@ class ParticleFilter:
         self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         self._states: np.ndarray | None = None  # (N, 3): layer, row, col
         self._w: np.ndarray | None = None
-        self.log_likelihood = 0.0
-        self.n_resamples = 0
-        self.n_reinitialisations = 0
+        self.log_likelihood, self.n_resamples, self.n_reinitialisations = 0.0, 0, 0
 
     # -- sampling helpers -------------------------------------------------------------------------
     def seed(self, seed: int | np.random.SeedSequence | None) -> "ParticleFilter":
@@ -105,9 +103,7 @@ class ParticleFilter:
         """Draw the particles from the prior (uniform over free states), then update with
         ``observation`` if given."""
         self._draw_prior()
-        self.log_likelihood = 0.0
-        self.n_resamples = 0
-        self.n_reinitialisations = 0
+        self.log_likelihood, self.n_resamples, self.n_reinitialisations = 0.0, 0, 0
         if observation is not None:
             self.update(observation)
         return self

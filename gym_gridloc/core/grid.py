@@ -19,6 +19,12 @@ from gym_gridloc.core.errors import MapError
 DIRECTIONS = np.array([(-1, 0), (0, 1), (1, 0), (0, -1)], dtype=np.int64)
 
 
+def read_only(arr: np.ndarray) -> np.ndarray:
+    """``arr``, made read-only (the arrays that maps, models and sensors keep)."""
+    arr.setflags(write=False)
+    return arr
+
+
 @dataclass(frozen=True, eq=False)
 class GridMap:
     """A rectangular grid of free cells and obstacles, with an optional label per cell.
@@ -43,8 +49,7 @@ class GridMap:
         index = np.full(labels.shape, -1, dtype=np.int64)
         index[free] = np.arange(len(cells))
         for name, arr in (("labels", labels), ("free", free), ("free_cells", cells), ("cell_index", index)):
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+            object.__setattr__(self, name, read_only(arr))
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -70,10 +75,7 @@ class GridMap:
         direction d would leave the grid or enter an obstacle."""
         padded = np.zeros((self.height + 2, self.width + 2), dtype=bool)
         padded[1:-1, 1:-1] = self.free
-        out = np.empty((4, self.height, self.width), dtype=bool)
-        for d, (dr, dc) in enumerate(DIRECTIONS):
-            out[d] = ~padded[1 + dr : 1 + dr + self.height, 1 + dc : 1 + dc + self.width]
-        return out
+        return np.stack([~padded[1 + dr : 1 + dr + self.height, 1 + dc : 1 + dc + self.width] for dr, dc in DIRECTIONS])
 
     def to_text(self, sep: str = "") -> list[str]:
         """The map as rows of symbols ('.' or '#' for obstacles)."""
@@ -156,9 +158,8 @@ def parse_rows(
             raise MapError(f"{source}, line {line_no}: empty row")
         if len(cells) > MAX_SIDE:
             raise MapError(f"{source}, line {line_no}: {len(cells)} cells, more than the {MAX_SIDE} a map may have")
-        if width is None:
-            width = len(cells)
-        elif len(cells) != width:
+        width = width or len(cells)  # line 1's (a row has at least one cell here)
+        if len(cells) != width:
             raise MapError(
                 f"{source}, line {line_no}: ragged row: {len(cells)} cells where line 1 has {width}"
             )

@@ -22,7 +22,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from gym_gridloc.core.grid import DIRECTIONS, GridMap
+from gym_gridloc.core.grid import DIRECTIONS, GridMap, read_only
 from gym_gridloc.core.sensors import Sensor
 from gym_gridloc.core.validation import check_probability
 
@@ -58,13 +58,8 @@ def merge_terms(terms: Sequence[Term], scale: float = 1.0) -> tuple[Term, ...]:
             merged[key] = merged[key] + t.weight * scale
         else:  # no copy at scale 1 (the weights are made read-only below)
             merged[key] = t.weight if scale == 1.0 else t.weight * scale
-    out = []
-    for (src, dst, dr, dc), weight in merged.items():
-        if np.any(weight):
-            weight = np.ascontiguousarray(weight, dtype=np.float64)
-            weight.setflags(write=False)
-            out.append(Term(src, dst, dr, dc, weight))
-    return tuple(out)
+    return tuple(Term(*key, read_only(np.ascontiguousarray(w, dtype=np.float64)))
+                 for key, w in merged.items() if np.any(w))
 
 
 def mean_transition(transitions: Sequence[Sequence[Term]]) -> tuple[Term, ...]:
@@ -79,17 +74,16 @@ def _share_equal(transitions: tuple[tuple[Term, ...], ...]) -> tuple[tuple[Term,
     same ``(src, dst, dr, dc)`` replaced by that array (held once: e.g. on a colour grid the
     three actions that slip north share one north weight)."""
     seen: dict[tuple[int, int, int, int], list[np.ndarray]] = {}
-    out = []
-    for terms in transitions:
-        shared = []
-        for t in terms:
-            key = (t.src, t.dst, t.dr, t.dc)
-            same = next((w for w in seen.get(key, ()) if np.array_equal(w, t.weight)), None)
-            if same is None:
-                seen.setdefault(key, []).append(t.weight)
-            shared.append(t if same is None else Term(t.src, t.dst, t.dr, t.dc, same))
-        out.append(tuple(shared))
-    return tuple(out)
+
+    def share(t: Term) -> Term:
+        key = (t.src, t.dst, t.dr, t.dc)
+        same = next((w for w in seen.get(key, ()) if np.array_equal(w, t.weight)), None)
+        if same is None:
+            seen.setdefault(key, []).append(t.weight)
+            return t
+        return Term(*key, same)
+
+    return tuple(tuple(share(t) for t in terms) for terms in transitions)
 
 
 def move_terms(grid: GridMap, direction_probs: np.ndarray, layer: int = 0, dst_layer: int | None = None) -> list[Term]:
@@ -100,16 +94,11 @@ def move_terms(grid: GridMap, direction_probs: np.ndarray, layer: int = 0, dst_l
     dst_layer = layer if dst_layer is None else dst_layer
     h, w = grid.shape
     probs = np.broadcast_to(np.asarray(direction_probs, dtype=np.float64).reshape(4, -1, 1) if np.ndim(direction_probs) == 1 else direction_probs, (4, h, w))
-    blocked = grid.blocked()
-    free = grid.free
-    terms = []
-    stay = np.zeros((h, w))
-    for d, (dr, dc) in enumerate(DIRECTIONS):
-        p = np.where(free, probs[d], 0.0)
-        terms.append(Term(layer, dst_layer, int(dr), int(dc), np.where(blocked[d], 0.0, p)))
-        stay += np.where(blocked[d], p, 0.0)
-    terms.append(Term(layer, dst_layer, 0, 0, stay))
-    return terms
+    blocked, p = grid.blocked(), np.where(grid.free, probs, 0.0)  # (4, H, W)
+    moves = [Term(layer, dst_layer, int(dr), int(dc), np.where(blocked[d], 0.0, p[d]))
+             for d, (dr, dc) in enumerate(DIRECTIONS)]
+    stay = sum(np.where(blocked, p, 0.0), np.zeros((h, w)))  # the blocked moves', in direction order
+    return [*moves, Term(layer, dst_layer, 0, 0, stay)]
 
 
 class GridModel:
@@ -153,22 +142,19 @@ class GridModel:
         action_names: Sequence[str] | None = None,
         kidnap_prob: float = 0.0,
     ) -> None:
-        set_ = object.__setattr__
-        set_(self, "kidnap_prob", check_probability("kidnap_prob", kidnap_prob))
-        set_(self, "grid", grid)
-        set_(self, "sensor", sensor)
-        set_(self, "n_layers", int(n_layers))
-        set_(self, "name", name)
-        set_(self, "params", dict(params or {}))
-        # No copies: merge_terms keeps the given arrays (read-only) where nothing merges.
-        set_(self, "transitions", _share_equal(tuple(merge_terms(t) for t in transitions)))
+        self.__dict__.update(
+            kidnap_prob=check_probability("kidnap_prob", kidnap_prob), grid=grid, sensor=sensor, n_layers=int(n_layers),
+            name=name, params=dict(params or {}),
+            # No copies: merge_terms keeps the given arrays (read-only) where nothing merges.
+            transitions=_share_equal(tuple(merge_terms(t) for t in transitions)),
+        )
         if not self.transitions:
             raise ValueError("a model needs at least one action")
         if action_names is None:
             action_names = ("N", "E", "S", "W") if len(self.transitions) == 4 else tuple(map(str, range(len(self.transitions))))
         if len(action_names) != len(self.transitions):
             raise ValueError(f"action_names needs one name per action ({len(self.transitions)}), got {list(action_names)}")
-        set_(self, "action_names", tuple(action_names))
+        self.__dict__["action_names"] = tuple(action_names)
         self._check()
 
     def __setattr__(self, name: str, value: Any) -> None:
@@ -302,18 +288,12 @@ class GridModel:
         row is dense)."""
         from scipy import sparse
 
-        rows, cols, vals = [], [], []
-        index = self.grid.cell_index
-        n = self.grid.n_free
-        for t in self.terms(action):
-            rr, cc = np.nonzero(t.weight)
-            rows.append(t.src * n + index[rr, cc])
-            cols.append(t.dst * n + index[rr + t.dr, cc + t.dc])
-            vals.append(t.weight[rr, cc])
-        S = self.n_states
-        m = sparse.coo_matrix(
-            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(S, S)
-        ).tocsr()
+        index, n, S = self.grid.cell_index, self.grid.n_free, self.n_states
+        cells = [(t, *np.nonzero(t.weight)) for t in self.terms(action)]  # each term's non-zero cells
+        vals = np.concatenate([t.weight[rr, cc] for t, rr, cc in cells])
+        rows = np.concatenate([t.src * n + index[rr, cc] for t, rr, cc in cells])
+        cols = np.concatenate([t.dst * n + index[rr + t.dr, cc + t.dc] for t, rr, cc in cells])
+        m = sparse.coo_matrix((vals, (rows, cols)), shape=(S, S)).tocsr()
         if self.kidnap_prob > 0.0:  # teleporting makes every row dense
             m = sparse.csr_matrix((1.0 - self.kidnap_prob) * m.toarray() + self.kidnap_prob / S)
         return m

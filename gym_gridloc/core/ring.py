@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from gymnasium import spaces
 
-from gym_gridloc.core.grid import GridMap
+from gym_gridloc.core.grid import GridMap, read_only
 from gym_gridloc.core.sensors import Sensor, xlogx
 from gym_gridloc.core.validation import check_probability
 
@@ -41,12 +41,10 @@ class RingSensor(Sensor):
         off = np.arange(-2, 3)
         dist = np.maximum(np.abs(off)[:, None], np.abs(off)[None, :])
         #: P(reading the cell at offset (i-2, j-2)), (5, 5), symmetric.
-        self.kernel = np.choose(dist, [self.p_true, self.p_ring1, self.p_ring2])
-        self.kernel.setflags(write=False)
+        self.kernel = read_only(np.choose(dist, [self.p_true, self.p_ring1, self.p_ring2]))
         # P(nothing | cell) = 1 - sum of the kernel over the in-grid part of the window.
         in_grid_mass = self._in_grid(np.zeros((h, w)), self.kernel)
-        self._nothing = np.where(grid.free, np.clip(1.0 - in_grid_mass, 0.0, 1.0), 0.0)
-        self._nothing.setflags(write=False)
+        self._nothing = read_only(np.where(grid.free, np.clip(1.0 - in_grid_mass, 0.0, 1.0), 0.0))
 
     def _in_grid(self, total: np.ndarray, values: np.ndarray) -> np.ndarray:
         """``total`` (H, W) plus, at each cell, ``values[i, j]`` (5, 5) for every offset
@@ -79,10 +77,8 @@ class RingSensor(Sensor):
         "nothing" its (H, W) row."""
         h, w = self.grid.shape
         readings = np.asarray(readings, dtype=np.int64).reshape(-1)
-        if out is None:
-            out = np.zeros((readings.size, h * w))
-        else:
-            out.fill(0.0)
+        out = np.empty((readings.size, h * w)) if out is None else out
+        out.fill(0.0)
         nothing = readings == self.nothing
         out[nothing] = self._nothing.reshape(-1)
         cells = np.flatnonzero(~nothing)
@@ -134,9 +130,7 @@ class RingSensor(Sensor):
         rr = r[:, None] + di[None, :] - 2
         cc = c[:, None] + dj[None, :] - 2
         inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-        probs = np.empty((states.shape[0], 26))
-        probs[:, :25] = np.where(inside, self.kernel.reshape(-1)[None, :], 0.0)
-        probs[:, 25] = self._nothing[r, c]
+        probs = np.column_stack((np.where(inside, self.kernel.reshape(-1)[None, :], 0.0), self._nothing[r, c]))
         k = self._categorical(probs, rng)
         cell = np.take_along_axis(rr * w + cc, np.minimum(k, 24)[:, None], axis=1)[:, 0]
         return np.where(k == 25, self.nothing, cell)

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from gym_gridloc.core.grid import DIRECTIONS, GridMap
+from gym_gridloc.core.grid import DIRECTIONS, GridMap, read_only
 from gym_gridloc.core.validation import check_probability
 
 
@@ -175,8 +175,7 @@ class TableSensor(Sensor):
     def _set_table(self, table: np.ndarray) -> None:
         """Keep ``table`` as :attr:`table`: zeroed on obstacles, read-only."""
         table[..., ~self.grid.free] = 0.0
-        table.setflags(write=False)
-        self.table = table
+        self.table = read_only(table)
 
     def _columns(self, states: np.ndarray) -> np.ndarray:
         """P(reading | state) for each of N states, ``(N, n_readings)``."""
@@ -191,10 +190,7 @@ class TableSensor(Sensor):
 
     def likelihoods(self, readings: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         flat = self.table.reshape(self.table.shape[0], -1)
-        readings = np.asarray(readings, dtype=np.int64).reshape(-1)
-        if out is None:
-            return flat[readings]
-        return np.take(flat, readings, axis=0, out=out)
+        return np.take(flat, np.asarray(readings, dtype=np.int64).reshape(-1), axis=0, out=out)
 
     def distribution(self, row: int, col: int, layer: int = 0) -> tuple[np.ndarray, np.ndarray]:
         column = self.table[:, layer, row, col] if self.layered else self.table[:, row, col]
@@ -246,8 +242,7 @@ class WallSensor(TableSensor):
         self.n_readings = 16
         self.observation_space = spaces.MultiBinary(4)
         blocked = grid.blocked()[list(self.ORDER)]  # (4, H, W) in (W, N, E, S) order
-        self.p_bits = np.where(blocked, self.p_detect, self.p_false_alarm)  # P(bit = 1 | cell)
-        self.p_bits.setflags(write=False)
+        self.p_bits = read_only(np.where(blocked, self.p_detect, self.p_false_alarm))  # P(bit = 1 | cell)
         # reading r: the product over its bits, in (W, N, E, S) order, of P(bit | cell)
         bits = self._OBSERVATIONS[:, :, None, None] == 1  # (16, 4, 1, 1)
         self._set_table(np.where(bits, self.p_bits, 1.0 - self.p_bits).prod(axis=1))
@@ -327,8 +322,7 @@ class DepthSensor(TableSensor):
             depth[d] = np.where(free, run + 1, 0)
         if int(depth.max()) > max_depth:
             raise ValueError(f"max_depth={max_depth} is below the map's largest depth {int(depth.max())}")
-        self.depth = depth
-        self.depth.setflags(write=False)
+        self.depth = read_only(depth)
         self.max_depth = int(max_depth)
         self.n_readings = self.max_depth + 1
         self.observation_space = spaces.Discrete(self.n_readings)

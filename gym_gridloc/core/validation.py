@@ -44,9 +44,7 @@ def check_size(name: str, value: Any, maximum: int = 4096) -> tuple[int, int]:
         value = (value, value)
     if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
         raise TypeError(f"{name} must be a pair (H, W) of integers, got {value!r}")
-    h = check_int(f"{name}[0] (rows)", value[0], 1, maximum)
-    w = check_int(f"{name}[1] (columns)", value[1], 1, maximum)
-    return h, w
+    return check_int(f"{name}[0] (rows)", value[0], 1, maximum), check_int(f"{name}[1] (columns)", value[1], 1, maximum)
 
 
 def check_choice(name: str, value: Any, allowed: Sequence[Any]) -> Any:
