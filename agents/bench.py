@@ -336,14 +336,10 @@ def run_benchmark(
             pool.join()
         parts = [[part for (j, _), part in zip(work, done) if j == i] for i in range(len(tasks))]
     per_task = iter(parts)
-    rows = []
-    for group in groups:
-        mine = [next(per_task) for _ in group]
-        if len(group) > 1:
-            rows.append(seed_aggregate(group[0], mine, seed_start=seed_start, test_set=test_set))
-        else:
-            rows.append(summarise(group[0], parts=mine[0], seed_start=seed_start, test_set=test_set))
-    return add_gaps(rows)
+    mine = [[next(per_task) for _ in group] for group in groups]
+    return add_gaps([seed_aggregate(group[0], runs, seed_start=seed_start, test_set=test_set) if len(group) > 1
+                     else summarise(group[0], parts=runs[0], seed_start=seed_start, test_set=test_set)
+                     for group, runs in zip(groups, mine)])
 
 
 def add_gaps(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
