@@ -54,8 +54,7 @@ class BeliefOps:
         return beliefs.sum(axis=1)
 
     def max_position(self, beliefs: np.ndarray) -> np.ndarray:
-        n = beliefs.shape[0]
-        return self.position(beliefs).reshape(n, -1).max(axis=1)
+        return self.position(beliefs).reshape(beliefs.shape[0], -1).max(axis=1)
 
     def localised(self, beliefs: np.ndarray, slack: float = 0.0) -> np.ndarray:
         return self.max_position(beliefs) >= self.threshold - slack
