@@ -98,19 +98,17 @@ def setup_size(side: int, steps: int, dense_max_gib: float) -> tuple[dict, dict,
             v = Tt[a] @ v
         return v
 
-    out = {"side": side, "S": S, "path": engine.path(model)}
     # The three are the same filter: check before timing.
     ref = csr_step()
     stencil()
     err = float(np.abs(f.belief_vector - ref).max())
     if err > 1e-12:
         raise AssertionError(f"{side}x{side}: stencil and CSR filters differ by {err:.3g}")
-    out["err"] = err
     fns = {"stencil": stencil, "csr_step": csr_step, "csr_product": csr_product}
     counts = dict.fromkeys(fns, steps)
     dense_bytes = model.n_actions * S * S * 8
-    out["dense_gib"] = dense_bytes / 2**30
-    out["dense"] = None
+    out = {"side": side, "S": S, "path": engine.path(model), "err": err, "dense_gib": dense_bytes / 2**30,
+           "dense": None}
     if dense_bytes <= dense_max_gib * 2**30:
         D = [m.toarray() for m in Tt]
         dense_steps = max(2, min(steps, int(2e9 // (S * S * 8)) + 2))

@@ -64,11 +64,11 @@ class PlayApp(App):
     def on_key(self, name: str) -> bool:
         if name == "r":
             self.reset()
-            return True
-        if name in self.keymap:
+        elif name in self.keymap:
             self.act(self.keymap[name])
-            return True
-        return False
+        else:
+            return False
+        return True
 
     def shown(self) -> Shown:
         u = self.env.unwrapped

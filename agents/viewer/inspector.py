@@ -45,8 +45,7 @@ class Inspector:
                 key = (int(l2), int(r2), int(c2))
                 transitions[a][key] = transitions[a].get(key, 0.0) + p
                 positions[a][key[1:]] = positions[a].get(key[1:], 0.0) + p
-        zs, ps = model.sensor.distribution(r, c, layer)
-        readings = {int(z): float(p) for z, p in zip(zs, ps)}
+        readings = {int(z): float(p) for z, p in zip(*model.sensor.distribution(r, c, layer))}
         return {"state": (layer, r, c), "transitions": transitions, "positions": positions, "readings": readings}
 
     # -- drawing ------------------------------------------------------------------------------------
