@@ -157,10 +157,7 @@ def _model_name(path) -> str | None:
     machine's install path), a user's as given."""
     if not path:
         return None
-    p = Path(path)
-    if p.resolve().parent == POLICY_DIR:
-        return f"agents/policies/{p.name}"
-    return str(path)
+    return f"agents/policies/{Path(path).name}" if Path(path).resolve().parent == POLICY_DIR else str(path)
 
 
 def summarise(task: Task | str, policy_name: str | None = None, parts: Sequence[dict[str, Any]] = (), *,

@@ -124,8 +124,7 @@ class ViewApp(App):
         self.ep = ep = rollout(self.env, self.policy, self.seed, keep=True, max_steps=self.max_steps)
         self.model = ep.model
         fb = forward_backward(self.model, ep.actions, ep.observations)
-        self.filtered = fb.filtered_positions
-        self.smoothed = fb.smoothed_positions
+        self.filtered, self.smoothed = fb.filtered_positions, fb.smoothed_positions
         self.full_filtered, self.full_smoothed = fb.filtered, fb.smoothed
         self.viterbi_path = [tuple(int(v) for v in p) for p in viterbi(self.model, ep.actions, ep.observations)[0]]
         self.readings = [self.model.sensor.to_reading(o) for o in ep.observations]
