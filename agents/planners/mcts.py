@@ -94,10 +94,9 @@ class MCTSPolicy(_TreeSearch):
 
     # -- node helpers --
     def _expand(self, node: _Node) -> None:
-        preds = self.ops.predict_all(node.belief[None])
-        pz = self.ops.reading_probs(preds)
-        pz /= pz.sum(axis=1, keepdims=True)
-        node.preds, node.pz = preds, pz
+        node.preds = self.ops.predict_all(node.belief[None])
+        node.pz = self.ops.reading_probs(node.preds)
+        node.pz /= node.pz.sum(axis=1, keepdims=True)
         node.na = np.zeros(self.n_actions)
         node.qa = np.zeros(self.n_actions)
 
