@@ -107,8 +107,7 @@ def compare(env_id: str, episodes: int, steps: int, seed: int, pbar) -> dict:
         truth = np.array(ep.positions[: steps + 1])
         for m in METHODS:
             est, dt = track(model, ep, m, seed + e)
-            est = np.array(est[: steps + 1])
-            errors[m][e] = np.abs(est - truth).sum(axis=1)
+            errors[m][e] = np.abs(np.array(est[: steps + 1]) - truth).sum(axis=1)
             secs[m].append(dt)
         pbar.update(1)
     env.close()

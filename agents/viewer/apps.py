@@ -31,8 +31,7 @@ class PlayApp(App):
 
     @classmethod
     def _keymap(cls, model) -> dict[str, int]:
-        digits: dict[str, int] = {str(a): a for a in range(min(model.n_actions, 10))}
-        return digits | cls._ARROWS.get(tuple(model.action_names), {})
+        return {str(a): a for a in range(min(model.n_actions, 10))} | cls._ARROWS.get(tuple(model.action_names), {})
 
     def reset(self) -> None:
         self.episode += 1
