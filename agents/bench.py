@@ -157,10 +157,7 @@ def _model_name(path) -> str | None:
     machine's install path), a user's as given."""
     if not path:
         return None
-    p = Path(path)
-    if p.resolve().parent == POLICY_DIR:
-        return f"agents/policies/{p.name}"
-    return str(path)
+    return f"agents/policies/{Path(path).name}" if Path(path).resolve().parent == POLICY_DIR else str(path)
 
 
 def summarise(task: Task | str, policy_name: str | None = None, parts: Sequence[dict[str, Any]] = (), *,
@@ -336,14 +333,10 @@ def run_benchmark(
             pool.join()
         parts = [[part for (j, _), part in zip(work, done) if j == i] for i in range(len(tasks))]
     per_task = iter(parts)
-    rows = []
-    for group in groups:
-        mine = [next(per_task) for _ in group]
-        if len(group) > 1:
-            rows.append(seed_aggregate(group[0], mine, seed_start=seed_start, test_set=test_set))
-        else:
-            rows.append(summarise(group[0], parts=mine[0], seed_start=seed_start, test_set=test_set))
-    return add_gaps(rows)
+    mine = [[next(per_task) for _ in group] for group in groups]
+    return add_gaps([seed_aggregate(group[0], runs, seed_start=seed_start, test_set=test_set) if len(group) > 1
+                     else summarise(group[0], parts=runs[0], seed_start=seed_start, test_set=test_set)
+                     for group, runs in zip(groups, mine)])
 
 
 def add_gaps(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:

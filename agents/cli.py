@@ -193,7 +193,7 @@ def _train(args) -> int:
 
 def _sweep(args) -> int:
     from gym_gridloc_agents.config import ConfigError
-    from gym_gridloc_agents.sweep import SweepError, prepare, run
+    from gym_gridloc_agents.sweep import SweepError, prepare, run, summary_table
 
     try:
         spec = prepare(args.config, seeds=args.seeds, grid=args.grid, search=args.search, trials=args.trials,
@@ -201,8 +201,6 @@ def _sweep(args) -> int:
         summary = run(spec, address=args.address, cpus=args.cpus, resume=args.resume)
     except (SweepError, ConfigError) as exc:
         return _fail("sweep", " ".join(str(exc).split()))
-    from gym_gridloc_agents.sweep import summary_table
-
     print(summary_table(summary))
     print(f"\nwrote {summary['output']}/summary.md, summary.json and results/", file=sys.stderr)
     failed = summary["statuses"].get("error", 0)

@@ -20,11 +20,10 @@ def episode_frames(env_id: str, seed: int, max_frames: int, env_kwargs: dict | N
     env = gym.make(env_id, render_mode="rgb_array", **(env_kwargs or {}))
     ep = rollout(env, RandomPolicy(env.unwrapped.model), seed, keep=True, frames=True)
     env.close()
-    frames = []
-    for t, (image, info) in enumerate(zip(ep.frames, ep.infos)):
-        caption = "reset" if t == 0 else f"step {t}"
-        ended = t == len(ep.frames) - 1 and ep.terminated
-        frames.append((image, f"{caption}  p={info['confidence']:.2f}" + ("  localised" if ended else "")))
+    last = len(ep.frames) - 1
+    frames = [(image, ("reset" if t == 0 else f"step {t}") + f"  p={info['confidence']:.2f}"
+               + ("  localised" if t == last and ep.terminated else ""))
+              for t, (image, info) in enumerate(zip(ep.frames, ep.infos))]
     if len(frames) > max_frames:
         keep = np.unique(np.linspace(0, len(frames) - 1, max_frames).round().astype(int))
         frames = [frames[k] for k in keep]

@@ -239,10 +239,9 @@ def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str 
         evals = sorted(meta["evaluations"], key=lambda e: e["num_timesteps"])
         key = "accuracy" if proto else "mean_steps"
         (line,) = ax.plot([e["num_timesteps"] for e in evals], [e[key] for e in evals], "o-", ms=3, label=m.stem)
-        kept = meta.get("selected_timesteps")
         for e in evals:
-            if kept is not None and e["num_timesteps"] == kept:
-                ax.plot([kept], [e[key]], "o", ms=10, mfc="none", color=line.get_color())
+            if e["num_timesteps"] == meta.get("selected_timesteps"):  # the evaluation the training kept
+                ax.plot([e["num_timesteps"]], [e[key]], "o", ms=10, mfc="none", color=line.get_color())
         ax.xaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v / 1000:g}k" if v else "0"))
         ax.set_xlabel("PPO steps (0 = the warm-started policy)")
         ax.set_ylabel("accuracy at L (validation maps)" if proto else "mean steps (held-out episodes)")

@@ -51,7 +51,7 @@ def best_times(fns: dict, steps: dict, repeats: int) -> dict:
     ``repeats`` rounds, the methods taking turns within a round so that a busy machine slows
     them alike."""
     best = {name: np.inf for name in fns}
-    for _ in range(repeats):
+    for _ in tqdm(range(repeats), desc="rounds", file=sys.stderr):
         for name, fn in fns.items():
             t0 = time.perf_counter()
             fn()
@@ -98,19 +98,17 @@ def setup_size(side: int, steps: int, dense_max_gib: float) -> tuple[dict, dict,
             v = Tt[a] @ v
         return v
 
-    out = {"side": side, "S": S, "path": engine.path(model)}
     # The three are the same filter: check before timing.
     ref = csr_step()
     stencil()
     err = float(np.abs(f.belief_vector - ref).max())
     if err > 1e-12:
         raise AssertionError(f"{side}x{side}: stencil and CSR filters differ by {err:.3g}")
-    out["err"] = err
     fns = {"stencil": stencil, "csr_step": csr_step, "csr_product": csr_product}
-    counts = {"stencil": steps, "csr_step": steps, "csr_product": steps}
+    counts = dict.fromkeys(fns, steps)
     dense_bytes = model.n_actions * S * S * 8
-    out["dense_gib"] = dense_bytes / 2**30
-    out["dense"] = None
+    out = {"side": side, "S": S, "path": engine.path(model), "err": err, "dense_gib": dense_bytes / 2**30,
+           "dense": None}
     if dense_bytes <= dense_max_gib * 2**30:
         D = [m.toarray() for m in Tt]
         dense_steps = max(2, min(steps, int(2e9 // (S * S * 8)) + 2))
@@ -155,23 +153,15 @@ def main(argv=None) -> None:
 
     rows, fns, counts = [], {}, {}
     for side in tqdm(args.sizes, desc="set up", file=sys.stderr):
-        steps = args.steps
-        row, f, c = setup_size(side, steps, args.dense_max_gib)
+        row, f, c = setup_size(side, args.steps, args.dense_max_gib)
         rows.append(row)
         fns.update({(side, k): v for k, v in f.items()})
         counts.update({(side, k): v for k, v in c.items()})
     # Every size and method takes its turn in each round, so a busy machine slows them alike
     # (the growth from 128x128 to 512x512 compares timings made side by side).
-    times = {}
-    for _ in tqdm(range(args.repeats), desc="rounds", file=sys.stderr):
-        times_round = best_times(fns, counts, 1)
-        for key, t in times_round.items():
-            times[key] = min(times.get(key, np.inf), t)
+    times = best_times(fns, counts, args.repeats)
     for row in rows:
-        row["dense"] = None
-        for (side, name), t in times.items():
-            if side == row["side"]:
-                row[name] = t
+        row.update({name: t for (side, name), t in times.items() if side == row["side"]})
 
     print(f"Filter step on generated ColourGrid maps (obstacle_density 0.2, map_seed 0); best of {args.repeats}")
     print(f"{'grid':>9} {'states':>7} {'path':>5} | {'stencil':>11} {'csr step':>11} {'csr prod':>11} {'dense':>11} | "

@@ -96,12 +96,10 @@ def main(argv=None) -> None:
         torch.set_num_threads(1)
         n = args.ppo_envs
         with tqdm(total=2, desc="PPO", file=sys.stderr) as bar:
-            native = SB3VecEnv.make(args.env, n)
-            fast = ppo_throughput(native, args.ppo_steps, seed=0)
+            fast = ppo_throughput(SB3VecEnv.make(args.env, n), args.ppo_steps, seed=0)
             bar.update()
-            dummy = make_vec_env(lambda: gym_gridloc.HMMBeliefWrapper(gym.make(args.env)), n_envs=n,
-                                 vec_env_cls=DummyVecEnv)
-            slow = ppo_throughput(dummy, args.ppo_steps, seed=0)
+            slow = ppo_throughput(make_vec_env(lambda: gym_gridloc.HMMBeliefWrapper(gym.make(args.env)), n_envs=n,
+                                               vec_env_cls=DummyVecEnv), args.ppo_steps, seed=0)
             bar.update()
         print(f"\nPPO (stable-baselines3, MultiInputPolicy, {n} envs, n_steps {max(8, 1024 // n)}, "
               f"batch 256, 2 epochs, torch 1 thread): training timesteps per second")

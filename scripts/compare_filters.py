@@ -76,40 +76,23 @@ def estimate(belief: np.ndarray) -> tuple[tuple[int, int], float]:
 def track(model, ep: Episode, method: str, seed: int) -> tuple[list[tuple[int, int]], float]:
     """Estimates of X_0..X_T by ``method`` and its time per step (seconds)."""
     acts, obs = ep.actions, ep.observations
-    n = len(obs)
-    if method == "smoothing (offline)":
-        t0 = time.perf_counter()
-        post = smooth(model, acts, obs)
-        dt = time.perf_counter() - t0
-        return [estimate(p)[0] for p in post], dt / n
-    beliefs: list[np.ndarray] = []
     t0 = time.perf_counter()
-    if method == "exact filter":
-        f = ForwardFilter(model).reset(obs[0])
-        beliefs.append(f.position_belief)
-        for a, o in zip(acts, obs[1:]):
-            beliefs.append(f.step(a, o).position_belief)
+    if method == "smoothing (offline)":
+        beliefs = smooth(model, acts, obs)
     elif method.startswith("fixed-lag"):
         s = FixedLagSmoother(model, int(method.split("=")[1]))
-        first = s.reset(obs[0])
-        if first is not None:
-            beliefs.append(first)
-        for a, o in zip(acts, obs[1:]):
-            b = s.step(a, o)
-            if b is not None:
-                beliefs.append(b)
-        dt = time.perf_counter() - t0
-        beliefs.extend(s.flush())  # the last d steps: smoothed with what there is (not timed)
-        return [estimate(p)[0] for p in beliefs], dt / n
-    elif method.startswith("particles"):
-        pf = ParticleFilter(model, int(method.split("=")[1]), rng=np.random.default_rng([seed, 11])).reset(obs[0])
-        beliefs.append(pf.position_belief)
-        for a, o in zip(acts, obs[1:]):
-            beliefs.append(pf.step(a, o).position_belief)
+        beliefs = [b for b in (s.reset(obs[0]), *(s.step(a, o) for a, o in zip(acts, obs[1:]))) if b is not None]
+    elif method == "exact filter" or method.startswith("particles"):
+        f = ForwardFilter(model) if method == "exact filter" else ParticleFilter(
+            model, int(method.split("=")[1]), rng=np.random.default_rng([seed, 11]))
+        f.reset(obs[0])
+        beliefs = [f.position_belief, *(f.step(a, o).position_belief for a, o in zip(acts, obs[1:]))]
     else:
         raise ValueError(f"unknown method {method!r}")
     dt = time.perf_counter() - t0
-    return [estimate(p)[0] for p in beliefs], dt / n
+    if method.startswith("fixed-lag"):
+        beliefs = [*beliefs, *s.flush()]  # the last d steps: smoothed with what there is (not timed)
+    return [estimate(p)[0] for p in beliefs], dt / len(obs)
 
 
 def compare(env_id: str, episodes: int, steps: int, seed: int, pbar) -> dict:
@@ -124,8 +107,7 @@ def compare(env_id: str, episodes: int, steps: int, seed: int, pbar) -> dict:
         truth = np.array(ep.positions[: steps + 1])
         for m in METHODS:
             est, dt = track(model, ep, m, seed + e)
-            est = np.array(est[: steps + 1])
-            errors[m][e] = np.abs(est - truth).sum(axis=1)
+            errors[m][e] = np.abs(np.array(est[: steps + 1]) - truth).sum(axis=1)
             secs[m].append(dt)
         pbar.update(1)
     env.close()
@@ -162,17 +144,15 @@ def kidnap_experiment(env_id: str, p: float, episodes: int, steps: int, cap: int
         n_kidnaps += len(kidnaps)
         for name, make in filters.items():
             f = make().reset(ep.observations[0])
-            ests, confs = [], []
-            for k in range(len(ep.observations)):
-                if k > 0:
-                    try:
-                        f.step(ep.actions[k - 1], ep.observations[k])
-                    except ImpossibleObservationError:  # restart from the prior and this reading
-                        f.reset(ep.observations[k])
-                        restarts[name] += 1
-                est, conf = estimate(f.position_belief)
-                ests.append(est)
-                confs.append(conf)
+            pairs = [estimate(f.position_belief)]
+            for a, o in zip(ep.actions, ep.observations[1:]):
+                try:
+                    f.step(a, o)
+                except ImpossibleObservationError:  # restart from the prior and this reading
+                    f.reset(o)
+                    restarts[name] += 1
+                pairs.append(estimate(f.position_belief))
+            ests, confs = map(list, zip(*pairs))
             results[name].extend(steps_to_recover(ests, confs, ep.positions, kidnaps, cap=cap))
             errors[name].extend(np.abs(np.array(ests) - np.array(ep.positions)).sum(axis=1))
         pbar.update(1)

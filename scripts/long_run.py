@@ -64,8 +64,7 @@ def long_run(name: str, steps: int, seed: int = 0, warmup: int = 5000, trace_fro
     warmup = min(warmup, steps // 4)
     trace_start = max(warmup, int(trace_from * steps))
     trace_first = min(trace_start + warmup, steps - 1)
-    min_z = np.inf
-    min_positive = np.inf
+    min_z = min_positive = np.inf
     max_sum_error = 0.0
     hits = checks = 0
     rss_after_warmup = traced_after_warmup = traced_end = traced_peak = None
@@ -92,8 +91,7 @@ def long_run(name: str, steps: int, seed: int = 0, warmup: int = 5000, trace_fro
         if not (np.isfinite(b).all() and (b >= 0).all() and abs(total - 1.0) <= 1e-9):
             raise AssertionError(f"{name}: bad belief at step {t}: sum {total!r}, finite {np.isfinite(b).all()}")
         max_sum_error = max(max_sum_error, abs(total - 1.0))
-        positive = b[b > 0]
-        min_positive = min(min_positive, float(positive.min()))
+        min_positive = min(min_positive, float(b[b > 0].min()))
         estimate = np.unravel_index(int(np.argmax(b.sum(axis=0))), model.shape)
         hits += estimate == (int(states[0, 1]), int(states[0, 2]))
     elapsed = time.perf_counter() - start

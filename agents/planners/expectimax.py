@@ -74,10 +74,9 @@ def _q_values(ops, nodes, depth, leaf, prune, renormalise, memo, slack, stats, m
             open_idx.append(s + op)
     if depth > 1 and opens:
         children = np.concatenate(opens)
-        idx = np.concatenate(open_idx)
         uniq, inv = _dedupe(children) if memo else (children, np.arange(len(children)))
         vals = _q_values(ops, uniq, depth - 1, leaf, prune, renormalise, memo, slack, stats, max_pairs).min(axis=1)
-        v[idx] = vals[inv]
+        v[np.concatenate(open_idx)] = vals[inv]
     return 1.0 + np.bincount(ii, weights=w * v, minlength=n * A).reshape(n, A)
 
 

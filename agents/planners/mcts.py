@@ -3,6 +3,7 @@ rollouts) or enumerated (an incremental, selective expectimax)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass, field
@@ -29,6 +30,31 @@ def _choose(policy: PlannerPolicy, n: int, na: np.ndarray, q: np.ndarray, c: flo
     return policy._break_ties(q - c * np.sqrt(math.log(n) / na))
 
 
+class _TreeSearch(PlannerPolicy):
+    """What both searches share: the budget (``simulations`` per decision, or ``time_ms``), the
+    exploration constant ``c``, the ``leaf`` and the ``max_depth``."""
+
+    def __init__(self, model, *, simulations: int, time_ms: float | None, c: float, leaf: Any, max_depth: int,
+                 **kw) -> None:
+        super().__init__(model, **kw)
+        self.simulations = int(simulations)
+        self.time_ms = None if time_ms is None else float(time_ms)
+        self.c = float(c)
+        self.leaf = load_leaf(leaf)
+        self.max_depth = int(max_depth)
+        self.sims_done = 0
+
+    def _budget(self, min_sims: int = 1):
+        """Yields once per simulation, the number made before it, until the budget is spent (a time
+        budget: at least ``min_sims`` simulations); counts them in ``sims_done``."""
+        deadline = None if self.time_ms is None else time.perf_counter() + self.time_ms / 1000.0
+        for sims in itertools.count(1):
+            yield sims - 1
+            self.sims_done += 1
+            if sims >= self.simulations if deadline is None else time.perf_counter() >= deadline and sims >= min_sims:
+                return
+
+
 @dataclass(eq=False, slots=True)
 class _Node:
     belief: np.ndarray
@@ -40,7 +66,7 @@ class _Node:
     children: dict = field(default_factory=dict)
 
 
-class MCTSPolicy(PlannerPolicy):
+class MCTSPolicy(_TreeSearch):
     """UCT on the exact belief MDP, minimising the expected number of steps to localise.
 
     Each simulation descends from the root choosing ``argmin_a Q(a) - c * scale * sqrt(ln N / n_a)``
@@ -58,26 +84,19 @@ class MCTSPolicy(PlannerPolicy):
     def __init__(self, model, *, simulations: int = 200, time_ms: float | None = None, c: float = 1.0,
                  rollout: str = "greedy", rollout_steps: int = 20, leaf: Any = "one", max_depth: int = 50,
                  nothing: int | None = None, **kw) -> None:
-        super().__init__(model, **kw)
+        super().__init__(model, simulations=simulations, time_ms=time_ms, c=c, leaf=leaf, max_depth=max_depth, **kw)
         if rollout not in ("central", "greedy", "random", "none"):
             raise ValueError(f"rollout must be 'central', 'greedy', 'random' or 'none', got {rollout!r}")
-        self.simulations = int(simulations)
-        self.time_ms = None if time_ms is None else float(time_ms)
-        self.c = float(c)
         self.rollout = rollout
         self.rollout_steps = int(rollout_steps)
-        self.leaf = load_leaf(leaf)
-        self.max_depth = int(max_depth)
         if rollout == "central":
             self.lik_nothing = self.ops.lik[nothing_reading(model, nothing)].reshape(-1)
-        self.sims_done = 0
 
     # -- node helpers --
     def _expand(self, node: _Node) -> None:
-        preds = self.ops.predict_all(node.belief[None])
-        pz = self.ops.reading_probs(preds)
-        pz /= pz.sum(axis=1, keepdims=True)
-        node.preds, node.pz = preds, pz
+        node.preds = self.ops.predict_all(node.belief[None])
+        node.pz = self.ops.reading_probs(node.preds)
+        node.pz /= node.pz.sum(axis=1, keepdims=True)
         node.na = np.zeros(self.n_actions)
         node.qa = np.zeros(self.n_actions)
 
@@ -140,18 +159,9 @@ class MCTSPolicy(PlannerPolicy):
 
     def search(self, b: np.ndarray) -> _Node:
         root = _Node(b, n=1)
-        deadline = None if self.time_ms is None else time.perf_counter() + self.time_ms / 1000.0
-        total, sims = 0.0, 0
-        while True:
-            scale = max(1.0, total / sims) if sims else 1.0
-            total += self._simulate(root, 0, scale)
-            sims += 1
-            if deadline is not None:
-                if time.perf_counter() >= deadline and sims >= self.n_actions:
-                    break
-            elif sims >= self.simulations:
-                break
-        self.sims_done += sims
+        total = 0.0
+        for sims in self._budget(self.n_actions):
+            total += self._simulate(root, 0, max(1.0, total / sims) if sims else 1.0)
         return root
 
     def values(self, b: np.ndarray) -> np.ndarray:
@@ -170,7 +180,7 @@ class _ENode:
     kids: list | None = None  # per action: (probs (k,), children list: _ENode or None for localised)
 
 
-class ExpectedMCTSPolicy(PlannerPolicy):
+class ExpectedMCTSPolicy(_TreeSearch):
     """Monte Carlo tree search with EXACT expectations over readings (an incremental, selective
     expectimax).  Expanding a node builds, for every action, the posterior of every reading
     (``p(z | b, a) >= prune``, renormalised) and values each non-localised one with ``leaf``;
@@ -186,14 +196,8 @@ class ExpectedMCTSPolicy(PlannerPolicy):
     def __init__(self, model, *, simulations: int = 100, time_ms: float | None = None, c: float = 0.3,
                  leaf: Any = "one", prune: float = 1e-3, max_depth: int = 30, **kw) -> None:
         """``max_depth``: the deepest level (root = 0) whose nodes may be expanded."""
-        super().__init__(model, **kw)
-        self.simulations = int(simulations)
-        self.time_ms = None if time_ms is None else float(time_ms)
-        self.c = float(c)
-        self.leaf = load_leaf(leaf)
+        super().__init__(model, simulations=simulations, time_ms=time_ms, c=c, leaf=leaf, max_depth=max_depth, **kw)
         self.prune = float(prune)
-        self.max_depth = int(max_depth)
-        self.sims_done = 0
 
     def _expand(self, node: _ENode) -> None:
         ops = self.ops
@@ -229,9 +233,7 @@ class ExpectedMCTSPolicy(PlannerPolicy):
     def search(self, b: np.ndarray) -> _ENode:
         root = _ENode(b, 0.0)
         self._expand(root)
-        deadline = None if self.time_ms is None else time.perf_counter() + self.time_ms / 1000.0
-        sims = 0
-        while True:
+        for _ in self._budget():
             path = []
             node = root
             for depth in range(self.max_depth + 1):
@@ -252,13 +254,6 @@ class ExpectedMCTSPolicy(PlannerPolicy):
                 nd.na[a] += 1
                 nd.q[a] = self._q(nd, a)
                 nd.value = float(nd.q.min())
-            sims += 1
-            if deadline is not None:
-                if time.perf_counter() >= deadline:
-                    break
-            elif sims >= self.simulations:
-                break
-        self.sims_done += sims
         return root
 
     def values(self, b: np.ndarray) -> np.ndarray:

@@ -29,9 +29,8 @@ class BeliefOps:
         L, H, W = self.shape
         if self.Z * L * H * W > 50_000_000:
             raise ValueError(f"{model!r}: a (readings x cells) likelihood table of {self.Z} x {L * H * W} is too large")
-        table = engine.likelihoods(model, np.arange(self.Z))
-        self.lik = np.empty((self.Z, L, H, W))
-        self.lik[:] = table.reshape(self.Z, -1, H, W)  # broadcast over layers for position sensors
+        self.lik = np.empty((self.Z, L, H, W))  # a position sensor's likelihoods broadcast over the layers
+        self.lik[:] = engine.likelihoods(model, np.arange(self.Z)).reshape(self.Z, -1, H, W)
         self.lik_flat_t = np.ascontiguousarray(self.lik.reshape(self.Z, -1).T)  # (LHW, Z)
         self.free = np.asarray(model.grid.free, dtype=bool)
         self.n_free = int(self.free.sum())
@@ -54,8 +53,7 @@ class BeliefOps:
         return beliefs.sum(axis=1)
 
     def max_position(self, beliefs: np.ndarray) -> np.ndarray:
-        n = beliefs.shape[0]
-        return self.position(beliefs).reshape(n, -1).max(axis=1)
+        return self.position(beliefs).reshape(beliefs.shape[0], -1).max(axis=1)
 
     def localised(self, beliefs: np.ndarray, slack: float = 0.0) -> np.ndarray:
         return self.max_position(beliefs) >= self.threshold - slack

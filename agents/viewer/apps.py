@@ -31,8 +31,7 @@ class PlayApp(App):
 
     @classmethod
     def _keymap(cls, model) -> dict[str, int]:
-        digits: dict[str, int] = {str(a): a for a in range(min(model.n_actions, 10))}
-        return digits | cls._ARROWS.get(tuple(model.action_names), {})
+        return {str(a): a for a in range(min(model.n_actions, 10))} | cls._ARROWS.get(tuple(model.action_names), {})
 
     def reset(self) -> None:
         self.episode += 1
@@ -64,11 +63,11 @@ class PlayApp(App):
     def on_key(self, name: str) -> bool:
         if name == "r":
             self.reset()
-            return True
-        if name in self.keymap:
+        elif name in self.keymap:
             self.act(self.keymap[name])
-            return True
-        return False
+        else:
+            return False
+        return True
 
     def shown(self) -> Shown:
         u = self.env.unwrapped
@@ -124,8 +123,7 @@ class ViewApp(App):
         self.ep = ep = rollout(self.env, self.policy, self.seed, keep=True, max_steps=self.max_steps)
         self.model = ep.model
         fb = forward_backward(self.model, ep.actions, ep.observations)
-        self.filtered = fb.filtered_positions
-        self.smoothed = fb.smoothed_positions
+        self.filtered, self.smoothed = fb.filtered_positions, fb.smoothed_positions
         self.full_filtered, self.full_smoothed = fb.filtered, fb.smoothed
         self.viterbi_path = [tuple(int(v) for v in p) for p in viterbi(self.model, ep.actions, ep.observations)[0]]
         self.readings = [self.model.sensor.to_reading(o) for o in ep.observations]

@@ -15,17 +15,6 @@ from gym_gridloc_agents.viewer.apps import PlayApp, ViewApp
 from gym_gridloc_agents.viewer.args import UsageError, _checked, _env_kwargs, _parser, build_env, import_pygame
 from gym_gridloc_agents.viewer.loop import Loop
 
-def _view_parser() -> argparse.ArgumentParser:
-    from gym_gridloc_agents.policies import POLICY_NAMES
-
-    p = _parser("gridloc view", "step through an episode of a policy: belief, smoothing, Viterbi, inspector")
-    p.add_argument("--policy", default="greedy", choices=POLICY_NAMES, help="the policy (default greedy)")
-    p.add_argument("--ppo-model", metavar="PATH", help="the model file of --policy ppo (default: the shipped one for ENV)")
-    p.add_argument("--smooth", action="store_true", help="start with the smoothed belief shown (key s)")
-    p.add_argument("--viterbi", action="store_true", help="start with the Viterbi path shown (key v)")
-    return p
-
-
 def play_app(argv: Sequence[str]) -> tuple[PlayApp, argparse.Namespace]:
     """Parse ``gridloc play``'s arguments and build the app (raises :class:`UsageError`)."""
     parser = _parser("gridloc play", "drive the robot with the arrow keys and watch the exact belief")
@@ -40,9 +29,14 @@ def play_app(argv: Sequence[str]) -> tuple[PlayApp, argparse.Namespace]:
 
 def view_app(argv: Sequence[str]) -> tuple[ViewApp, argparse.Namespace]:
     """Parse ``gridloc view``'s arguments, run the episode and build the app (raises :class:`UsageError`)."""
-    from gym_gridloc_agents.policies import make_policy
+    from gym_gridloc_agents.policies import POLICY_NAMES, make_policy
 
-    args = _view_parser().parse_args(list(argv))
+    p = _parser("gridloc view", "step through an episode of a policy: belief, smoothing, Viterbi, inspector")
+    p.add_argument("--policy", default="greedy", choices=POLICY_NAMES, help="the policy (default greedy)")
+    p.add_argument("--ppo-model", metavar="PATH", help="the model file of --policy ppo (default: the shipped one for ENV)")
+    p.add_argument("--smooth", action="store_true", help="start with the smoothed belief shown (key s)")
+    p.add_argument("--viterbi", action="store_true", help="start with the Viterbi path shown (key v)")
+    args = p.parse_args(list(argv))
     _checked(args)
     if args.ppo_model is not None and args.policy not in ("ppo", "recurrent"):
         raise UsageError(f"--ppo-model is the model of --policy ppo, not of --policy {args.policy}")
@@ -69,12 +63,6 @@ def _check_inspect(app: App, args) -> None:
             raise UsageError(f"--inspect {args.inspect[0]},{args.inspect[1]} is outside the {h}x{w} map")
 
 
-def _random_keys(app: PlayApp, n: int, seed: int) -> list[str]:
-    keys = [k for k in app.keymap if not k.isdigit()] or list(app.keymap)
-    rng = np.random.default_rng(seed)
-    return [keys[int(i)] for i in rng.integers(len(keys), size=n)]
-
-
 def _run(command: str, build, argv: Sequence[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
@@ -83,8 +71,9 @@ def _run(command: str, build, argv: Sequence[str] | None) -> int:
         if keys is None and args.no_window:
             if isinstance(app, ViewApp):
                 keys = ["right"] * app.last
-            elif args.steps is not None:
-                keys = _random_keys(app, args.steps, args.seed)
+            elif args.steps is not None:  # random arrow keys (digits only where there are no arrows)
+                names = [k for k in app.keymap if not k.isdigit()] or list(app.keymap)
+                keys = [names[int(i)] for i in np.random.default_rng(args.seed).integers(len(names), size=args.steps)]
             else:
                 raise UsageError("--no-window needs --keys K1,K2,... or --steps N (random arrow keys)")
         loop = Loop(app, window=not args.no_window, record=args.record)
@@ -93,15 +82,15 @@ def _run(command: str, build, argv: Sequence[str] | None) -> int:
         return 2
     except SystemExit as exc:  # --help
         return int(exc.code or 0)
+    end = None
     try:
         if keys is not None:
             loop.script(keys, args.delay / 1000.0)
             end = loop.end
         else:
             loop.run()
-            end = None
     except KeyboardInterrupt:
-        end = None
+        pass
     finally:
         loop.close()
         app.env.close()

@@ -45,8 +45,7 @@ class Inspector:
                 key = (int(l2), int(r2), int(c2))
                 transitions[a][key] = transitions[a].get(key, 0.0) + p
                 positions[a][key[1:]] = positions[a].get(key[1:], 0.0) + p
-        zs, ps = model.sensor.distribution(r, c, layer)
-        readings = {int(z): float(p) for z, p in zip(zs, ps)}
+        readings = {int(z): float(p) for z, p in zip(*model.sensor.distribution(r, c, layer))}
         return {"state": (layer, r, c), "transitions": transitions, "positions": positions, "readings": readings}
 
     # -- drawing ------------------------------------------------------------------------------------
@@ -119,24 +118,21 @@ class Inspector:
                     self.pg.draw.rect(surf, INK, (x - 2, yy - 2, 24, 24), width=2)
                 self._text(surf, f"{sensor.colours[z]} {_fmt(p)}", x + 24, yy + 2, self.font)
             return y + 2 + 26 * -(-len(readings) // per_row)
+        # Wall bits (all 16 readings, 4 a row), depth and any other sensor: shaded boxes in columns.
+        items = list(readings.items())
         if isinstance(sensor, WallSensor):
             y = self._text(surf, "bits W N E S (o = obstacle sensed):", x0, y, self.small, DIM)
-            cols, colw = 4, min(110, width // 4)
-            for z, p in readings.items():
-                bits = "".join("o" if b else "-" for b in sensor.to_observation(z))
-                i, j = divmod(z, cols)
-                self._box(surf, x0 + j * colw, y + i * 24, colw - 6, p, z == current, f"{bits} {_fmt(p)}")
-            return y + 4 * 24
-        # Depth and any other sensor: reading: probability, in columns.
-        label = (lambda z: f"d={z}") if isinstance(sensor, DepthSensor) else sensor.describe
-        items = list(readings.items())
-        if len(items) > 24:
-            items = [(z, p) for z, p in items if p > 0][:24]
-        colw = 110
-        per_row = max(1, width // colw)
-        for k, (z, p) in enumerate(items):
+            per_row, colw = 4, min(110, width // 4)
+            texts = ["".join("o" if b else "-" for b in sensor.to_observation(z)) + f" {_fmt(p)}" for z, p in items]
+        else:  # reading: probability
+            label = (lambda z: f"d={z}") if isinstance(sensor, DepthSensor) else sensor.describe
+            if len(items) > 24:
+                items = [(z, p) for z, p in items if p > 0][:24]
+            per_row, colw = max(1, width // 110), 110
+            texts = [f"{label(z)}: {_fmt(p)}" for z, p in items]
+        for k, ((z, p), text) in enumerate(zip(items, texts)):
             i, j = divmod(k, per_row)
-            self._box(surf, x0 + j * colw, y + i * 24, colw - 6, p, z == current, f"{label(z)}: {_fmt(p)}")
+            self._box(surf, x0 + j * colw, y + i * 24, colw - 6, p, z == current, text)
         return y + -(-len(items) // per_row) * 24
 
     def _box(self, surf, x: int, y: int, width: int, p: float, framed: bool, text: str) -> None:

@@ -38,8 +38,7 @@ class Recorder:
         from gym_gridloc_agents.files import atomic_path
 
         durations = self.durations(end, hold)
-        h = max(f.shape[0] for f in self.frames)
-        w = max(f.shape[1] for f in self.frames)
+        h, w = map(max, zip(*(f.shape[:2] for f in self.frames)))
         frames = [np.pad(f, ((0, h - f.shape[0]), (0, w - f.shape[1]), (0, 0)), constant_values=BG[0])
                   if f.shape[:2] != (h, w) else f for f in self.frames]  # a window that grew: one size
         if self.path.suffix.lower() == ".mp4":
