@@ -150,6 +150,9 @@ def main(argv=None) -> None:
     for s in args.sizes:
         if s < 2:
             p.error(f"--sizes: each side must be at least 2, got {s}")
+    for name in ("steps", "repeats"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name} must be at least 1, got {getattr(args, name)}")
 
     rows, fns, counts = [], {}, {}
     for side in tqdm(args.sizes, desc="set up", file=sys.stderr):

@@ -9,6 +9,7 @@ import importlib.util
 import math
 import pickle
 import re
+import sys
 import tracemalloc
 from pathlib import Path
 
@@ -508,3 +509,19 @@ def test_batch_filter_readings_masks_and_unknown_actions():
         a.step([0], readings=np.array([0, 1]))
     with pytest.raises(TypeError, match="BatchFilter needs a GridModel"):
         BatchFilter("windy", 2)
+
+
+def test_bench_filter_script_runs_and_refuses_bad_counts():
+    """scripts/bench_filter.py end to end on tiny settings (the stencil and CSR beliefs agree), and
+    a count below 1 is an argument error naming it, not a crash or an infinite time."""
+    import subprocess
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "bench_filter.py"
+    run = [sys.executable, str(script), "--sizes", "8", "--steps", "2", "--no-memory"]
+    out = subprocess.run([*run, "--repeats", "1"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    diff = re.search(r"largest \|stencil - csr\| belief difference: (\S+)", out.stdout)
+    assert diff and float(diff.group(1)) < 1e-12
+    for flag in ("--repeats", "--steps"):
+        bad = subprocess.run([*run, flag, "0"], capture_output=True, text=True, timeout=300)
+        assert bad.returncode == 2 and f"{flag} must be at least 1, got 0" in bad.stderr
