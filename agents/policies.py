@@ -187,11 +187,9 @@ class RecurrentPolicy(PPOPolicy):
 
     name = "recurrent"
     algo = "recurrent_ppo"
-
-    def __init__(self, model: GridModel, **kwargs: Any) -> None:
-        super().__init__(model, **kwargs)
-        self._state = None
-        self._start = np.ones((1,), dtype=bool)
+    # A fresh episode's memory (reset sets it again; act replaces, never changes, these).
+    _state = None
+    _start = np.ones((1,), dtype=bool)
 
     def expected_space(self, model: GridModel) -> spaces.Space:
         return model.sensor.observation_space
@@ -221,9 +219,7 @@ def default_model_path(env_id: str, algo: str = "ppo", env_kwargs: dict[str, Any
     want = model_kwargs(env_id, env_kwargs or {})
     candidates = [plain] + [p.with_suffix(".zip") for p in sorted(POLICY_DIR.glob(f"{env_id}*.json")) if p.with_suffix(".zip") != plain]
     for path in candidates:
-        if not path.with_suffix(".json").is_file():
-            continue
-        meta = read_metadata(path)
+        meta = read_metadata(path) if path.with_suffix(".json").is_file() else {}
         if meta.get("env_id") == env_id and meta.get("algo") == algo and model_kwargs(env_id, meta.get("env_kwargs", {})) == want:
             return path
     if not env_kwargs:
