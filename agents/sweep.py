@@ -278,11 +278,9 @@ def run(spec: dict[str, Any], *, address: str | None = None, cpus: int | None = 
     started = False
     if not ray.is_initialized():
         try:
-            if address is not None:
-                ray.init(address=address, include_dashboard=False, logging_level="WARNING")
-            else:
-                # address="local": always a Ray of our own, never a cluster someone else started here.
-                ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, logging_level="WARNING")
+            # address="local": always a Ray of our own, never a cluster someone else started here.
+            at = {"address": "local", "num_cpus": cpus or os.cpu_count()} if address is None else {"address": address}
+            ray.init(**at, include_dashboard=False, logging_level="WARNING")
         except (ConnectionError, ValueError, RuntimeError) as exc:
             where = f"join the Ray cluster at {address}" if address is not None else "start Ray on this machine"
             hint = (" (a cluster with token authentication needs RAY_AUTH_MODE=token and its token: RAY_AUTH_TOKEN or "

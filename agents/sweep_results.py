@@ -180,9 +180,8 @@ def summarise(spec: dict[str, Any], records: list[dict[str, Any]]) -> dict[str, 
             atomic_write_json(out / "best.json", {**read_metadata(src), "sweep": best_info})
             best_info["model"] = str(out / "best.zip")
         else:
-            best_info["model"] = None
-            best_info["problem"] = (f"{src} is not on this machine: on a cluster, --output must be a directory every "
-                                    "node reaches at the same path (a shared file system)")
+            best_info.update(model=None, problem=f"{src} is not on this machine: on a cluster, --output must be a "
+                                                 "directory every node reaches at the same path (a shared file system)")
         summary["best"] = best_info
     atomic_write_json(out / "summary.json", summary)
     atomic_write_text(out / "summary.md", summary_table(summary) + "\n")
@@ -225,15 +224,11 @@ def summary_table(s: dict[str, Any]) -> str:
     for c in s["configurations"]:
         a = c["aggregate"]
         done = sum(r["status"] == "done" for r in c["seeds"])
-        if a:
-            cells = [_f(a["score"]["mean"]), _f(a["score"]["iqm"]), "{:.3f}-{:.3f}".format(*a["score"]["ci95"]),
-                     _f(a["mean_steps"]["mean"]), _f(a["accuracy"]["mean"])]
-        else:
-            cells = ["-"] * 5
+        cells = [_f(a["score"]["mean"]), _f(a["score"]["iqm"]), "{:.3f}-{:.3f}".format(*a["score"]["ci95"]),
+                 _f(a["mean_steps"]["mean"]), _f(a["accuracy"]["mean"])] if a else ["-"] * 5
         mark = "best" if c["label"] == best else ("" if c["complete"] else "incomplete")
         lines.append(f"| {c['label']} | {done}/{len(c['seeds'])} | " + " | ".join(cells) + f" | {mark} |")
-    if s.get("best"):
-        b = s["best"]
+    if b := s.get("best"):
         where = b["model"] or b.get("problem")
         lines += ["", f"Best configuration: {b['label']}; its median seed {b['seed']}: {where}."]
     elif s.get("pending"):

@@ -30,6 +30,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 import gym_gridloc
+from gym_gridloc import maps
 from gym_gridloc_agents.config import ConfigError, activation, load_config, validate_config
 from gym_gridloc_agents.envs import make_env, make_training_env
 from gym_gridloc_agents.features import EXTRACTORS
@@ -100,11 +101,10 @@ def check_outputs(cfg: dict[str, Any], ckpt_dir: Path, *, force: bool) -> None:
         if path.exists() and not force:
             what = "model" if path == out else "file (it would be replaced by the model's metadata)"
             raise FileExistsError(f"{path} exists: a {what}; pass --force (force=True) to overwrite it, or choose another --output")
-    dirs = [("output directory", out.parent), ("checkpoint directory", ckpt_dir)]
+    writable_directory(out.parent, "output directory")
+    writable_directory(ckpt_dir, "checkpoint directory")
     if cfg.get("tensorboard_log"):
-        dirs.append(("TensorBoard directory", Path(cfg["tensorboard_log"])))
-    for what, d in dirs:
-        writable_directory(d, what)
+        writable_directory(Path(cfg["tensorboard_log"]), "TensorBoard directory")
 
 
 # -- evaluation on held-out seeds -------------------------------------------------------------------
@@ -115,8 +115,6 @@ def evaluation_episodes(env, cfg: dict[str, Any], episodes: int) -> list[tuple[i
     """``(seed, reset options)`` of the held-out evaluation episodes: seeds ``EVAL_SEED_BASE + i``
     (disjoint from the benchmark's ``0..N-1``); where the environment draws a new map at every
     reset, also the validation maps of :func:`gym_gridloc.maps.validation_set` (never the test set)."""
-    from gym_gridloc import maps
-
     unwrapped = env.unwrapped
     if unwrapped._map_factory is not None and cfg["env_id"] in maps.families():
         held = maps.validation_set(cfg["env_id"], unwrapped.model.shape[0], episodes)
