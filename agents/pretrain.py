@@ -158,9 +158,7 @@ def _sibling_caches(cache: Path, key: str) -> list[tuple[int, Path]]:
     depend on the training seed (seeds ``PRETRAIN_SEED_BASE + i``), so the seeds of a sweep, or a
     config trained again under another output, share them instead of playing them again."""
     found = []
-    for other in sorted(cache.parent.parent.glob(f"*/{cache.name}")):
-        if other.resolve() == cache.resolve():
-            continue
+    for other in sorted(p for p in cache.parent.parent.glob(f"*/{cache.name}") if p.resolve() != cache.resolve()):
         try:
             with np.load(other, allow_pickle=False) as data:
                 if str(data["key"]) == key:

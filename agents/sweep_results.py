@@ -38,10 +38,8 @@ def _comparable(cfg: dict[str, Any]) -> str:
 def completed_metadata(cfg: dict[str, Any]) -> dict[str, Any] | None:
     """The metadata of this trial's finished model, if it exists and was trained with this config."""
     out = Path(cfg["output"])
-    if not out.is_file():
-        return None
     try:
-        meta = read_metadata(out)
+        meta = read_metadata(out) if out.is_file() else {}  # (no model: {}, so None below)
     except ValueError:
         return None
     if meta.get("interrupted") is not False or not isinstance(meta.get("config"), dict):

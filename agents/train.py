@@ -163,10 +163,8 @@ def _every(freq: int, action: Callable[[Any], None]):
 def best_entry(directory: Path) -> dict[str, Any] | None:
     """The evaluation of the model in ``best.zip`` (its ``best.json``), if there is one: it may
     be newer than the checkpoint a run resumes from."""
-    if not (directory / "best.zip").is_file():
-        return None
     try:
-        entry = read_metadata(directory / "best.zip")
+        entry = read_metadata(directory / "best.zip") if (directory / "best.zip").is_file() else {}
     except ValueError:
         return None
     return entry if "num_timesteps" in entry else None
