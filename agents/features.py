@@ -156,9 +156,8 @@ class PosePoolCNN(BaseFeaturesExtractor):
         depth = depth_channels(free) / max(free.shape[-1] - 2, 1)
         turned = torch.cat([torch.rot90(torch.cat([free, depth[:, [h, (h + 1) % 4, (h + 2) % 4, (h + 3) % 4]]], dim=1),
                                         h, dims=(2, 3)) for h in range(4)])
-        x = _residual_stack(self.first, self.convs, turned)
-        m = free.shape[0]
-        return torch.stack([torch.rot90(x[h * m : (h + 1) * m], -h, dims=(2, 3)) for h in range(4)], dim=1)
+        x = _residual_stack(self.first, self.convs, turned)  # the four turns, one after another
+        return torch.stack([torch.rot90(turn, -h, dims=(2, 3)) for h, turn in enumerate(x.chunk(4))], dim=1)
 
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         belief, free = obs["belief"], obs["map"][:, :1]

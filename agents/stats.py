@@ -58,8 +58,7 @@ def bootstrap_ci(values: Sequence[float], *, confidence: float = 0.95, resamples
         return [float(x[0]), float(x[0])]
     rng = np.random.default_rng(seed)
     means = x[rng.integers(0, x.size, size=(int(resamples), x.size))].mean(axis=1)
-    lo, hi = np.quantile(means, [(1 - confidence) / 2, (1 + confidence) / 2])
-    return [float(lo), float(hi)]
+    return [float(q) for q in np.quantile(means, [(1 - confidence) / 2, (1 + confidence) / 2])]
 
 
 def aggregate(values: Sequence[float]) -> dict[str, Any]:

@@ -80,10 +80,8 @@ def _status(result, trial_id: str | None, status: str | None, saved: dict[str, s
         return "done"
     if result.error is not None or status == "ERROR":
         return "error"
-    status = saved.get(str(trial_id), status)
-    if status == "TERMINATED" and search == "optuna":
-        return "stopped"  # by the pruner (a grid sweep has none)
-    return "unfinished"
+    # TERMINATED in the saved state: stopped by the pruner (a grid sweep has none)
+    return "stopped" if saved.get(str(trial_id), status) == "TERMINATED" and search == "optuna" else "unfinished"
 
 
 def collect(results, exp_dir: Path, search: str | None = None) -> list[dict[str, Any]]:
@@ -156,8 +154,7 @@ def summarise(spec: dict[str, Any], records: list[dict[str, Any]]) -> dict[str, 
         pending = max(0, spec["trials"] * spec["seeds"] - sum(r["status"] in ("done", "stopped", "error") for r in records))
     else:
         pending = sum(r["status"] in ("unfinished", "not run") for c in configs for r in c["seeds"])
-    complete = [c for c in configs if c["complete"]]
-    best = complete[0] if complete and not pending else None
+    best = None if pending else next((c for c in configs if c["complete"]), None)
     summary: dict[str, Any] = {
         "output": str(out), "command": spec["command"], "seeds": spec["seeds"], "grid": spec["grid"],
         "search": spec["search"], "trials": len(records), "pending": pending,

@@ -221,7 +221,6 @@ def train(
         cfg["total_timesteps"] = int(total_timesteps)
     if tensorboard_log is not None:
         cfg["tensorboard_log"] = str(tensorboard_log)
-    out = Path(cfg["output"])
     ckpt_dir = default_checkpoint_dir(cfg)
     prev: dict[str, Any] = {}
     if resume is not None:
@@ -331,7 +330,7 @@ def train(
     info = {**meta(), "interrupted": False, "selected_timesteps": selected,
             "eval_seeds": f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + cfg['eval_episodes'] - 1}" if evaluations else None,
             "optimizer_state": "dropped (checkpoints keep it)"}
-    save_final(model, info, out, ckpt_dir, force=force)
+    save_final(model, info, Path(cfg["output"]), ckpt_dir, force=force)
     venv.close()
     return info
 
