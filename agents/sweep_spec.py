@@ -44,9 +44,7 @@ def parse_value(text: str) -> Any:
         value = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise SweepError(f"{text!r} is not a YAML value ({' '.join(str(exc).split())})") from None
-    if isinstance(value, str) and _NUMBER.match(text):
-        value = float(text.replace("_", ""))
-    return value
+    return float(text.replace("_", "")) if isinstance(value, str) and _NUMBER.match(text) else value
 
 
 def split_values(text: str) -> list[str]:

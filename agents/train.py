@@ -150,10 +150,9 @@ def _every(freq: int, action: Callable[[Any], None]):
         next_at = None
 
         def _on_step(self) -> bool:
-            if self.next_at is None:
-                self.next_at = (self.num_timesteps // freq + 1) * freq
-            if self.num_timesteps >= self.next_at:
+            if self.next_at is not None and self.num_timesteps >= self.next_at:
                 action(self.model)
+            if self.next_at is None or self.num_timesteps >= self.next_at:  # the first step, or just acted
                 self.next_at = (self.num_timesteps // freq + 1) * freq
             return True
 
