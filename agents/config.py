@@ -176,9 +176,8 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     for key in ("algo", "env_id"):
         if key not in cfg:
             raise ConfigError(f"{source}: missing required key {key!r}")
-    if cfg["algo"] not in ALGOS:
-        raise ConfigError(f"{source}: algo must be one of {', '.join(ALGOS)}, got {cfg['algo']!r}")
-    algo = cfg["algo"]
+    if (algo := cfg["algo"]) not in ALGOS:
+        raise ConfigError(f"{source}: algo must be one of {', '.join(ALGOS)}, got {algo!r}")
     import gymnasium as gym
 
     import gym_gridloc  # noqa: F401 - registers the environments

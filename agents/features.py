@@ -63,9 +63,7 @@ class BeliefMapCNN(BaseFeaturesExtractor):
         self.has_map = maps is not None
 
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        belief = obs["belief"]
-        if belief.dim() == 3:
-            belief = belief.unsqueeze(1)
+        belief = obs["belief"].unsqueeze(1) if obs["belief"].dim() == 3 else obs["belief"]
         image = torch.cat([belief, obs["map"]], dim=1) if self.has_map else belief
         return torch.cat([self.cnn(image), obs["observation"].flatten(1)], dim=1)
 
