@@ -282,7 +282,8 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             raise ConfigError(f"{source}: pretrain needs algo: ppo with wrapper.belief: true")
         _known_keys(source, pre, PRETRAIN_KEYS, "pretrain")
         if pre.setdefault("expert", "greedy2") not in EXPERT_NAMES:
-            raise ConfigError(f"{source}: pretrain.expert must be one of {', '.join(EXPERT_NAMES)}, got {pre['expert']!r}")
+            raise ConfigError(f"{source}: pretrain.expert must be one of {', '.join(EXPERT_NAMES)}, "
+                              f"got {pre['expert']!r}")
         ek = pre.setdefault("expert_kwargs", {})
         if not isinstance(ek, dict) or not all(isinstance(k, str) and isinstance(v, (int, float, str, bool)) for k, v in ek.items()):
             raise ConfigError(f"{source}: pretrain.expert_kwargs must map names to numbers, strings or booleans, got {ek!r}")
