@@ -21,8 +21,7 @@ class Policy:
     def __init__(self, model: GridModel, *, seed: int | None = None) -> None:
         if not isinstance(model, GridModel):
             raise TypeError(f"a policy needs the environment's GridModel, got {type(model).__name__}")
-        self.model = model
-        self.n_actions = model.n_actions
+        Policy.set_model(self, model)  # (not a subclass's: it may need what its __init__ sets next)
         self.rng = np.random.default_rng(seed)
 
     def reset(self, seed: int | None = None, model: GridModel | None = None) -> None:

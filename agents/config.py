@@ -176,9 +176,8 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     for key in ("algo", "env_id"):
         if key not in cfg:
             raise ConfigError(f"{source}: missing required key {key!r}")
-    if cfg["algo"] not in ALGOS:
-        raise ConfigError(f"{source}: algo must be one of {', '.join(ALGOS)}, got {cfg['algo']!r}")
-    algo = cfg["algo"]
+    if (algo := cfg["algo"]) not in ALGOS:
+        raise ConfigError(f"{source}: algo must be one of {', '.join(ALGOS)}, got {algo!r}")
     import gymnasium as gym
 
     import gym_gridloc  # noqa: F401 - registers the environments
@@ -206,18 +205,15 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             raise ConfigError(f"{source}: wrapper.{k} must be true or false, got {v!r}")
     if not wrapper["belief"] and (wrapper["flatten"] or wrapper["full_state"] or wrapper["map"] or wrapper.get("lookahead")):
         raise ConfigError(f"{source}: wrapper.flatten / wrapper.full_state / wrapper.map / wrapper.lookahead need wrapper.belief: true")
-    cfg["vec_env"] = cfg.get("vec_env", "dummy")
-    if cfg["vec_env"] not in ("dummy", "native"):
+    if cfg.setdefault("vec_env", "dummy") not in ("dummy", "native"):
         raise ConfigError(f"{source}: vec_env must be dummy or native, got {cfg['vec_env']!r}")
 
-    cfg["n_envs"] = _num(source, "n_envs", cfg.get("n_envs", 8), integer=True, minimum=1)
-    cfg["seed"] = _num(source, "seed", cfg.get("seed", 0), integer=True, minimum=0, maximum=2**32 - 1)
-    if "total_timesteps" not in cfg:
-        raise ConfigError(f"{source}: missing required key 'total_timesteps'")
-    cfg["total_timesteps"] = _num(source, "total_timesteps", cfg["total_timesteps"], integer=True, minimum=1)
-    cfg["eval_freq"] = _num(source, "eval_freq", cfg.get("eval_freq", 0), integer=True, minimum=0)
-    cfg["eval_episodes"] = _num(source, "eval_episodes", cfg.get("eval_episodes", 200), integer=True, minimum=1)
-    cfg["checkpoint_freq"] = _num(source, "checkpoint_freq", cfg.get("checkpoint_freq", 0), integer=True, minimum=0)
+    for key, default, minimum, maximum in (("n_envs", 8, 1, None), ("seed", 0, 0, 2**32 - 1),
+                                           ("total_timesteps", None, 1, None), ("eval_freq", 0, 0, None),
+                                           ("eval_episodes", 200, 1, None), ("checkpoint_freq", 0, 0, None)):
+        if default is None and key not in cfg:  # no default: a required key
+            raise ConfigError(f"{source}: missing required key {key!r}")
+        cfg[key] = _num(source, key, cfg.get(key, default), integer=True, minimum=minimum, maximum=maximum)
 
     dict_obs = wrapper["belief"] and not wrapper["flatten"]
     cfg.setdefault("policy", POLICIES[algo][1] if dict_obs else POLICIES[algo][0])
@@ -285,9 +281,9 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         if algo != "ppo" or not wrapper["belief"]:
             raise ConfigError(f"{source}: pretrain needs algo: ppo with wrapper.belief: true")
         _known_keys(source, pre, PRETRAIN_KEYS, "pretrain")
-        if pre.get("expert", "greedy2") not in EXPERT_NAMES:
-            raise ConfigError(f"{source}: pretrain.expert must be one of {', '.join(EXPERT_NAMES)}, got {pre.get('expert')!r}")
-        pre.setdefault("expert", "greedy2")
+        if pre.setdefault("expert", "greedy2") not in EXPERT_NAMES:
+            raise ConfigError(f"{source}: pretrain.expert must be one of {', '.join(EXPERT_NAMES)}, "
+                              f"got {pre['expert']!r}")
         ek = pre.setdefault("expert_kwargs", {})
         if not isinstance(ek, dict) or not all(isinstance(k, str) and isinstance(v, (int, float, str, bool)) for k, v in ek.items()):
             raise ConfigError(f"{source}: pretrain.expert_kwargs must map names to numbers, strings or booleans, got {ek!r}")

@@ -125,8 +125,7 @@ class SB3VecEnv(VecEnv):
         return cls(gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs))
 
     def reset(self):
-        seeds = [s for s in self._seeds if s is not None]
-        obs, _ = self.venv.reset(seed=seeds[0] if seeds else None)
+        obs, _ = self.venv.reset(seed=next((s for s in self._seeds if s is not None), None))
         self._reset_seeds()
         self._reset_options()
         self.reset_infos = [{} for _ in range(self.num_envs)]
@@ -152,9 +151,8 @@ class SB3VecEnv(VecEnv):
         self.venv.close()
 
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-        if attr_name == "render_mode":
-            return [None for _ in self._get_indices(indices)]
-        return [getattr(self.venv.template, attr_name) for _ in self._get_indices(indices)]
+        return [None if attr_name == "render_mode" else getattr(self.venv.template, attr_name)
+                for _ in self._get_indices(indices)]
 
     def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
         raise AttributeError(f"the native vector env's {self.num_envs} environments share one template; cannot set {attr_name!r} per environment")

@@ -28,6 +28,7 @@ reading, are passed on raw only).
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import torch
@@ -48,9 +49,8 @@ class BeliefMapCNN(BaseFeaturesExtractor):
     dict_observations = True
 
     def __init__(self, observation_space: spaces.Dict, channels: int = 32, layers: int = 3, features: int = 256) -> None:
-        for key in ("observation", "belief"):
-            if key not in observation_space.spaces:
-                raise ValueError(f"BeliefMapCNN reads Dict observations with 'observation', 'belief' (and 'map'); got {observation_space}")
+        _require_keys(observation_space, "BeliefMapCNN", ("observation", "belief"),
+                      "'observation', 'belief' (and 'map')")
         belief = observation_space["belief"].shape
         image = belief if len(belief) == 3 else (1, *belief)
         maps = observation_space.spaces.get("map")
@@ -59,32 +59,27 @@ class BeliefMapCNN(BaseFeaturesExtractor):
         super().__init__(observation_space, features_dim=features + reading)
         convs = [m for k in range(layers)
                  for m in (nn.Conv2d(c_in if k == 0 else channels, channels, 3, padding=1), nn.ReLU())]
-        h, w = image[1:]
-        self.cnn = nn.Sequential(*convs, nn.Flatten(), nn.Linear(channels * h * w, features), nn.ReLU())
+        self.cnn = nn.Sequential(*convs, nn.Flatten(), nn.Linear(channels * math.prod(image[1:]), features), nn.ReLU())
         self.has_map = maps is not None
 
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        belief = obs["belief"]
-        if belief.dim() == 3:
-            belief = belief.unsqueeze(1)
+        belief = obs["belief"].unsqueeze(1) if obs["belief"].dim() == 3 else obs["belief"]
         image = torch.cat([belief, obs["map"]], dim=1) if self.has_map else belief
         return torch.cat([self.cnn(image), obs["observation"].flatten(1)], dim=1)
 
 
 # -- pooling over the belief's poses -------------------------------------------------------------
-def _require_keys(space: spaces.Dict, name: str) -> None:
-    for key in ("observation", "belief", "map"):
-        if key not in space.spaces:
-            raise ValueError(f"{name} reads Dict observations with 'observation', 'belief' and 'map'; got {space}")
+def _require_keys(space: spaces.Dict, name: str, keys=("observation", "belief", "map"),
+                  listed: str = "'observation', 'belief' and 'map'") -> None:
+    if any(key not in space.spaces for key in keys):
+        raise ValueError(f"{name} reads Dict observations with {listed}; got {space}")
 
 
 def _dilated_convs(channels: int, layers: int, max_dilation: int) -> nn.ModuleList:
     """``layers - 1`` residual 3 x 3 convolutions with dilations 1, 2, 4, ... (back to 1 past
     ``max_dilation``), keeping the size."""
-    dilations, d = [], 1
-    for _ in range(layers - 1):
-        dilations.append(d)
-        d = 1 if d * 2 > max_dilation else d * 2
+    dilations = list(itertools.accumulate(range(layers - 1), lambda d, _: 1 if d * 2 > max_dilation else d * 2,
+                                          initial=1))[:-1]
     return nn.ModuleList(nn.Conv2d(channels, channels, 3, padding=k, dilation=k) for k in dilations)
 
 
@@ -159,9 +154,8 @@ class PosePoolCNN(BaseFeaturesExtractor):
         depth = depth_channels(free) / max(free.shape[-1] - 2, 1)
         turned = torch.cat([torch.rot90(torch.cat([free, depth[:, [h, (h + 1) % 4, (h + 2) % 4, (h + 3) % 4]]], dim=1),
                                         h, dims=(2, 3)) for h in range(4)])
-        x = _residual_stack(self.first, self.convs, turned)
-        m = free.shape[0]
-        return torch.stack([torch.rot90(x[h * m : (h + 1) * m], -h, dims=(2, 3)) for h in range(4)], dim=1)
+        x = _residual_stack(self.first, self.convs, turned)  # the four turns, one after another
+        return torch.stack([torch.rot90(turn, -h, dims=(2, 3)) for h, turn in enumerate(x.chunk(4))], dim=1)
 
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         belief, free = obs["belief"], obs["map"][:, :1]

@@ -187,9 +187,8 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
             f"not {dict(env_kwargs)}: pass the same keyword arguments, or a model trained for these "
             f"({', '.join(EPISODE_KWARGS)} may differ)"
         )
-    Algo = algo_class(algo)
     try:
-        model = Algo.load(path, env=env, device="cpu")
+        model = algo_class(algo).load(path, env=env, device="cpu")
     except (ValueError, KeyError) as exc:
         if env is not None and "space" in str(exc).lower():
             raise ValueError(f"{path} does not fit this environment: {exc}") from None
@@ -218,15 +217,13 @@ def expand_models(items: Sequence[str | Path]) -> list[Path]:
     for item in items:
         path = Path(item)
         if path.is_dir():
-            found = sorted(path.glob("*.zip"))
-            if not found:
-                raise ValueError(f"--ppo-model {item}: the directory holds no .zip model")
+            found, problem = sorted(path.glob("*.zip")), "the directory holds no .zip model"
         elif glob.has_magic(str(item)):
-            found = sorted(Path(p) for p in glob.glob(str(item)) if Path(p).is_file())
-            if not found:
-                raise ValueError(f"--ppo-model {item}: no file matches")
+            found, problem = sorted(Path(p) for p in glob.glob(str(item)) if Path(p).is_file()), "no file matches"
         else:
             found = [path]
+        if not found:
+            raise ValueError(f"--ppo-model {item}: {problem}")
         models += found
     seen = set()
     for m in models:

@@ -151,8 +151,7 @@ class PPOPolicy(Policy):
         return wrapped_observation(self.model, observation, self._full_belief(belief), **self.wrapper)
 
     def act(self, observation: Any, belief: np.ndarray) -> int:
-        action, _ = self.sb3.predict(self.encode(observation, belief), deterministic=self.deterministic)
-        return int(action)
+        return int(self.sb3.predict(self.encode(observation, belief), deterministic=self.deterministic)[0])
 
 
 def _wrapper_options(wrapper: dict[str, Any] | None) -> dict[str, Any]:
@@ -187,11 +186,9 @@ class RecurrentPolicy(PPOPolicy):
 
     name = "recurrent"
     algo = "recurrent_ppo"
-
-    def __init__(self, model: GridModel, **kwargs: Any) -> None:
-        super().__init__(model, **kwargs)
-        self._state = None
-        self._start = np.ones((1,), dtype=bool)
+    # A fresh episode's memory (reset sets it again; act replaces, never changes, these).
+    _state = None
+    _start = np.ones((1,), dtype=bool)
 
     def expected_space(self, model: GridModel) -> spaces.Space:
         return model.sensor.observation_space
@@ -202,9 +199,8 @@ class RecurrentPolicy(PPOPolicy):
         self._start = np.ones((1,), dtype=bool)
 
     def act(self, observation: Any, belief: np.ndarray | None = None) -> int:
-        obs = np.asarray(observation)
         action, self._state = self.sb3.predict(
-            obs, state=self._state, episode_start=self._start, deterministic=self.deterministic
+            np.asarray(observation), state=self._state, episode_start=self._start, deterministic=self.deterministic
         )
         self._start = np.zeros((1,), dtype=bool)
         return int(np.asarray(action).reshape(-1)[0])
@@ -216,14 +212,11 @@ def default_model_path(env_id: str, algo: str = "ppo", env_kwargs: dict[str, Any
     for them, else the model in :data:`POLICY_DIR` whose metadata names them (defaults filled in,
     so ``DepthMaze-v0`` with no keywords finds the model trained with ``size=7``; episode keywords
     such as ``episode_length`` may differ)."""
-    suffix = "" if algo == "ppo" else "-recurrent"
-    plain = POLICY_DIR / f"{env_id}{suffix}.zip"
+    plain = POLICY_DIR / f"{env_id}{'' if algo == 'ppo' else '-recurrent'}.zip"
     want = model_kwargs(env_id, env_kwargs or {})
     candidates = [plain] + [p.with_suffix(".zip") for p in sorted(POLICY_DIR.glob(f"{env_id}*.json")) if p.with_suffix(".zip") != plain]
     for path in candidates:
-        if not path.with_suffix(".json").is_file():
-            continue
-        meta = read_metadata(path)
+        meta = read_metadata(path) if path.with_suffix(".json").is_file() else {}
         if meta.get("env_id") == env_id and meta.get("algo") == algo and model_kwargs(env_id, meta.get("env_kwargs", {})) == want:
             return path
     if not env_kwargs:

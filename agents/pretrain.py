@@ -23,6 +23,7 @@ are siblings (the seeds of a sweep) share them.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import time
@@ -30,10 +31,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from tqdm.auto import tqdm
 
+from gym_gridloc_agents.envs import make_env
 from gym_gridloc_agents.files import atomic_path
-from gym_gridloc_agents.policies import PPOPolicy, make_policy, wrapped_observation
+from gym_gridloc_agents.policies import PPOPolicy, _wrapper_options, make_policy, wrapped_observation
 
 PRETRAIN_SEED_BASE = 1_000_000
 DAGGER_SEED_BASE = 1_500_000
@@ -60,10 +63,7 @@ def _discounted(rewards: list[float], gamma: float, truncated: bool) -> np.ndarr
     if truncated:  # the episode would go on: a rough bootstrap, as if it had as many steps left
         n = len(rewards)
         g = -(1 - gamma ** n) / (1 - gamma) if gamma < 1 else -float(n)
-    out = []
-    for r in reversed(rewards):
-        g = r + gamma * g
-        out.append(g)
+    out = list(itertools.accumulate(reversed(rewards), lambda g, r: r + gamma * g, initial=g))[1:]
     return np.asarray(out[::-1], dtype=np.float32)
 
 
@@ -80,14 +80,14 @@ def _concat(parts: list[Any]) -> Any:
     return np.concatenate(parts)
 
 
-def _episode_samples(ep, targets: list[np.ndarray], wrapper: dict[str, Any], gamma: float,
+def _episode_samples(ep, targets: list[np.ndarray], cfg: dict[str, Any],
                      values: list[np.ndarray] | None = None) -> dict[str, Any]:
-    """One episode's samples: the observations PPO sees, the expert's action distributions to
-    imitate (one-hot, or even over a planner's tied best actions), the returns, and the
-    planner's action values where they are asked for."""
-    obs = [wrapped_observation(ep.model, o, b, flatten=wrapper["flatten"], full_state=wrapper["full_state"],
-                               map=wrapper["map"], lookahead=wrapper.get("lookahead", 0))
+    """One episode's samples: the observations PPO sees (the config's wrapper), the expert's action
+    distributions to imitate (one-hot, or even over a planner's tied best actions), the returns
+    (the config's gamma), and the planner's action values where they are asked for."""
+    obs = [wrapped_observation(ep.model, o, b, **_wrapper_options(cfg["wrapper"]))
            for o, b in zip(ep.observations, ep.beliefs)]
+    gamma = float(cfg["hyperparams"].get("gamma", 0.99))
     return {"obs": _stack(obs), "targets": np.asarray(targets, dtype=np.float32),
             "returns": _discounted(ep.rewards, gamma, ep.truncated and not ep.terminated), "length": ep.steps,
             **({"values": np.asarray(values, dtype=np.float32)} if values is not None else {})}
@@ -143,13 +143,11 @@ def _load_cache(cache: Path | None, key: str) -> list[dict[str, Any]]:
             # episodes are copies of their rows, so no episode keeps a whole array alive.
             arrays = {k: data[k] for k in data.files if k != "key"}
         bounds, lengths = arrays["bounds"], arrays["lengths"]
-        obs_keys = [k[4:] for k in arrays if k.startswith("obs.")]
-        out = []
-        for a, b, n in zip(bounds[:-1], bounds[1:], lengths):
-            obs = {k: arrays[f"obs.{k}"][a:b].copy() for k in obs_keys} if obs_keys else arrays["obs"][a:b].copy()
-            out.append({"obs": obs, "length": int(n),
-                        **{k: arrays[k][a:b].copy() for k in ("targets", "returns", "values") if k in arrays}})
-        return out
+        obs_keys = [k for k in arrays if k.startswith("obs.")]
+        return [{"obs": {k[4:]: arrays[k][a:b].copy() for k in obs_keys} if obs_keys else arrays["obs"][a:b].copy(),
+                 "length": int(n),
+                 **{k: arrays[k][a:b].copy() for k in ("targets", "returns", "values") if k in arrays}}
+                for a, b, n in zip(bounds[:-1], bounds[1:], lengths)]
     except (OSError, KeyError, ValueError):
         return []  # an unreadable cache is collected again
 
@@ -160,9 +158,7 @@ def _sibling_caches(cache: Path, key: str) -> list[tuple[int, Path]]:
     depend on the training seed (seeds ``PRETRAIN_SEED_BASE + i``), so the seeds of a sweep, or a
     config trained again under another output, share them instead of playing them again."""
     found = []
-    for other in sorted(cache.parent.parent.glob(f"*/{cache.name}")):
-        if other.resolve() == cache.resolve():
-            continue
+    for other in sorted(p for p in cache.parent.parent.glob(f"*/{cache.name}") if p.resolve() != cache.resolve()):
         try:
             with np.load(other, allow_pickle=False) as data:
                 if str(data["key"]) == key:
@@ -194,11 +190,9 @@ def _expert(cfg: dict[str, Any], env):
 
 def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | None = None) -> list[dict[str, Any]]:
     """The expert's episodes as samples (continued from ``cache`` if it holds some)."""
-    from gym_gridloc_agents.envs import make_env
     from gym_gridloc_agents.rollout import rollout
 
     pre = cfg["pretrain"]
-    gamma = float(cfg["hyperparams"].get("gamma", 0.99))
     key = _cache_key(cfg, "expert")
     episodes = _load_cache(cache, key)[: pre["episodes"]]
     if cache is not None and len(episodes) < pre["episodes"]:
@@ -211,8 +205,7 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
         for i in tqdm(range(len(episodes), pre["episodes"]), desc=f"expert {pre['expert']} episodes",
                       disable=not progress, leave=False, initial=len(episodes), total=pre["episodes"]):
             ep = rollout(env, expert, PRETRAIN_SEED_BASE + i, keep=True)
-            episodes.append(_episode_samples(ep, expert.targets, cfg["wrapper"], gamma,
-                                             expert.q if expert.values else None))
+            episodes.append(_episode_samples(ep, expert.targets, cfg, expert.q if expert.values else None))
     except KeyboardInterrupt:
         _save_cache(cache, key, episodes)
         raise WarmStartInterrupted(len(episodes), 0) from None
@@ -225,11 +218,9 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
 def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = True) -> list[dict[str, Any]]:
     """One DAgger round: the student (``model``, sampling its actions) plays; every belief it
     reaches is labelled with the expert's action."""
-    from gym_gridloc_agents.envs import make_env
     from gym_gridloc_agents.rollout import rollout
 
     pre = cfg["pretrain"]
-    gamma = float(cfg["hyperparams"].get("gamma", 0.99))
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
     expert, values = _expert(cfg, env), _wants_values(cfg)
     student = PPOPolicy(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"], deterministic=False)
@@ -240,8 +231,7 @@ def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = 
         ep = rollout(env, student, seed, keep=True)
         expert.reset(seed=seed, model=ep.model)
         labels = [_label(expert, o, b, values) for o, b in zip(ep.observations, ep.beliefs)]
-        out.append(_episode_samples(ep, [p for p, _ in labels], cfg["wrapper"], gamma,
-                                    [q for _, q in labels] if values else None))
+        out.append(_episode_samples(ep, [p for p, _ in labels], cfg, [q for _, q in labels] if values else None))
     env.close()
     return out
 
@@ -250,8 +240,6 @@ def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = 
 def _epoch_order(n: int, lengths, gen):
     """The samples' order for one epoch: shuffled, or (``lengths``: the episodes' sample counts, in
     order) whole episodes shuffled, so that a minibatch holds the steps of a few episodes."""
-    import torch
-
     if lengths is None:
         return torch.randperm(n, generator=gen)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -262,11 +250,8 @@ def _epoch_order(n: int, lengths, gen):
 def _fit(model, data: dict[str, Any], cfg: dict[str, Any], *, epochs: range, progress: bool, label: str) -> int:
     """Fit the actor to the expert's action distributions (cross-entropy; with a ``temperature``,
     the softmax of the planner's action values) and the critic to the returns for ``epochs`` (a
-    range: the
-    shuffles of earlier epochs are drawn first, so a resumed fit continues the same sequence).
+    range: the shuffles of earlier epochs are drawn first, so a resumed fit continues the same sequence).
     Returns the number of epochs done; Ctrl-C raises :class:`_FitInterrupted` with that number."""
-    import torch
-
     pre = cfg["pretrain"]
     policy = model.policy
     obs = policy.obs_to_tensor(data["obs"])[0] if isinstance(data["obs"], dict) else torch.as_tensor(data["obs"])
@@ -321,8 +306,6 @@ def soft_targets(data: dict[str, Any], temperature: float) -> np.ndarray:
 
 def _agreement(model, data: dict[str, Any]) -> float:
     """How often the policy's most probable action is one of the expert's."""
-    import torch
-
     policy = model.policy
     obs = policy.obs_to_tensor(data["obs"])[0] if isinstance(data["obs"], dict) else torch.as_tensor(data["obs"])
     with torch.no_grad():

@@ -58,8 +58,7 @@ def bootstrap_ci(values: Sequence[float], *, confidence: float = 0.95, resamples
         return [float(x[0]), float(x[0])]
     rng = np.random.default_rng(seed)
     means = x[rng.integers(0, x.size, size=(int(resamples), x.size))].mean(axis=1)
-    lo, hi = np.quantile(means, [(1 - confidence) / 2, (1 + confidence) / 2])
-    return [float(lo), float(hi)]
+    return [float(q) for q in np.quantile(means, [(1 - confidence) / 2, (1 + confidence) / 2])]
 
 
 def aggregate(values: Sequence[float]) -> dict[str, Any]:
@@ -84,6 +83,5 @@ def wilson_ci95(successes: int, n: int) -> list[float]:
     p = successes / n
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    lo = 0.0 if successes == 0 else max(0.0, centre - half)  # exact ends, no rounding residue
-    hi = 1.0 if successes == n else min(1.0, centre + half)
-    return [lo, hi]
+    return [0.0 if successes == 0 else max(0.0, centre - half),  # exact ends, no rounding residue
+            1.0 if successes == n else min(1.0, centre + half)]

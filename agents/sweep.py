@@ -130,12 +130,9 @@ def _exclusive(path: Path) -> Iterator[None]:
 def latest_checkpoint(directory: Path) -> Path | None:
     """The training checkpoint with the most steps in ``directory`` (periodic ``step_N.zip`` or
     ``interrupted_step_N.zip``), among those whose metadata was written (a complete checkpoint)."""
-    best, best_steps = None, -1
-    for p in Path(directory).glob("*step_*.zip"):
-        m = re.fullmatch(r"(?:interrupted_)?step_(\d+)\.zip", p.name)
-        if m and p.with_suffix(".json").is_file() and int(m.group(1)) > best_steps:
-            best, best_steps = p, int(m.group(1))
-    return best
+    steps = {p: int(m.group(1)) for p in Path(directory).glob("*step_*.zip")
+             if (m := re.fullmatch(r"(?:interrupted_)?step_(\d+)\.zip", p.name)) and p.with_suffix(".json").is_file()}
+    return max(steps, key=steps.get, default=None)  # (the first found of equal steps, as glob lists them)
 
 
 def trial_fn(config: dict[str, Any], spec: dict[str, Any]) -> None:
@@ -278,11 +275,9 @@ def run(spec: dict[str, Any], *, address: str | None = None, cpus: int | None = 
     started = False
     if not ray.is_initialized():
         try:
-            if address is not None:
-                ray.init(address=address, include_dashboard=False, logging_level="WARNING")
-            else:
-                # address="local": always a Ray of our own, never a cluster someone else started here.
-                ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, logging_level="WARNING")
+            # address="local": always a Ray of our own, never a cluster someone else started here.
+            at = {"address": "local", "num_cpus": cpus or os.cpu_count()} if address is None else {"address": address}
+            ray.init(**at, include_dashboard=False, logging_level="WARNING")
         except (ConnectionError, ValueError, RuntimeError) as exc:
             where = f"join the Ray cluster at {address}" if address is not None else "start Ray on this machine"
             hint = (" (a cluster with token authentication needs RAY_AUTH_MODE=token and its token: RAY_AUTH_TOKEN or "

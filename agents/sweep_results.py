@@ -38,10 +38,8 @@ def _comparable(cfg: dict[str, Any]) -> str:
 def completed_metadata(cfg: dict[str, Any]) -> dict[str, Any] | None:
     """The metadata of this trial's finished model, if it exists and was trained with this config."""
     out = Path(cfg["output"])
-    if not out.is_file():
-        return None
     try:
-        meta = read_metadata(out)
+        meta = read_metadata(out) if out.is_file() else {}  # (no model: {}, so None below)
     except ValueError:
         return None
     if meta.get("interrupted") is not False or not isinstance(meta.get("config"), dict):
@@ -82,10 +80,8 @@ def _status(result, trial_id: str | None, status: str | None, saved: dict[str, s
         return "done"
     if result.error is not None or status == "ERROR":
         return "error"
-    status = saved.get(str(trial_id), status)
-    if status == "TERMINATED" and search == "optuna":
-        return "stopped"  # by the pruner (a grid sweep has none)
-    return "unfinished"
+    # TERMINATED in the saved state: stopped by the pruner (a grid sweep has none)
+    return "stopped" if saved.get(str(trial_id), status) == "TERMINATED" and search == "optuna" else "unfinished"
 
 
 def collect(results, exp_dir: Path, search: str | None = None) -> list[dict[str, Any]]:
@@ -158,8 +154,7 @@ def summarise(spec: dict[str, Any], records: list[dict[str, Any]]) -> dict[str, 
         pending = max(0, spec["trials"] * spec["seeds"] - sum(r["status"] in ("done", "stopped", "error") for r in records))
     else:
         pending = sum(r["status"] in ("unfinished", "not run") for c in configs for r in c["seeds"])
-    complete = [c for c in configs if c["complete"]]
-    best = complete[0] if complete and not pending else None
+    best = None if pending else next((c for c in configs if c["complete"]), None)
     summary: dict[str, Any] = {
         "output": str(out), "command": spec["command"], "seeds": spec["seeds"], "grid": spec["grid"],
         "search": spec["search"], "trials": len(records), "pending": pending,
@@ -180,9 +175,8 @@ def summarise(spec: dict[str, Any], records: list[dict[str, Any]]) -> dict[str, 
             atomic_write_json(out / "best.json", {**read_metadata(src), "sweep": best_info})
             best_info["model"] = str(out / "best.zip")
         else:
-            best_info["model"] = None
-            best_info["problem"] = (f"{src} is not on this machine: on a cluster, --output must be a directory every "
-                                    "node reaches at the same path (a shared file system)")
+            best_info.update(model=None, problem=f"{src} is not on this machine: on a cluster, --output must be a "
+                                                 "directory every node reaches at the same path (a shared file system)")
         summary["best"] = best_info
     atomic_write_json(out / "summary.json", summary)
     atomic_write_text(out / "summary.md", summary_table(summary) + "\n")
@@ -225,15 +219,11 @@ def summary_table(s: dict[str, Any]) -> str:
     for c in s["configurations"]:
         a = c["aggregate"]
         done = sum(r["status"] == "done" for r in c["seeds"])
-        if a:
-            cells = [_f(a["score"]["mean"]), _f(a["score"]["iqm"]), "{:.3f}-{:.3f}".format(*a["score"]["ci95"]),
-                     _f(a["mean_steps"]["mean"]), _f(a["accuracy"]["mean"])]
-        else:
-            cells = ["-"] * 5
+        cells = [_f(a["score"]["mean"]), _f(a["score"]["iqm"]), "{:.3f}-{:.3f}".format(*a["score"]["ci95"]),
+                 _f(a["mean_steps"]["mean"]), _f(a["accuracy"]["mean"])] if a else ["-"] * 5
         mark = "best" if c["label"] == best else ("" if c["complete"] else "incomplete")
         lines.append(f"| {c['label']} | {done}/{len(c['seeds'])} | " + " | ".join(cells) + f" | {mark} |")
-    if s.get("best"):
-        b = s["best"]
+    if b := s.get("best"):
         where = b["model"] or b.get("problem")
         lines += ["", f"Best configuration: {b['label']}; its median seed {b['seed']}: {where}."]
     elif s.get("pending"):

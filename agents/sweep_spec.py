@@ -44,9 +44,7 @@ def parse_value(text: str) -> Any:
         value = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise SweepError(f"{text!r} is not a YAML value ({' '.join(str(exc).split())})") from None
-    if isinstance(value, str) and _NUMBER.match(text):
-        value = float(text.replace("_", ""))
-    return value
+    return float(text.replace("_", "")) if isinstance(value, str) and _NUMBER.match(text) else value
 
 
 def split_values(text: str) -> list[str]:
@@ -133,17 +131,11 @@ def config_label(overrides: dict[str, Any], keys: Sequence[str]) -> str:
         return "base"
     short = [k.split(".")[-1] for k in keys]
     names = {k: (s if short.count(s) == 1 else k) for k, s in zip(keys, short)}
-    lossless, parts = True, []
     present = [k for k in keys if k in overrides]  # Optuna's validation trials set one key of several
-    for k in present:
-        v = overrides[k]
-        text = json.dumps(v) if not isinstance(v, str) else v
-        if not _SAFE.match(text):
-            lossless = False
-            text = re.sub(r"[^A-Za-z0-9._+-]+", "_", text).strip("_") or "x"
-        parts.append(f"{names[k]}={text}")
-    label = "_".join(parts)
-    if not lossless or len(label) > 80:
+    texts = {k: json.dumps(overrides[k]) if not isinstance(overrides[k], str) else overrides[k] for k in present}
+    label = "_".join(f"{names[k]}={t if _SAFE.match(t) else re.sub(r'[^A-Za-z0-9._+-]+', '_', t).strip('_') or 'x'}"
+                     for k, t in texts.items())
+    if not all(map(_SAFE.match, texts.values())) or len(label) > 80:
         digest = hashlib.sha1(_canonical({k: overrides[k] for k in present}).encode()).hexdigest()[:6]
         label = f"{label[:72]}-{digest}"
     return label

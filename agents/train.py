@@ -30,6 +30,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 import gym_gridloc
+from gym_gridloc import maps
 from gym_gridloc_agents.config import ConfigError, activation, load_config, validate_config
 from gym_gridloc_agents.envs import make_env, make_training_env
 from gym_gridloc_agents.features import EXTRACTORS
@@ -100,11 +101,10 @@ def check_outputs(cfg: dict[str, Any], ckpt_dir: Path, *, force: bool) -> None:
         if path.exists() and not force:
             what = "model" if path == out else "file (it would be replaced by the model's metadata)"
             raise FileExistsError(f"{path} exists: a {what}; pass --force (force=True) to overwrite it, or choose another --output")
-    dirs = [("output directory", out.parent), ("checkpoint directory", ckpt_dir)]
+    writable_directory(out.parent, "output directory")
+    writable_directory(ckpt_dir, "checkpoint directory")
     if cfg.get("tensorboard_log"):
-        dirs.append(("TensorBoard directory", Path(cfg["tensorboard_log"])))
-    for what, d in dirs:
-        writable_directory(d, what)
+        writable_directory(Path(cfg["tensorboard_log"]), "TensorBoard directory")
 
 
 # -- evaluation on held-out seeds -------------------------------------------------------------------
@@ -115,8 +115,6 @@ def evaluation_episodes(env, cfg: dict[str, Any], episodes: int) -> list[tuple[i
     """``(seed, reset options)`` of the held-out evaluation episodes: seeds ``EVAL_SEED_BASE + i``
     (disjoint from the benchmark's ``0..N-1``); where the environment draws a new map at every
     reset, also the validation maps of :func:`gym_gridloc.maps.validation_set` (never the test set)."""
-    from gym_gridloc import maps
-
     unwrapped = env.unwrapped
     if unwrapped._map_factory is not None and cfg["env_id"] in maps.families():
         held = maps.validation_set(cfg["env_id"], unwrapped.model.shape[0], episodes)
@@ -152,10 +150,9 @@ def _every(freq: int, action: Callable[[Any], None]):
         next_at = None
 
         def _on_step(self) -> bool:
-            if self.next_at is None:
-                self.next_at = (self.num_timesteps // freq + 1) * freq
-            if self.num_timesteps >= self.next_at:
+            if self.next_at is not None and self.num_timesteps >= self.next_at:
                 action(self.model)
+            if self.next_at is None or self.num_timesteps >= self.next_at:  # the first step, or just acted
                 self.next_at = (self.num_timesteps // freq + 1) * freq
             return True
 
@@ -165,10 +162,8 @@ def _every(freq: int, action: Callable[[Any], None]):
 def best_entry(directory: Path) -> dict[str, Any] | None:
     """The evaluation of the model in ``best.zip`` (its ``best.json``), if there is one: it may
     be newer than the checkpoint a run resumes from."""
-    if not (directory / "best.zip").is_file():
-        return None
     try:
-        entry = read_metadata(directory / "best.zip")
+        entry = read_metadata(directory / "best.zip") if (directory / "best.zip").is_file() else {}
     except ValueError:
         return None
     return entry if "num_timesteps" in entry else None
@@ -225,7 +220,6 @@ def train(
         cfg["total_timesteps"] = int(total_timesteps)
     if tensorboard_log is not None:
         cfg["tensorboard_log"] = str(tensorboard_log)
-    out = Path(cfg["output"])
     ckpt_dir = default_checkpoint_dir(cfg)
     prev: dict[str, Any] = {}
     if resume is not None:
@@ -335,7 +329,7 @@ def train(
     info = {**meta(), "interrupted": False, "selected_timesteps": selected,
             "eval_seeds": f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + cfg['eval_episodes'] - 1}" if evaluations else None,
             "optimizer_state": "dropped (checkpoints keep it)"}
-    save_final(model, info, out, ckpt_dir, force=force)
+    save_final(model, info, Path(cfg["output"]), ckpt_dir, force=force)
     venv.close()
     return info
 
