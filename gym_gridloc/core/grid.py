@@ -75,7 +75,10 @@ class GridMap:
         direction d would leave the grid or enter an obstacle."""
         padded = np.zeros((self.height + 2, self.width + 2), dtype=bool)
         padded[1:-1, 1:-1] = self.free
-        return np.stack([~padded[1 + dr : 1 + dr + self.height, 1 + dc : 1 + dc + self.width] for dr, dc in DIRECTIONS])
+        out = np.empty((4, self.height, self.width), dtype=bool)
+        for d, (dr, dc) in enumerate(DIRECTIONS):
+            out[d] = ~padded[1 + dr : 1 + dr + self.height, 1 + dc : 1 + dc + self.width]
+        return out
 
     def to_text(self, sep: str = "") -> list[str]:
         """The map as rows of symbols ('.' or '#' for obstacles)."""

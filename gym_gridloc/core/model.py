@@ -94,11 +94,16 @@ def move_terms(grid: GridMap, direction_probs: np.ndarray, layer: int = 0, dst_l
     dst_layer = layer if dst_layer is None else dst_layer
     h, w = grid.shape
     probs = np.broadcast_to(np.asarray(direction_probs, dtype=np.float64).reshape(4, -1, 1) if np.ndim(direction_probs) == 1 else direction_probs, (4, h, w))
-    blocked, p = grid.blocked(), np.where(grid.free, probs, 0.0)  # (4, H, W)
-    moves = [Term(layer, dst_layer, int(dr), int(dc), np.where(blocked[d], 0.0, p[d]))
-             for d, (dr, dc) in enumerate(DIRECTIONS)]
-    stay = sum(np.where(blocked, p, 0.0), np.zeros((h, w)))  # the blocked moves', in direction order
-    return [*moves, Term(layer, dst_layer, 0, 0, stay)]
+    blocked = grid.blocked()
+    terms = []
+    stay = np.zeros((h, w))
+    # One direction at a time: (4, H, W) temporaries would raise the peak memory of a 512 x 512 map.
+    for d, (dr, dc) in enumerate(DIRECTIONS):
+        p = np.where(grid.free, probs[d], 0.0)
+        terms.append(Term(layer, dst_layer, int(dr), int(dc), np.where(blocked[d], 0.0, p)))
+        stay += np.where(blocked[d], p, 0.0)
+    terms.append(Term(layer, dst_layer, 0, 0, stay))
+    return terms
 
 
 class GridModel:
@@ -288,12 +293,14 @@ class GridModel:
         row is dense)."""
         from scipy import sparse
 
+        rows, cols, vals = [], [], []
         index, n, S = self.grid.cell_index, self.grid.n_free, self.n_states
-        cells = [(t, *np.nonzero(t.weight)) for t in self.terms(action)]  # each term's non-zero cells
-        vals = np.concatenate([t.weight[rr, cc] for t, rr, cc in cells])
-        rows = np.concatenate([t.src * n + index[rr, cc] for t, rr, cc in cells])
-        cols = np.concatenate([t.dst * n + index[rr + t.dr, cc + t.dc] for t, rr, cc in cells])
-        m = sparse.coo_matrix((vals, (rows, cols)), shape=(S, S)).tocsr()
+        for t in self.terms(action):
+            rr, cc = np.nonzero(t.weight)
+            rows.append(t.src * n + index[rr, cc])
+            cols.append(t.dst * n + index[rr + t.dr, cc + t.dc])
+            vals.append(t.weight[rr, cc])
+        m = sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(S, S)).tocsr()
         if self.kidnap_prob > 0.0:  # teleporting makes every row dense
             m = sparse.csr_matrix((1.0 - self.kidnap_prob) * m.toarray() + self.kidnap_prob / S)
         return m
