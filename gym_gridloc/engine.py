@@ -272,8 +272,9 @@ def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
             raise impossible(model, int(rs[0]))
         np.divide(post, z1, out=flat[0])
         return np.array([z1])
-    post = flat.copy()
-    z = kernels.weigh(post, likelihoods(model, rs), _derived(model).layered, model.n_layers, 2)
+    lik = likelihoods(model, rs)
+    post = flat * lik if lik.shape[1] == flat.shape[1] else (flat.reshape(n, model.n_layers, -1) * lik[:, None, :]).reshape(n, -1)
+    z = post.sum(axis=1)
     _check_z(model, z, rs)
     np.divide(post, z[:, None], out=flat)
     return z
@@ -386,7 +387,10 @@ def states_of(model: GridModel, indices: np.ndarray) -> np.ndarray:
     """State indices (layer-major over free cells, as :meth:`GridModel.to_vector` orders them)
     as ``(N, 3)`` states (layer, row, col)."""
     layer, cell = np.divmod(np.asarray(indices, dtype=np.int64).reshape(-1), model.grid.n_free)
-    return np.column_stack((layer, model.grid.free_cells[cell]))
+    out = np.empty((layer.size, 3), dtype=np.int64)
+    out[:, 0] = layer
+    out[:, 1:] = model.grid.free_cells[cell]
+    return out
 
 
 def sample_initial(model: GridModel, n: int, rng: np.random.Generator) -> np.ndarray:

@@ -21,16 +21,6 @@ def _entropy(p: np.ndarray) -> np.ndarray:
     return -(p * np.log2(p + (p <= 0.0))).sum(axis=-1) + 0.0  # + 0.0: no -0.0 for a sure belief
 
 
-def _info(layers: bool, pose: bool, heading: Any, estimate_heading: Any, **info: Any) -> dict[str, Any]:
-    """The referee's ``info``: the given entries, then the true ``heading`` when the model has
-    layers and the ``estimate_heading`` with ``pose``."""
-    if layers:
-        info["heading"] = heading
-    if pose:
-        info["estimate_heading"] = estimate_heading
-    return info
-
-
 def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose: bool = False) -> dict[str, np.ndarray]:
     """The referee's view of N exact hidden-state beliefs ``(N, L, H, W)`` and the true states
     ``(N, 3)`` (layer, row, col), as arrays with N rows.
@@ -47,16 +37,31 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     tested = flat if pose else pflat
     k = tested.argmax(axis=1)
     confidence = tested[np.arange(n), k]
-    layer, cell = np.divmod(k, h * w)  # k < h * w unless the pose of a model with layers is tested
+    cell = k % (h * w) if pose and L > 1 else k
     estimate = np.empty((n, 2), dtype=k.dtype)
     np.divmod(cell, w, out=(estimate[:, 0], estimate[:, 1]))
     truth = states[:, 1:3]
     error = np.abs(estimate - truth).sum(axis=1)
     localised = confidence >= threshold
-    right = (error == 0) & (layer == states[:, 0]) if pose else error == 0
-    return _info(L > 1, pose, states[:, 0].copy(), layer, position=truth.copy(), estimate=estimate,
-                 confidence=confidence, error=error, localised=localised, success=localised & right,
-                 entropy=_entropy(pflat))
+    right = error == 0
+    if pose:
+        layer = k // (h * w)
+        right &= layer == states[:, 0]
+    entropy = _entropy(pflat)
+    info = {
+        "position": truth.copy(),
+        "estimate": estimate,
+        "confidence": confidence,
+        "error": error,
+        "localised": localised,
+        "success": localised & right,
+        "entropy": entropy,
+    }
+    if L > 1:
+        info["heading"] = states[:, 0].copy()
+    if pose:
+        info["estimate_heading"] = layer
+    return info
 
 
 def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bool = False) -> dict[str, Any]:
@@ -76,8 +81,20 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
     error = abs(estimate[0] - row) + abs(estimate[1] - col)
     localised = confidence >= threshold
     right = error == 0 and (not pose or layer == truth_layer)
-    return _info(L > 1, pose, truth_layer, layer, position=(row, col), estimate=estimate, confidence=confidence,
-                 error=error, localised=localised, success=localised and right, entropy=float(_entropy(pos)))
+    info = {
+        "position": (row, col),
+        "estimate": estimate,
+        "confidence": confidence,
+        "error": error,
+        "localised": localised,
+        "success": localised and right,
+        "entropy": float(_entropy(pos)),
+    }
+    if L > 1:
+        info["heading"] = truth_layer
+    if pose:
+        info["estimate_heading"] = layer
+    return info
 
 
 def rewards(kind: str, info: dict[str, np.ndarray]) -> np.ndarray:

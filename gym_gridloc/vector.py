@@ -179,7 +179,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         if len(self._groups) == 1:
             mask = None
             if idx.size != self.num_envs:  # rows of the envs that reset keep their values (overwritten later)
-                mask = np.isin(np.arange(self.num_envs), idx)
+                mask = np.zeros(self.num_envs, dtype=bool)
+                mask[idx] = True
                 self._spare[...] = self._beliefs
             engine.step(self.models[0], self._beliefs, actions, self._readings, out=self._spare, mask=mask)
             self._beliefs, self._spare = self._spare, self._beliefs
@@ -191,7 +192,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         obs = model.sensor.observations(self._readings)
         if self.belief is None:
             return obs
-        b = np.clip((self._beliefs if self.full_state else self.position_beliefs).astype(np.float32), 0.0, 1.0)
+        b = (self._beliefs if self.full_state else self.position_beliefs).astype(np.float32)
+        np.clip(b, 0.0, 1.0, out=b)
         channels = {id(m): map_channels(m) for m in self.models} if self.map else {}  # once per distinct map
         maps = np.stack([channels[id(m)] for m in self.models]) if channels else None
         # (N, lookahead, A) expected entropies per action
@@ -254,9 +256,13 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._restart(np.flatnonzero(resetting))
         info = self._infos()
         stepped = ~resetting
-        length = self.template.episode_length  # a fixed length: truncated there, never terminated
-        terminated = info["localised"] & stepped & (length is None)
-        limit = min((v for v in (length, self.max_episode_steps) if v is not None), default=None)
+        length = self.template.episode_length
+        if length is None:
+            terminated = info["localised"] & stepped
+            limit = self.max_episode_steps
+        else:  # a fixed length: truncated there, never terminated
+            terminated = np.zeros(n, dtype=bool)
+            limit = min(length, self.max_episode_steps or length)
         truncated = stepped & (self._elapsed >= limit) if limit else np.zeros(n, dtype=bool)
         rewards = np.where(stepped, referee.rewards(self.template.reward_kind, info), 0.0)
         obs = self._observations()

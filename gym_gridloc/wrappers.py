@@ -89,8 +89,14 @@ def batch_observation(model: GridModel, observations: Any, readings: np.ndarray,
         parts = [model.sensor.encode(readings), beliefs.reshape(n, -1)]
         parts += [x.reshape(n, -1) for x in (maps, lookahead) if x is not None]
         return np.concatenate(parts, axis=1)
-    extra = {name: x for name, x in ((key, beliefs), ("map", maps), ("lookahead", lookahead)) if x is not None}
-    return {**(observations if isinstance(observations, dict) else {"observation": observations}), **extra}
+    extra = {key: beliefs}
+    if maps is not None:
+        extra["map"] = maps
+    if lookahead is not None:
+        extra["lookahead"] = lookahead
+    if isinstance(observations, dict):
+        return {**observations, **extra}
+    return {"observation": observations, **extra}
 
 
 class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
@@ -219,7 +225,8 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
-        info = self._filtered(lambda: self.filter.step(action, self._sensor_obs(obs)), info, self._sensor_obs(obs))
+        reading = self._sensor_obs(obs)
+        info = self._filtered(lambda: self.filter.step(action, reading), info, reading)
         return self.observation(obs), reward, terminated, truncated, info
 
     def _filtered(self, update: Callable[[], Any], info: dict[str, Any], retry: Any = None) -> dict[str, Any]:
@@ -242,8 +249,8 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     # -- the observation -------------------------------------------------------------------------
     def belief_array(self) -> np.ndarray:
         """The current belief as float32, (H, W) or (L, H, W) with ``full_state``."""
-        b = self.filter.full_belief if self.full_state else self.filter.position_belief
-        return np.clip(b.astype(np.float32), 0.0, 1.0)
+        b = (self.filter.full_belief if self.full_state else self.filter.position_belief).astype(np.float32)
+        return np.clip(b, 0.0, 1.0, out=b)
 
     def lookahead_array(self) -> np.ndarray | None:
         """The expected entropies per action of the current belief ``(lookahead, A)`` (None
