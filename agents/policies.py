@@ -186,9 +186,11 @@ class RecurrentPolicy(PPOPolicy):
 
     name = "recurrent"
     algo = "recurrent_ppo"
-    # A fresh episode's memory (reset sets it again; act replaces, never changes, these).
-    _state = None
-    _start = np.ones((1,), dtype=bool)
+
+    def __init__(self, model: GridModel, **kwargs: Any) -> None:
+        super().__init__(model, **kwargs)
+        self._state = None  # the LSTM's memory, fresh at each episode's start
+        self._start = np.ones((1,), dtype=bool)
 
     def expected_space(self, model: GridModel) -> spaces.Space:
         return model.sensor.observation_space

@@ -32,12 +32,13 @@ class Lookahead:
     """Exact one- and two-step expectations on one model (see the module docstring).
 
     ``pose``: the target variable is the full hidden state (the referee of DepthMaze), else the
-    position.
+    position.  ``weak``: hold the model by a weak reference (for a cache keyed by the model, which a
+    strong one would keep alive for good).
     """
 
-    def __init__(self, model: GridModel, *, pose: bool = False) -> None:
-        self._model = engine._checked_model(model, "a lookahead needs the environment's GridModel")
-        self._model_ref: weakref.ref | None = None  # set instead by lookahead_features' cache
+    def __init__(self, model: GridModel, *, pose: bool = False, weak: bool = False) -> None:
+        model = engine._checked_model(model, "a lookahead needs the environment's GridModel")
+        self._model, self._model_ref = (None, weakref.ref(model)) if weak else (model, None)
         self.pose = bool(pose or model.sensor.layered)
         self.n_actions = model.n_actions
         self.h = model.sensor.reading_entropy()
@@ -129,9 +130,7 @@ def lookahead_features(model: GridModel, belief: np.ndarray, depth: int, *, pose
     looks = _LOOKAHEADS.setdefault(model, {})
     look = looks.get(bool(pose))
     if look is None:
-        look = looks[bool(pose)] = Lookahead(model, pose=pose)
-        # The cache's value must not hold its key, or no model would ever be let go.
-        look._model, look._model_ref = None, weakref.ref(model)
+        look = looks[bool(pose)] = Lookahead(model, pose=pose, weak=True)
     b = np.asarray(belief, dtype=float)
     rows = [look.one_step(b)] + ([look.two_step(b)] if depth == 2 else [])
     out = np.asarray(rows, dtype=float) / np.log2(max(target_size(model, look.pose), 2))

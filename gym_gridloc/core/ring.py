@@ -77,21 +77,25 @@ class RingSensor(Sensor):
         "nothing" its (H, W) row."""
         h, w = self.grid.shape
         readings = np.asarray(readings, dtype=np.int64).reshape(-1)
-        out = np.empty((readings.size, h * w)) if out is None else out
-        out.fill(0.0)
+        if out is None:
+            out = np.zeros((readings.size, h * w))
+        else:
+            out.fill(0.0)
         nothing = readings == self.nothing
-        out[nothing] = self._nothing.reshape(-1)
+        if nothing.any():
+            out[nothing] = self._nothing.reshape(-1)
         cells = np.flatnonzero(~nothing)
-        r0, c0 = np.divmod(readings[cells], w)
-        free = self.grid.free
-        for i in range(5):
-            rr = r0 + i - 2
-            for j in range(5):
-                cc = c0 + j - 2
-                ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-                if ok.any():
-                    r, c, k = rr[ok], cc[ok], cells[ok]
-                    out[k, r * w + c] = self.kernel[i, j] * free[r, c]
+        if cells.size:  # (no 25 scatters of empty selections when every reading is "nothing")
+            r0, c0 = np.divmod(readings[cells], w)
+            free = self.grid.free
+            for i in range(5):
+                rr = r0 + i - 2
+                for j in range(5):
+                    cc = c0 + j - 2
+                    ok = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
+                    if ok.any():
+                        r, c, k = rr[ok], cc[ok], cells[ok]
+                        out[k, r * w + c] = self.kernel[i, j] * free[r, c]
         return out
 
     def reading_probabilities(self, masses: np.ndarray) -> np.ndarray:
@@ -130,7 +134,9 @@ class RingSensor(Sensor):
         rr = r[:, None] + di[None, :] - 2
         cc = c[:, None] + dj[None, :] - 2
         inside = (rr >= 0) & (rr < h) & (cc >= 0) & (cc < w)
-        probs = np.column_stack((np.where(inside, self.kernel.reshape(-1)[None, :], 0.0), self._nothing[r, c]))
+        probs = np.empty((states.shape[0], 26))
+        probs[:, :25] = np.where(inside, self.kernel.reshape(-1)[None, :], 0.0)
+        probs[:, 25] = self._nothing[r, c]
         k = self._categorical(probs, rng)
         cell = np.take_along_axis(rr * w + cc, np.minimum(k, 24)[:, None], axis=1)[:, 0]
         return np.where(k == 25, self.nothing, cell)
