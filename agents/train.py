@@ -169,13 +169,17 @@ def best_entry(directory: Path) -> dict[str, Any] | None:
     return entry if "num_timesteps" in entry else None
 
 
-def record_evaluation(model, cfg, episodes, directory: Path, history: list, on_evaluation=None) -> None:
+def record_evaluation(model, cfg, episodes, directory: Path, history: list, on_evaluation=None,
+                      clock: dict[str, float] | None = None) -> None:
     """Evaluate, append to ``history`` (which may hold the evaluations of an interrupted run) and
-    keep the best model so far as ``best.zip`` with its evaluation in ``best.json``."""
+    keep the best model so far as ``best.zip`` with its evaluation in ``best.json``.  ``clock``
+    (``wall_time_seconds``, ``cpu_seconds`` of training so far) is stored with the evaluation, for
+    learning curves against wall time."""
     result = evaluate(model, cfg, episodes)
     kept = best_entry(directory)
     best = min((_score(cfg, h) for h in [*history, *([kept] if kept else [])]), default=float("inf"))
-    entry = {"num_timesteps": int(model.num_timesteps), **{k: round(v, 4) for k, v in result.items()}}
+    entry = {"num_timesteps": int(model.num_timesteps), **{k: round(v, 4) for k, v in result.items()},
+             **{k: round(v, 2) for k, v in (clock or {}).items()}}
     history.append(entry)
     print(f"evaluation at {entry['num_timesteps']} steps on {episodes} held-out episodes: mean steps {entry['mean_steps']:.3f}, "
           f"accuracy {entry['accuracy']:.3f}, argmax accuracy {entry['argmax_accuracy']:.3f}"
@@ -271,7 +275,9 @@ def train(
         }
 
     def evaluate_now(m) -> None:
-        record_evaluation(m, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation)
+        m_ = meta()
+        record_evaluation(m, cfg, cfg["eval_episodes"], ckpt_dir, evaluations, on_evaluation,
+                          clock={k: m_[k] for k in ("wall_time_seconds", "cpu_seconds")})
 
     def save(m, name: str, **extra: Any) -> Path:
         """A checkpoint ``name``: the model and its metadata (``meta()``, its ``num_timesteps`` is ``m``'s)."""
