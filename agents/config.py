@@ -54,7 +54,11 @@ TOP_KEYS = {
     "eval_episodes": "episodes per evaluation (seeds 2_000_000 + i)",
     "pretrain": "optional behaviour-cloning warm start: expert, episodes, epochs, batch_size, learning_rate",
     "vec_env": "dummy (SB3's DummyVecEnv of wrapped envs, default) or native (gym_gridloc's vector env)",
+    "schedule": "final values of learning_rate, clip_range or ent_coef: each goes linearly from its hyperparams value to this",
 }
+
+#: Hyperparameters a ``schedule`` may anneal linearly over training (from ``hyperparams``' value).
+SCHEDULED = ("learning_rate", "clip_range", "ent_coef")
 
 PRETRAIN_KEYS = {
     "expert": "the policy to imitate (a policy name that needs no model file: greedy, greedy2, a planner)",
@@ -265,6 +269,15 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             hp[k] = _num(source, f"hyperparams.{k}", v, integer=integer, minimum=lo, maximum=hi, above=above)
         elif isinstance(v, float) and not math.isfinite(v):
             raise ConfigError(f"{source}: hyperparams.{k} must be a finite number, got {v!r}")
+    sched = cfg.setdefault("schedule", {})
+    _known_keys(source, sched, SCHEDULED, "schedule")
+    if sched and algo != "ppo":
+        raise ConfigError(f"{source}: schedule needs algo: ppo, not {algo}")
+    for k, v in sched.items():
+        if k not in hp:
+            raise ConfigError(f"{source}: schedule.{k} needs hyperparams.{k}, the value it starts from")
+        integer, lo, above, hi = HYPER_RANGES[k]
+        sched[k] = _num(source, f"schedule.{k}", v, integer=integer, minimum=lo, maximum=hi, above=above)
     if hp.get("n_steps", 2048) * cfg["n_envs"] < 2:
         raise ConfigError(f"{source}: hyperparams.n_steps x n_envs must be at least 2, got {hp.get('n_steps')} x {cfg['n_envs']}")
 

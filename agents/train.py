@@ -81,6 +81,32 @@ def _policy_kwargs(cfg: dict[str, Any]) -> dict[str, Any]:
     return pk
 
 
+def _scheduled(cfg: dict[str, Any]) -> tuple[dict[str, Any], list]:
+    """The algorithm's keyword arguments with ``schedule``'s linear schedules in place, and the
+    callbacks that anneal what SB3 takes only as a number (``ent_coef``).  The fraction of
+    training done is ``num_timesteps / total_timesteps`` (SB3's own for the callables), so a
+    resumed run continues the schedule where it stopped."""
+    from stable_baselines3.common.utils import get_linear_fn
+
+    hp, sched = dict(cfg["hyperparams"]), cfg.get("schedule") or {}
+    for key in ("learning_rate", "clip_range"):
+        if key in sched:
+            hp[key] = get_linear_fn(float(hp[key]), float(sched[key]), 1.0)
+    cbs = []
+    if "ent_coef" in sched:
+        start, final, total = float(hp["ent_coef"]), float(sched["ent_coef"]), int(cfg["total_timesteps"])
+
+        class AnnealEntropy(BaseCallback):
+            def _on_rollout_end(self) -> None:  # before the update that uses it
+                self.model.ent_coef = start + min(1.0, self.model.num_timesteps / total) * (final - start)
+
+            def _on_step(self) -> bool:
+                return True
+
+        cbs.append(AnnealEntropy())
+    return hp, cbs
+
+
 def default_checkpoint_dir(cfg: dict[str, Any]) -> Path:
     """``checkpoint_dir``, or ``runs/checkpoints/<stem>-<hash of the output's full path>``: two
     outputs of the same name in different directories never share checkpoints."""
@@ -246,6 +272,7 @@ def train(
     if torch_threads:
         torch.set_num_threads(int(torch_threads))
     Algo = algo_class(cfg["algo"])
+    hyperparams, schedule_callbacks = _scheduled(cfg)
     venv = make_training_env(cfg)
     if resume is not None:
         model = load_model(resume, algo=cfg["algo"], env=venv)[0]
@@ -253,7 +280,7 @@ def train(
             model.tensorboard_log = cfg["tensorboard_log"]
     else:
         model = Algo(cfg["policy"], venv, seed=cfg["seed"], policy_kwargs=_policy_kwargs(cfg),
-                     tensorboard_log=cfg["tensorboard_log"], device="cpu", verbose=0, **cfg["hyperparams"])
+                     tensorboard_log=cfg["tensorboard_log"], device="cpu", verbose=0, **hyperparams)
 
     start, cpu_start = time.perf_counter(), time.process_time()
     evaluations: list[dict[str, Any]] = list(prev.get("evaluations") or [])
@@ -304,7 +331,7 @@ def train(
     if cfg["eval_freq"] > 0 and cfg.get("pretrain") and int(model.num_timesteps) == 0 and not evaluations:
         # The warm-started policy itself competes for "best" (PPO may not improve on it).
         evaluate_now(model)
-    cbs = list(callbacks or [])
+    cbs = list(callbacks or []) + schedule_callbacks
     if cfg["checkpoint_freq"] > 0:
         cbs.append(_every(cfg["checkpoint_freq"], lambda m: save(m, f"step_{m.num_timesteps}.zip")))
     if cfg["eval_freq"] > 0:
