@@ -43,6 +43,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from gym_gridloc_agents.envs import make_env
+from gym_gridloc_agents.files import metadata_path, model_method, read_metadata
 from gym_gridloc_agents.policies import POLICY_DIR, POLICY_NAMES, default_model_path, make_policy
 from gym_gridloc_agents.rollout import rollout
 from gym_gridloc_agents.stats import wilson_ci95
@@ -51,11 +52,11 @@ BUDGETS = (5, 10, 25, 50)
 #: The environments of ``gridloc bench --all`` (fixed maps, shipped policies).
 BENCH_ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0")
 #: The policies ``gridloc bench`` runs when ``--policies`` is not given.
-DEFAULT_POLICIES = ("random", "greedy", "greedy2", "ppo", "recurrent")
+DEFAULT_POLICIES = ("random", "greedy", "greedy2", "ppo", "distilled", "recurrent")
 #: Policies that plan on the exact belief (the "best planner" of ``gap_to_best_planner``).
 PLANNERS = ("central", "expectimax", "mcts", "pomcp", "optimal")
 #: Policies that load a model file.
-LEARNED = ("ppo", "recurrent")
+LEARNED = ("ppo", "distilled", "recurrent")
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,22 @@ def make_task_policy(task: Task, env):
         options.setdefault("threshold", env.unwrapped.localise_threshold)
     return make_policy(task.policy, env.unwrapped.model, env_id=task.env_id, env_kwargs=dict(task.env_kwargs),
                        path=task.model_path, pose=env.unwrapped.referee_pose, **options)
+
+
+def _learned_name(name: str, path: str | Path | None) -> str:
+    """The row name of policy ``name`` with model file ``path``: a ``ppo`` model that was
+    distilled from a planner is named ``distilled`` (with a ``FutureWarning``)."""
+    if name != "ppo" or path is None or not metadata_path(Path(path)).is_file():
+        return name
+    try:
+        method = model_method(read_metadata(Path(path)))
+    except ValueError:
+        return name
+    if method == "distilled":
+        warnings.warn(f"{path} was distilled from a planner: its row is named 'distilled' (pass it as "
+                      "--distilled-model; 'ppo' now means PPO from the reward alone)", FutureWarning, stacklevel=3)
+        return "distilled"
+    return name
 
 
 def simulate(task: Task, specs: Sequence[tuple[int, Any]], *, budgets: Sequence[int] = BUDGETS,
@@ -279,17 +296,22 @@ def run_benchmark(
     policy_options: dict[str, dict] | None = None,
     progress: bool = True,
     jobs: int = 1,
+    distilled_model: str | Path | Sequence[str | Path] | None = None,
     torch_threads: int | None = None,
 ) -> list[dict[str, Any]]:
     """Rows for every environment x policy, in that order, on the same episodes.  With
     ``jobs > 1`` the episodes are split into chunks run in parallel processes (the same
-    episodes, so the same numbers).  Several ``ppo_model`` files (one per seed) make the ``ppo``
-    row the aggregate across seeds (:func:`seed_aggregate`).  ``policy_options`` maps a policy
+    episodes, so the same numbers).  Several ``ppo_model`` (``distilled_model``) files, one per
+    seed, make the ``ppo`` (``distilled``) row the aggregate across seeds (:func:`seed_aggregate`);
+    a ``ppo_model`` that was distilled from a planner is benchmarked as ``distilled``, with a
+    ``FutureWarning`` (the name ``ppo`` meant the distilled models before 0.2).  ``policy_options`` maps a policy
     name to its options (e.g. ``{"expectimax": {"depth": 3}}``).  ``torch_threads``: torch's
     threads for the learned policies, in this process and in every job (None: torch's default)."""
-    models = list(ppo_model) if isinstance(ppo_model, (list, tuple)) else [ppo_model]
-    if not models:
-        raise ValueError("ppo_model: an empty list of models")
+    given = {}
+    for key, value in (("ppo", ppo_model), ("distilled", distilled_model)):
+        given[key] = list(value) if isinstance(value, (list, tuple)) else [value]
+        if not given[key]:
+            raise ValueError(f"{key}_model: an empty list of models")
     for name in policies:
         if name not in POLICY_NAMES:
             raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")
@@ -305,8 +327,8 @@ def run_benchmark(
                 warnings.warn(f"policy {name!r} does not apply to {env_id} (its sensor has no 'nothing' reading): "
                               "no row for it", stacklevel=2)
                 continue
-            paths = models if name == "ppo" else [recurrent_model] if name == "recurrent" else [None]
-            groups.append([Task(env_id, name, kwargs, p, dict(options.get(name, {}))) for p in paths])
+            paths = given.get(name) or ([recurrent_model] if name == "recurrent" else [None])
+            groups.append([Task(env_id, _learned_name(name, p), kwargs, p, dict(options.get(name, {}))) for p in paths])
     tasks = [t for group in groups for t in group]
     for task in tasks:  # fail before any long run if a model is missing or does not fit
         if task.policy in LEARNED:

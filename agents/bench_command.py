@@ -55,22 +55,21 @@ def _policy_options(items: list[str], policies: list[str]) -> dict[str, dict]:
 
 
 def _available_defaults(envs: list[str], policies: list[str], env_kwargs: dict, args) -> list[str]:
-    """The default policies without the learned ones (``ppo``, ``recurrent``) that have no model
-    for these environments and keywords and no ``--ppo-model``/``--recurrent-model``; says which
-    rows it leaves out on stderr."""
+    """The default policies without the learned ones (``ppo``, ``distilled``, ``recurrent``) that
+    have no model for these environments and keywords and no ``--<name>-model``; says which rows
+    it leaves out on stderr."""
     from gym_gridloc_agents.policies import default_model_path
 
-    def shipped(env_id: str, algo: str) -> bool:
+    def shipped(env_id: str, method: str) -> bool:
         try:
-            return default_model_path(env_id, algo, env_kwargs).is_file()
+            return default_model_path(env_id, method, env_kwargs).is_file()
         except FileNotFoundError:
             return False
 
-    given = {"ppo": args.ppo_model, "recurrent": args.recurrent_model}
+    given = {"ppo": args.ppo_model, "distilled": args.distilled_model, "recurrent": args.recurrent_model}
     keep = []
     for name in policies:
-        algo = {"ppo": "ppo", "recurrent": "recurrent_ppo"}.get(name)
-        missing = [] if algo is None or given[name] else [e for e in envs if not shipped(e, algo)]
+        missing = [] if name not in given or given[name] else [e for e in envs if not shipped(e, name)]
         if missing:
             print(f"gridloc bench: no shipped {name} model for {', '.join(missing)}"
                   f"{' with ' + str(env_kwargs) if env_kwargs else ''}: its row is left out "
@@ -126,11 +125,13 @@ def bench_main(args) -> int:
             if path:
                 writable_file(path, what)
         old_rows = read_rows(json_path) if args.update and Path(json_path).exists() else []
-        ppo_model = expand_models(args.ppo_model) if args.ppo_model else None
-        if ppo_model is not None and len(ppo_model) > 1 and len(envs) > 1:
-            raise ValueError("several --ppo-model files (one per seed) are models of one environment: give --env ENV_ID, not --all")
-        if ppo_model is not None and len(ppo_model) == 1:
-            ppo_model = ppo_model[0]
+        seeds_models = {}
+        for name in ("ppo", "distilled"):
+            given = getattr(args, f"{name}_model")
+            found = expand_models(given, flag=f"--{name}-model") if given else None
+            if found is not None and len(found) > 1 and len(envs) > 1:
+                raise ValueError(f"several --{name}-model files (one per seed) are models of one environment: give --env ENV_ID, not --all")
+            seeds_models[name] = found[0] if found is not None and len(found) == 1 else found
     except (ValueError, OutputError) as exc:
         return _fail("bench", str(exc))
     try:
@@ -138,7 +139,8 @@ def bench_main(args) -> int:
             warnings.simplefilter("always", UserWarning)
             rows = run_benchmark(
                 envs, policies, episodes, seed_start=args.seed, env_kwargs=env_kwargs, test_set=args.test_set,
-                ppo_model=ppo_model, recurrent_model=args.recurrent_model, policy_options=options,
+                ppo_model=seeds_models["ppo"], distilled_model=seeds_models["distilled"],
+                recurrent_model=args.recurrent_model, policy_options=options,
                 progress=not args.no_progress, jobs=args.jobs, torch_threads=args.torch_threads,
             )
     except (ValueError, FileNotFoundError) as exc:

@@ -46,7 +46,7 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--env", metavar="ENV_ID", help="environment id, e.g. WindyMaze-v0")
     b.add_argument("--all", action="store_true",
                    help="all three environments, every policy, 1000 episodes; writes results/bench.json and results/bench_<env>.png")
-    b.add_argument("--policies", default=None, help="comma-separated policy names (default: random,greedy,greedy2,ppo,recurrent)")
+    b.add_argument("--policies", default=None, help="comma-separated policy names (default: random,greedy,greedy2,ppo,distilled,recurrent)")
     b.add_argument("--episodes", type=int, default=None, help="episodes per policy (default 200; 1000 with --all)")
     b.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode i uses seed+i)")
     b.add_argument("--json", metavar="PATH", help="write the rows as JSON")
@@ -55,6 +55,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="benchmark this PPO model instead of the shipped one; several files, a directory (its *.zip) or a "
                         "glob: one model per seed, the ppo row is then the aggregate across seeds (e.g. a sweep's "
                         "models/<configuration>)")
+    b.add_argument("--distilled-model", metavar="PATH", nargs="+",
+                   help="benchmark this planner-distilled model (policy distilled) instead of the shipped one; several "
+                        "files, a directory or a glob as --ppo-model")
     b.add_argument("--recurrent-model", metavar="PATH", help="benchmark this RecurrentPPO model instead of the shipped one")
     b.add_argument("--size", type=int, metavar="N", help="map size (the size keyword of the environment, e.g. 7 for DepthMaze 7x7)")
     b.add_argument("--test-set", action="store_true",
@@ -109,7 +112,16 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("json", nargs="?", default=str(RESULTS / "bench.json"), help="a bench JSON (default results/bench.json)")
     q.add_argument("--training", nargs="+", metavar="MODEL.zip",
                    help="instead: plot these models' training curves (their held-out evaluations) to --out")
-    q.add_argument("--out", metavar="PATH.png", default=str(RESULTS / "training.png"), help="the --training plot (default results/training.png)")
+    q.add_argument("--curves", nargs="+", metavar="RUNS",
+                   help="instead: learning curves across seeds to --out, one curve per RUNS (a sweep's --output directory, a "
+                        "directory of models or model files): the IQM of the seeds' held-out evaluations with a bootstrap "
+                        "95%% interval, against environment steps and wall time")
+    q.add_argument("--baselines", metavar="BENCH.json", default=str(RESULTS / "bench.json"),
+                   help="with --curves: benchmark rows whose random, greedy2 and best planner are drawn as lines "
+                        "(default results/bench.json)")
+    q.add_argument("--curves-json", metavar="PATH.json", help="with --curves: also write the curves and sample efficiency as JSON")
+    q.add_argument("--out", metavar="PATH.png", default=None,
+                   help="the --training or --curves plot (default results/training.png, results/curves.png)")
     return p
 
 
@@ -132,6 +144,11 @@ def _render(args) -> int:
 def _plot(args) -> int:
     from gym_gridloc_agents.report import plot, plot_frontier, plot_training, read_rows
 
+    if args.curves and args.training:
+        return _fail("plot", "give --curves or --training, not both")
+    if args.curves:
+        return _plot_curves(args)
+    args.out = args.out or str(RESULTS / "training.png")
     if args.training:
         try:
             for m in args.training:
@@ -158,6 +175,39 @@ def _plot(args) -> int:
         out = src.parent / f"{src.stem}_frontier.png"  # bench.json: bench_frontier.png
         plot_frontier(rows, out)
         print(f"wrote {out}")
+    return 0
+
+
+def _plot_curves(args) -> int:
+    from gym_gridloc_agents import curves
+    from gym_gridloc_agents.report import read_rows
+
+    out = args.out or str(RESULTS / "curves.png")
+    try:
+        made = []
+        for item in args.curves:
+            runs = curves.load_runs(item)
+            label = Path(item).name if Path(item).is_dir() else Path(item).stem
+            made.append(curves.curve(runs, label=label))
+        if len({(c["env_id"], repr(sorted(c["env_kwargs"].items()))) for c in made}) > 1:
+            raise ValueError("--curves: the runs are of different tasks; plot one task per figure")
+        rows = read_rows(args.baselines) if Path(args.baselines).is_file() else []
+        lines = curves.baselines(rows, made[0]["env_id"], made[0]["metric"], made[0]["lower_is_better"])
+        writable_file(out, "plot")
+        if args.curves_json:
+            writable_file(args.curves_json, "curves JSON")
+    except (ValueError, OutputError) as exc:
+        return _fail("plot", str(exc))
+    curves.plot_curves(made, lines, out)
+    print(curves.curves_table(made, lines))
+    print(f"wrote {out}")
+    if args.curves_json:
+        from gym_gridloc_agents.files import atomic_write_json
+
+        atomic_write_json(Path(args.curves_json), {"baselines": lines, "baselines_source": args.baselines,
+                                                   "curves": [{**c, "sample_efficiency": curves.sample_efficiency(c, lines)}
+                                                              for c in made]})
+        print(f"wrote {args.curves_json}")
     return 0
 
 

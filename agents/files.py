@@ -204,13 +204,29 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
     return model, meta
 
 
+#: How a model was made (its metadata's ``method``): the names of the learned policies.
+METHODS = ("ppo", "distilled", "recurrent")
+
+
+def model_method(meta: dict[str, Any]) -> str:
+    """How the model a metadata dict describes was made: ``"recurrent"`` (RecurrentPPO on the
+    readings), ``"distilled"`` (a planner imitated: its training had a ``pretrain`` warm start)
+    or ``"ppo"`` (PPO from the environment's reward alone).  ``method`` when the metadata says
+    it; older metadata is read from its ``algo`` and ``pretrain``."""
+    if meta.get("method") in METHODS:
+        return meta["method"]
+    if meta.get("algo") == "recurrent_ppo":
+        return "recurrent"
+    return "distilled" if meta.get("pretrain") or (meta.get("config") or {}).get("pretrain") else "ppo"
+
+
 #: Environment keywords that shape episodes, not the model a policy acts on: they may differ
 #: between training and use (e.g. a policy trained for 15 steps, benchmarked at 30).
 EPISODE_KWARGS = ("episode_length", "reward", "render_mode", "new_map_each_reset")
 
 
-def expand_models(items: Sequence[str | Path]) -> list[Path]:
-    """The model files of ``--ppo-model``: a file as given, a directory's ``*.zip`` (not its
+def expand_models(items: Sequence[str | Path], flag: str = "--ppo-model") -> list[Path]:
+    """The model files of ``--ppo-model`` (or ``flag``): a file as given, a directory's ``*.zip`` (not its
     subdirectories), a glob pattern's matches, each sorted by name; ``ValueError`` for a directory
     or pattern without a model, or a file given twice."""
     models: list[Path] = []
@@ -223,12 +239,12 @@ def expand_models(items: Sequence[str | Path]) -> list[Path]:
         else:
             found = [path]
         if not found:
-            raise ValueError(f"--ppo-model {item}: {problem}")
+            raise ValueError(f"{flag} {item}: {problem}")
         models += found
     seen = set()
     for m in models:
         if m.resolve() in seen:
-            raise ValueError(f"--ppo-model: {m} is given twice (each model is one seed)")
+            raise ValueError(f"{flag}: {m} is given twice (each model is one seed)")
         seen.add(m.resolve())
     return models
 

@@ -10,7 +10,10 @@ information; each uses what it needs:
 - ``greedy``: the action minimising the expected Shannon entropy of the position belief after the
   next move and reading, the expectation taken exactly over readings;
 - ``greedy2``: a two-step expectimax over (action, reading, action, reading);
-- ``ppo``: a stable-baselines3 PPO model on the flattened belief observation;
+- ``ppo``: a stable-baselines3 PPO model on the belief observation, trained from the
+  environment's reward alone (no planner);
+- ``distilled``: a PPO network on the belief observation that imitated a planner (behaviour
+  cloning and DAgger, then a short PPO phase): the planner's play at a network's speed;
 - ``recurrent``: an sb3-contrib RecurrentPPO model on the raw observation only (LSTM memory).
 
 Call ``reset(seed=..., model=...)`` at the start of every episode: it seeds the policy's own
@@ -28,15 +31,17 @@ from gymnasium import spaces
 
 from gym_gridloc.core.model import GridModel
 from gym_gridloc_agents.base import Policy
-from gym_gridloc_agents.files import load_model, model_kwargs, read_metadata
+from gym_gridloc_agents.files import METHODS, load_model, model_kwargs, model_method, read_metadata
 from gym_gridloc.lookahead import Lookahead
 
 #: Names accepted by :func:`make_policy`.
-POLICY_NAMES = ("random", "greedy", "greedy2", "central", "expectimax", "mcts", "optimal", "pomcp", "ppo", "recurrent")
+POLICY_NAMES = ("random", "greedy", "greedy2", "central", "expectimax", "mcts", "optimal", "pomcp", "ppo", "distilled",
+                "recurrent")
 #: Policies a warm start may imitate (no model file of their own).
 EXPERT_NAMES = ("greedy", "greedy2", "central", "expectimax", "mcts", "optimal")
 
-#: Where the shipped models live: ``<env_id>.zip`` (PPO) and ``<env_id>-recurrent.zip``.
+#: Where the shipped models live: ``<env_id>[-size<N>]-<method>.zip``, method ``ppo``, ``distilled``
+#: or ``recurrent`` (:data:`gym_gridloc_agents.files.METHODS`).
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 
 
@@ -99,9 +104,10 @@ class Greedy2Policy(GreedyPolicy):
 
 
 class PPOPolicy(Policy):
-    """A stable-baselines3 PPO model trained on ``HMMBeliefWrapper`` observations.
+    """A stable-baselines3 PPO model trained on ``HMMBeliefWrapper`` observations from the
+    environment's reward alone (:class:`DistilledPolicy`: one that imitated a planner).
 
-    ``path`` defaults to the shipped model for ``env_id`` (``agents/policies/<env_id>.zip``).  The
+    ``path`` defaults to the shipped model for ``env_id`` (``agents/policies/<env_id>-ppo.zip``).  The
     observation is built as the wrapper the model was trained behind built it: its options
     (``flatten``, ``full_state``, ``map``) come from the metadata beside the model (or
     ``wrapper=``; default ``flatten=True``).  Model zip files are pickles: load only files from a
@@ -110,6 +116,8 @@ class PPOPolicy(Policy):
 
     name = "ppo"
     algo = "ppo"
+    #: How the default (shipped) model was made: :func:`gym_gridloc_agents.files.model_method`.
+    method = "ppo"
 
     def __init__(
         self,
@@ -133,8 +141,8 @@ class PPOPolicy(Policy):
         if path is None:
             if env_id is None:
                 raise ValueError(f"policy {self.name!r} needs env_id=... (for the shipped model) or path=...")
-            path = default_model_path(env_id, self.algo, env_kwargs)
-        self.path = Path(path)
+            path = default_model_path(env_id, self.method, env_kwargs)
+        self.path = renamed_model(Path(path))
         self.wrapper = _wrapper_options(wrapper if wrapper is not None else read_metadata(self.path).get("wrapper")
                                         if self.path.is_file() else None)
         expected = self.expected_space(model) if observation_space is None else observation_space
@@ -186,6 +194,7 @@ class RecurrentPolicy(PPOPolicy):
 
     name = "recurrent"
     algo = "recurrent_ppo"
+    method = "recurrent"
 
     def __init__(self, model: GridModel, **kwargs: Any) -> None:
         super().__init__(model, **kwargs)
@@ -208,23 +217,51 @@ class RecurrentPolicy(PPOPolicy):
         return int(np.asarray(action).reshape(-1)[0])
 
 
-def default_model_path(env_id: str, algo: str = "ppo", env_kwargs: dict[str, Any] | None = None) -> Path:
-    """The shipped model file for ``env_id``, ``algo`` (``ppo`` or ``recurrent_ppo``) and the
-    environment's keyword arguments: ``<env_id>.zip`` (or ``-recurrent.zip``) when it was trained
-    for them, else the model in :data:`POLICY_DIR` whose metadata names them (defaults filled in,
-    so ``DepthMaze-v0`` with no keywords finds the model trained with ``size=7``; episode keywords
-    such as ``episode_length`` may differ)."""
-    plain = POLICY_DIR / f"{env_id}{'' if algo == 'ppo' else '-recurrent'}.zip"
+class DistilledPolicy(PPOPolicy):
+    """A PPO network that imitated a planner (behaviour cloning of its action distribution and
+    DAgger rounds, then a short PPO phase): ``configs/distill_*.yml``.  ``path`` defaults to the
+    shipped ``agents/policies/<env_id>-distilled.zip``."""
+
+    name = "distilled"
+    method = "distilled"
+
+
+def renamed_model(path: Path) -> Path:
+    """``path``, or the shipped model it was renamed to in 0.2 (``<env_id>[-size<N>].zip``, the
+    planner-distilled models, became ``...-distilled.zip``), with a ``FutureWarning``."""
+    if path.is_file() or path.parent.resolve() != POLICY_DIR or path.stem.endswith(tuple(f"-{m}" for m in METHODS)):
+        return path
+    new = path.with_name(f"{path.stem}-distilled{path.suffix}")
+    if not new.is_file():
+        return path
+    import warnings
+
+    warnings.warn(f"{path.name} is now {new.name} (a planner distilled into a network: policy 'distilled'); "
+                  "the old name goes in a later release", FutureWarning, stacklevel=3)
+    return new
+
+
+def default_model_path(env_id: str, method: str = "ppo", env_kwargs: dict[str, Any] | None = None) -> Path:
+    """The shipped model file for ``env_id``, ``method`` (``ppo``, ``distilled`` or ``recurrent``;
+    the algorithm ``recurrent_ppo`` is read as ``recurrent``) and the environment's keyword
+    arguments: ``<env_id>-<method>.zip`` when it was trained for them, else the model in
+    :data:`POLICY_DIR` whose metadata names them (defaults filled in, so ``DepthMaze-v0`` with no
+    keywords finds the model trained with ``size=7``; episode keywords such as ``episode_length``
+    may differ)."""
+    method = "recurrent" if method == "recurrent_ppo" else method
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    plain = POLICY_DIR / f"{env_id}-{method}.zip"
     want = model_kwargs(env_id, env_kwargs or {})
     candidates = [plain] + [p.with_suffix(".zip") for p in sorted(POLICY_DIR.glob(f"{env_id}*.json")) if p.with_suffix(".zip") != plain]
     for path in candidates:
         meta = read_metadata(path) if path.with_suffix(".json").is_file() else {}
-        if meta.get("env_id") == env_id and meta.get("algo") == algo and model_kwargs(env_id, meta.get("env_kwargs", {})) == want:
+        if meta.get("env_id") == env_id and model_method(meta) == method and model_kwargs(env_id, meta.get("env_kwargs", {})) == want:
             return path
     if not env_kwargs:
         return plain  # (missing: the caller's load says how to make it)
-    raise FileNotFoundError(f"no shipped {algo} model for {env_id} with {dict(env_kwargs)} in {POLICY_DIR}; "
-                            "train one (gridloc train CONFIG) and pass --ppo-model PATH")
+    raise FileNotFoundError(f"no shipped {method} model for {env_id} with {dict(env_kwargs)} in {POLICY_DIR}; "
+                            f"train one (gridloc train CONFIG) and pass --{method}-model PATH")
 
 
 def make_policy(
@@ -240,7 +277,7 @@ def make_policy(
 ) -> Policy:
     """A policy by name (one of :data:`POLICY_NAMES`) for an environment's model.
 
-    ``path`` gives the model file for ``ppo`` / ``recurrent`` (default: the shipped one for
+    ``path`` gives the model file for ``ppo`` / ``distilled`` / ``recurrent`` (default: the shipped one for
     ``env_id``; a model trained with other ``env_kwargs`` is refused).  ``pose``: the referee
     tests poses (the entropy policies then minimise the entropy of the full hidden state).
     ``optimal`` (noiseless models only, :mod:`gym_gridloc_agents.optimal`) plans for the
@@ -264,7 +301,10 @@ def make_policy(
 
         threshold = options.pop("threshold", None) or (env_kwargs or {}).get("localise_threshold", 0.9)
         return PomcpPolicy(model, seed=seed, threshold=threshold, pose=pose, **options)
-    if name in ("ppo", "recurrent"):
-        cls = PPOPolicy if name == "ppo" else RecurrentPolicy
-        return cls(model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
+    if name in LEARNED_POLICIES:
+        return LEARNED_POLICIES[name](model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
     raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")
+
+
+#: The learned policies by name (each loads a model file; the name says how the model was made).
+LEARNED_POLICIES = {"ppo": PPOPolicy, "distilled": DistilledPolicy, "recurrent": RecurrentPolicy}

@@ -12,8 +12,8 @@ files (one row across seeds); :func:`wilson_ci95` gives the benchmark's interval
 
 from __future__ import annotations
 
-import math
-from collections.abc import Sequence
+import functools
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -38,27 +38,34 @@ def mean(values: Sequence[float]) -> float:
 
 
 def iqm(values: Sequence[float]) -> float:
-    """Interquartile mean: the mean after dropping ``floor(n / 4)`` values at each end of the
-    sorted values (rliable's ``aggregate_iqm``, i.e. ``scipy.stats.trim_mean(x, 0.25)``).  With
+    """Interquartile mean: ``scipy.stats.trim_mean(x, 0.25)``, the mean after dropping
+    ``floor(n / 4)`` values at each end of the sorted values (rliable's ``aggregate_iqm``).  With
     fewer than 4 values nothing is dropped: it is the mean."""
-    x = np.sort(_values(values))
-    k = int(0.25 * x.size)
-    return float(x[k: x.size - k].mean())
+    from scipy.stats import trim_mean
+
+    return float(trim_mean(_values(values), 0.25))
 
 
 def bootstrap_ci(values: Sequence[float], *, confidence: float = 0.95, resamples: int = BOOTSTRAP_RESAMPLES,
-                 seed: int = BOOTSTRAP_SEED) -> list[float]:
-    """Percentile-bootstrap interval of the mean: ``resamples`` resamples of the values with
-    replacement (generator ``numpy.random.default_rng(seed)``), the ``(1 - confidence) / 2`` and
-    ``(1 + confidence) / 2`` quantiles of their means.  One value: ``[value, value]``."""
+                 seed: int = BOOTSTRAP_SEED, statistic: Callable[..., Any] = np.mean) -> list[float]:
+    """Percentile-bootstrap interval of ``statistic`` (the mean; :func:`iqm` for learning
+    curves): ``scipy.stats.bootstrap`` with ``resamples`` resamples of the values with
+    replacement, generator ``numpy.random.default_rng(seed)``.  Values that are all equal (one
+    value, say) give ``[value, value]``."""
+    from scipy.stats import bootstrap
+
     x = _values(values)
     if not 0 < confidence < 1:
         raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
-    if x.size == 1:
+    if np.ptp(x) == 0:
         return [float(x[0]), float(x[0])]
-    rng = np.random.default_rng(seed)
-    means = x[rng.integers(0, x.size, size=(int(resamples), x.size))].mean(axis=1)
-    return [float(q) for q in np.quantile(means, [(1 - confidence) / 2, (1 + confidence) / 2])]
+    if statistic is iqm:
+        from scipy.stats import trim_mean
+
+        statistic = functools.partial(trim_mean, proportiontocut=0.25)
+    res = bootstrap((x,), statistic, n_resamples=int(resamples), confidence_level=confidence, method="percentile",
+                    rng=np.random.default_rng(seed), vectorized=True, axis=-1)
+    return [float(res.confidence_interval.low), float(res.confidence_interval.high)]
 
 
 def aggregate(values: Sequence[float]) -> dict[str, Any]:
@@ -76,12 +83,12 @@ def median_index(scores: Sequence[float]) -> int:
 
 
 def wilson_ci95(successes: int, n: int) -> list[float]:
-    """The Wilson score 95% interval of a proportion ``successes / n``."""
+    """The Wilson score 95% interval of a proportion ``successes / n``
+    (``scipy.stats.binomtest(successes, n).proportion_ci(0.95, method="wilson")``)."""
+    from scipy.stats import binomtest
+
     if n <= 0:
         return [0.0, 1.0]
-    z = 1.959963984540054
-    p = successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return [0.0 if successes == 0 else max(0.0, centre - half),  # exact ends, no rounding residue
-            1.0 if successes == n else min(1.0, centre + half)]
+    ci = binomtest(int(successes), int(n)).proportion_ci(0.95, method="wilson")
+    return [0.0 if successes == 0 else max(0.0, float(ci.low)),  # exact ends, no rounding residue
+            1.0 if successes == n else min(1.0, float(ci.high))]

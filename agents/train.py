@@ -86,12 +86,12 @@ def _scheduled(cfg: dict[str, Any]) -> tuple[dict[str, Any], list]:
     callbacks that anneal what SB3 takes only as a number (``ent_coef``).  The fraction of
     training done is ``num_timesteps / total_timesteps`` (SB3's own for the callables), so a
     resumed run continues the schedule where it stopped."""
-    from stable_baselines3.common.utils import get_linear_fn
+    from stable_baselines3.common.utils import LinearSchedule
 
     hp, sched = dict(cfg["hyperparams"]), cfg.get("schedule") or {}
     for key in ("learning_rate", "clip_range"):
         if key in sched:
-            hp[key] = get_linear_fn(float(hp[key]), float(sched[key]), 1.0)
+            hp[key] = LinearSchedule(float(hp[key]), float(sched[key]), 1.0)
     cbs = []
     if "ent_coef" in sched:
         start, final, total = float(hp["ent_coef"]), float(sched["ent_coef"]), int(cfg["total_timesteps"])
@@ -288,7 +288,9 @@ def train(
 
     def meta() -> dict[str, Any]:
         return {
-            "algo": cfg["algo"], "env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"], "wrapper": cfg["wrapper"],
+            "algo": cfg["algo"],
+            "method": "recurrent" if cfg["algo"] == "recurrent_ppo" else "distilled" if cfg.get("pretrain") else "ppo",
+            "env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"], "wrapper": cfg["wrapper"],
             "observation_space": repr(venv.observation_space), "action_space": repr(venv.action_space),
             "seed": cfg["seed"], "total_timesteps": cfg["total_timesteps"], "num_timesteps": int(model.num_timesteps),
             "wall_time_seconds": round(float(prev.get("wall_time_seconds", 0.0)) + time.perf_counter() - start, 2),

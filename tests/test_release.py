@@ -127,9 +127,9 @@ def test_wheel_installs_and_runs_outside_the_checkout(tmp_path):
     result = run([str(python), "-c", CHECK_INSTALLED, str(ROOT)], cwd=outside, timeout=300, env=env)
     assert result.stdout.startswith("ok "), result.stdout
     gridloc = str(venv / "bin" / "gridloc")
-    bench = run([gridloc, "bench", "--env", "WindyMaze-v0", "--policies", "random,greedy,ppo", "--episodes", "5",
+    bench = run([gridloc, "bench", "--env", "WindyMaze-v0", "--policies", "random,greedy,distilled", "--episodes", "5",
                  "--no-progress"], cwd=outside, timeout=600, env=env)
-    for policy in ("random", "greedy", "ppo"):
+    for policy in ("random", "greedy", "distilled"):
         assert policy in bench.stdout, bench.stdout
     run([gridloc, "reproduce", "--quiet"], cwd=outside, timeout=300, env=env)
     timings["use"] = time.perf_counter() - t0

@@ -33,13 +33,14 @@ def view_app(argv: Sequence[str]) -> tuple[ViewApp, argparse.Namespace]:
 
     p = _parser("gridloc view", "step through an episode of a policy: belief, smoothing, Viterbi, inspector")
     p.add_argument("--policy", default="greedy", choices=POLICY_NAMES, help="the policy (default greedy)")
-    p.add_argument("--ppo-model", metavar="PATH", help="the model file of --policy ppo (default: the shipped one for ENV)")
+    p.add_argument("--ppo-model", metavar="PATH",
+                   help="the model file of --policy ppo, distilled or recurrent (default: the shipped one for ENV)")
     p.add_argument("--smooth", action="store_true", help="start with the smoothed belief shown (key s)")
     p.add_argument("--viterbi", action="store_true", help="start with the Viterbi path shown (key v)")
     args = p.parse_args(list(argv))
     _checked(args)
-    if args.ppo_model is not None and args.policy not in ("ppo", "recurrent"):
-        raise UsageError(f"--ppo-model is the model of --policy ppo, not of --policy {args.policy}")
+    if args.ppo_model is not None and args.policy not in ("ppo", "distilled", "recurrent"):
+        raise UsageError(f"--ppo-model is the model of --policy ppo, distilled or recurrent, not of --policy {args.policy}")
     if args.ppo_model is not None and not Path(args.ppo_model).is_file():
         raise UsageError(f"--ppo-model: {args.ppo_model} is not a file")
     kwargs = _env_kwargs(args)

@@ -42,8 +42,8 @@ def check_row(row, episodes):
 
 
 def test_rows_have_the_keys_and_consistent_numbers():
-    rows = run_benchmark(["WindyMaze-v0"], ["random", "greedy", "greedy2", "ppo"], 6, progress=False)
-    assert [r["policy"] for r in rows] == ["random", "greedy", "greedy2", "ppo"]
+    rows = run_benchmark(["WindyMaze-v0"], ["random", "greedy", "greedy2", "distilled"], 6, progress=False)
+    assert [r["policy"] for r in rows] == ["random", "greedy", "greedy2", "distilled"]
     for r in rows:
         check_row(r, 6)
     json.dumps(rows)  # serialisable
@@ -98,13 +98,23 @@ def test_cli_bench_user_model(tmp_path, capsys):
     from gym_gridloc_agents.policies import default_model_path
 
     js = tmp_path / "b.json"
-    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "ppo", "--episodes", "2", "--no-progress",
-                 "--ppo-model", str(default_model_path("ColourGrid-v0")), "--json", str(js)]) == 0
-    assert json.loads(js.read_text())[0]["model"].endswith("ColourGrid-v0.zip")
+    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "distilled", "--episodes", "2", "--no-progress",
+                 "--distilled-model", str(default_model_path("ColourGrid-v0", "distilled")), "--json", str(js)]) == 0
+    assert json.loads(js.read_text())[0]["model"].endswith("ColourGrid-v0-distilled.zip")
     # A model of another environment is refused before any episode runs.
-    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "ppo", "--episodes", "2", "--no-progress",
-                 "--ppo-model", str(default_model_path("WindyMaze-v0"))]) == 2
+    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "distilled", "--episodes", "2", "--no-progress",
+                 "--distilled-model", str(default_model_path("WindyMaze-v0", "distilled"))]) == 2
     assert "trained for WindyMaze-v0" in capsys.readouterr().err
+    # The old name: a distilled model passed as --ppo-model is benchmarked as distilled, with a warning.
+    js2 = tmp_path / "old.json"
+    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "ppo", "--episodes", "2", "--no-progress",
+                 "--ppo-model", str(default_model_path("ColourGrid-v0", "distilled")), "--json", str(js2)]) == 0
+    assert "was distilled from a planner: its row is named 'distilled'" in capsys.readouterr().err
+    assert [r["policy"] for r in json.loads(js2.read_text())] == ["distilled"]
+    with pytest.warns(FutureWarning, match="distilled from a planner"):
+        rows = run_benchmark(["ColourGrid-v0"], ["ppo"], 2, ppo_model=default_model_path("ColourGrid-v0", "distilled"),
+                             progress=False)
+    assert [r["policy"] for r in rows] == ["distilled"]
 
 
 @pytest.mark.parametrize(
@@ -319,6 +329,7 @@ def test_default_policies_leave_out_learned_rows_without_a_model(capsys):
     assert main(argv) == 0
     out, err = capsys.readouterr()
     assert "no shipped ppo model for DepthMaze-v0" in err and "| greedy2 |" in out and "| ppo |" not in out
+    assert "no shipped distilled model for DepthMaze-v0" in err and "| distilled |" not in out
 
 
 def test_training_curves_plot(tmp_path, capsys):

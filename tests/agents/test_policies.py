@@ -7,8 +7,10 @@ import numpy as np
 import pytest
 
 import gym_gridloc
+from gym_gridloc_agents.files import model_method
 from gym_gridloc_agents.policies import (
     POLICY_NAMES,
+    DistilledPolicy,
     Greedy2Policy,
     GreedyPolicy,
     PPOPolicy,
@@ -158,14 +160,15 @@ def test_every_policy_returns_valid_actions(env_id, name):
 
 def test_shipped_models_have_metadata():
     for env_id in BENCH_ENV_IDS:
-        for algo in ("ppo", "recurrent_ppo"):
-            path = default_model_path(env_id, algo)
+        for method, algo in (("distilled", "ppo"), ("recurrent", "recurrent_ppo")):
+            path = default_model_path(env_id, method)
             assert path.is_file(), path
+            assert path.name == f"{env_id}-{method}.zip"
             meta = path.with_suffix(".json")
             import json
 
             m = json.loads(meta.read_text())
-            assert m["env_id"] == env_id and m["algo"] == algo
+            assert m["env_id"] == env_id and m["algo"] == algo and model_method(m) == method
             assert m["num_timesteps"] >= m["total_timesteps"]
             assert {"config", "seed", "versions", "wall_time_seconds"} <= set(m)
             assert path.stat().st_size < 3_000_000  # small enough for git
@@ -182,8 +185,8 @@ def test_shipped_random_map_models_are_found_by_size_and_act(env_id, size, optio
 
     from gym_gridloc.maps import test_set
 
-    path = default_model_path(env_id, "ppo", {"size": size})
-    assert path.name == f"{env_id}-size{size}.zip" and path.stat().st_size < 3_000_000
+    path = default_model_path(env_id, "distilled", {"size": size})
+    assert path.name == f"{env_id}-size{size}-distilled.zip" and path.stat().st_size < 3_000_000
     m = json.loads(path.with_suffix(".json").read_text())
     assert m["env_id"] == env_id and m["algo"] == "ppo" and m["env_kwargs"]["size"] == size
     assert m["num_timesteps"] >= m["total_timesteps"]
@@ -193,7 +196,7 @@ def test_shipped_random_map_models_are_found_by_size_and_act(env_id, size, optio
     kwargs = {"episode_length": 4} if env_id == "DepthMaze-v0" else {}
     env = gym_gridloc.HMMBeliefWrapper(gym.make(env_id, size=size, **kwargs), **options)
     obs, _ = env.reset(seed=0, options={"map": held.grid, "state": held.state})
-    policy = make_policy("ppo", env.unwrapped.model, env_id=env_id, env_kwargs={"size": size})
+    policy = make_policy("distilled", env.unwrapped.model, env_id=env_id, env_kwargs={"size": size})
     policy.reset(seed=0, model=env.unwrapped.model)
     for _ in range(4):
         action = policy.act(obs["observation"], env.filter.full_belief)
@@ -205,16 +208,16 @@ def test_ppo_for_another_environment_fails_clearly(tmp_path):
     colour = gym_gridloc.colour_grid_model()
     # By metadata: the shipped WindyMaze model named for ColourGrid.
     with pytest.raises(ValueError, match="trained for WindyMaze-v0, not ColourGrid-v0"):
-        PPOPolicy(colour, env_id="ColourGrid-v0", path=default_model_path("WindyMaze-v0"))
+        PPOPolicy(colour, env_id="ColourGrid-v0", path=default_model_path("WindyMaze-v0", "distilled"))
     # Without metadata: the observation space decides.
     import shutil
 
     bare = tmp_path / "model.zip"
-    shutil.copy(default_model_path("WindyMaze-v0"), bare)
+    shutil.copy(default_model_path("WindyMaze-v0", "distilled"), bare)
     with pytest.raises(ValueError, match="another environment or observation space"):
         PPOPolicy(colour, path=bare)
     with pytest.raises(ValueError, match="holds a ppo model, not recurrent_ppo"):
-        RecurrentPolicy(colour, path=default_model_path("ColourGrid-v0"))
+        RecurrentPolicy(colour, path=default_model_path("ColourGrid-v0", "distilled"))
     with pytest.raises(FileNotFoundError, match="does not exist"):
         PPOPolicy(colour, path=tmp_path / "missing.zip")
     junk = tmp_path / "junk.zip"
@@ -226,16 +229,36 @@ def test_ppo_for_another_environment_fails_clearly(tmp_path):
 def test_models_are_matched_by_the_environment_their_keywords_build():
     # DepthMaze-v0 without keywords is the 7x7 maze: the model trained with size=7 is its default;
     # episode keywords (episode_length, reward) may differ
-    assert default_model_path("DepthMaze-v0").name == "DepthMaze-v0-size7.zip"
-    assert default_model_path("DepthMaze-v0", env_kwargs={"size": 7, "episode_length": 30}).name == "DepthMaze-v0-size7.zip"
-    with pytest.raises(FileNotFoundError, match=r"no shipped ppo model for DepthMaze-v0 with \{'size': 11\}"):
-        default_model_path("DepthMaze-v0", env_kwargs={"size": 11})
-    assert default_model_path("WindyMaze-v0", env_kwargs={"drift": 0.1}).name == "WindyMaze-v0.zip"  # the default drift
+    assert default_model_path("DepthMaze-v0", "distilled").name == "DepthMaze-v0-size7-distilled.zip"
+    assert (default_model_path("DepthMaze-v0", "distilled", env_kwargs={"size": 7, "episode_length": 30}).name
+            == "DepthMaze-v0-size7-distilled.zip")
+    with pytest.raises(FileNotFoundError, match=r"no shipped distilled model for DepthMaze-v0 with \{'size': 11\}"):
+        default_model_path("DepthMaze-v0", "distilled", env_kwargs={"size": 11})
+    assert (default_model_path("WindyMaze-v0", "distilled", env_kwargs={"drift": 0.1}).name
+            == "WindyMaze-v0-distilled.zip")  # the default drift
     # a model for other keywords is refused, naming them
     model = gym_gridloc.windy_maze_model(drift=0.2)
     with pytest.raises(ValueError, match=r"trained for WindyMaze-v0 with env_kwargs \{\}, not \{'drift': 0.2\}"):
-        PPOPolicy(model, env_id="WindyMaze-v0", env_kwargs={"drift": 0.2}, path=default_model_path("WindyMaze-v0"))
-    PPOPolicy(gym_gridloc.windy_maze_model(), env_id="WindyMaze-v0", env_kwargs={"drift": 0.1})
+        PPOPolicy(model, env_id="WindyMaze-v0", env_kwargs={"drift": 0.2}, path=default_model_path("WindyMaze-v0", "distilled"))
+    DistilledPolicy(gym_gridloc.windy_maze_model(), env_id="WindyMaze-v0", env_kwargs={"drift": 0.1})
+
+
+def test_distilled_loads_the_previously_shipped_models_and_old_names_still_work():
+    """The planner-distilled models shipped before 0.2 as ``<env>.zip`` / ``<env>-size<N>.zip``
+    are the ``distilled`` policy's; their old file names still load, with a FutureWarning."""
+    from gym_gridloc_agents.policies import POLICY_DIR
+
+    for env_id, kwargs in [("WindyMaze-v0", {}), ("ColourGrid-v0", {}), ("RingSensor8x8-v0", {}),
+                           ("DepthMaze-v0", {"size": 7}), ("WindyMaze-v0", {"size": 9})]:
+        model = gym.make(env_id, **kwargs).unwrapped.model
+        policy = make_policy("distilled", model, env_id=env_id, env_kwargs=kwargs)
+        assert isinstance(policy, DistilledPolicy) and policy.path.stem.endswith("-distilled")
+        assert policy.meta["pretrain"] and model_method(policy.meta) == "distilled"
+        old = POLICY_DIR / policy.path.name.replace("-distilled", "")
+        assert not old.exists()
+        with pytest.warns(FutureWarning, match="is now .*-distilled.zip"):
+            legacy = DistilledPolicy(model, env_id=env_id, env_kwargs=kwargs, path=old)
+        assert legacy.path == policy.path
 
 
 def test_ppo_encoding_matches_the_wrapper():

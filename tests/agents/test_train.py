@@ -522,7 +522,7 @@ def test_expert_episodes_are_shared_with_sibling_trainings(tmp_path, monkeypatch
     from gym_gridloc_agents import pretrain
     from gym_gridloc_agents.config import load_config
 
-    cfg = load_config("configs/ppo_colourgrid.yml")
+    cfg = load_config("configs/distill_colourgrid.yml")
     cfg["pretrain"].update(expert="greedy", episodes=6, expert_kwargs={})
     first = pretrain.collect_expert(cfg, progress=False, cache=tmp_path / "seed0" / "expert.npz")
     other = dict(cfg, pretrain=dict(cfg["pretrain"], expert="greedy2"))  # another expert: not shared
