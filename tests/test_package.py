@@ -178,3 +178,26 @@ def test_setup_script_says_what_it_is_doing():
     pips = [line for line in text.splitlines() if "pip install" in line and not line.lstrip().startswith("#")]
     assert pips and all(" -q " in line for line in pips)
     assert text.index('"torch==2.13.0"') < text.index('-e ".[')
+
+
+def test_citation_file_is_valid_cff_and_matches_the_package():
+    """CITATION.cff: the Citation File Format 1.2.0's required keys and types, the package's
+    version and licence."""
+    yaml = pytest.importorskip("yaml")
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+
+    cff = yaml.safe_load((ROOT / "CITATION.cff").read_text(encoding="utf-8"))
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    assert cff["cff-version"] == "1.2.0"
+    for key in ("message", "title"):
+        assert isinstance(cff[key], str) and cff[key].strip()
+    assert isinstance(cff["authors"], list) and cff["authors"]
+    for author in cff["authors"]:  # a person (family-names) or an entity (name)
+        assert isinstance(author, dict) and ({"name", "family-names"} & set(author)), author
+    assert cff.get("type", "software") in ("software", "dataset")
+    assert str(cff["version"]) == project["version"]
+    assert cff["license"] == project["license"]
+    allowed = {"cff-version", "message", "title", "authors", "type", "version", "license", "abstract", "keywords",
+               "date-released", "doi", "url", "repository-code", "identifiers", "preferred-citation", "references",
+               "commit", "contact", "license-url", "repository", "repository-artifact"}
+    assert set(cff) <= allowed, set(cff) - allowed
