@@ -49,7 +49,8 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--policies", default=None, help="comma-separated policy names (default: random,greedy,greedy2,ppo,recurrent)")
     b.add_argument("--episodes", type=int, default=None, help="episodes per policy (default 200; 1000 with --all)")
     b.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode i uses seed+i)")
-    b.add_argument("--json", metavar="PATH", help="write the rows as JSON")
+    b.add_argument("--json", metavar="PATH", help="write the rows as JSON (every number)")
+    b.add_argument("--markdown", metavar="PATH", help="write the full table as markdown (the terminal shows a short one)")
     b.add_argument("--plot", metavar="PATH.png", help="write the plot (one environment)")
     b.add_argument("--ppo-model", metavar="PATH", nargs="+",
                    help="benchmark this PPO model instead of the shipped one; several files, a directory (its *.zip) or a "

@@ -127,6 +127,53 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+#: The width ``gridloc bench`` keeps its terminal table to.
+TERMINAL_WIDTH = 100
+
+
+def terminal_table(rows: Sequence[dict[str, Any]], width: int = TERMINAL_WIDTH) -> str:
+    """The rows as a short, aligned markdown table that fits ``width`` characters: env, policy,
+    mean steps (95% CI), success, acc@10, ms/decision, and, where rows have them, the gap to the
+    best planner and the accuracy at the episode length L.  The full table (every budget, median,
+    truncated, ...) is :func:`markdown_table` (``gridloc bench --markdown PATH``; every number:
+    ``--json PATH``).  Columns are dropped from the right of the optional ones, then labels are
+    shortened, until the table fits."""
+    with_L = any("accuracy_at_L" in r for r in rows)
+    with_gap = any(r.get("gap_to_best_planner") is not None for r in rows)
+    columns: list[tuple[str, Any]] = [
+        ("env", env_label), ("policy", policy_label),
+        ("mean steps (95% CI)", lambda r: f"{r['mean_steps']:.2f} ({_interval(*r['mean_steps_ci95'])})"),
+        ("success", lambda r: f"{r['success_rate']:.3f}"),
+        ("acc@10", lambda r: _or_dash(r["accuracy_at"].get("10"), ".3f")),
+    ]
+    optional: list[tuple[str, Any]] = [("ms/dec", lambda r: _or_dash(r.get("ms_per_decision"), ".3g"))]
+    if with_gap:
+        optional.append(("/ best", lambda r: _or_dash(r.get("gap_to_best_planner"), ".2f")))
+    if with_L:
+        optional.append(("acc@L", lambda r: _or_dash(r.get("accuracy_at_L"), ".3f")))
+    columns += optional
+
+    def render(cols, cap: int | None) -> list[str]:
+        cells = [[name for name, _ in cols]] + [[str(f(r)) for _, f in cols] for r in rows]
+        if cap is not None:  # shorten the two labels
+            cells = [[c if j > 1 or len(c) <= cap else c[: cap - 1] + "~" for j, c in enumerate(line)] for line in cells]
+        widths = [max(len(line[j]) for line in cells) for j in range(len(cols))]
+        out = ["| " + " | ".join(c.ljust(w) for c, w in zip(line, widths)) + " |" for line in cells]
+        out.insert(1, "|" + "|".join("-" * (w + 2) for w in widths) + "|")
+        return out
+
+    cols = list(columns)
+    lines = render(cols, None)
+    while max(map(len, lines)) > width and len(cols) > 6:
+        cols.pop()
+        lines = render(cols, None)
+    cap = 40
+    while max(map(len, lines)) > width and cap > 8:
+        cap -= 4
+        lines = render(cols, cap)
+    return "\n".join(lines)
+
+
 def _save(fig, path: str | Path, title: str | None = None, **savefig: Any) -> None:
     """Give ``fig`` its ``title``, lay it out and write it atomically as a PNG; then close it."""
     import matplotlib.pyplot as plt
