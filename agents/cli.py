@@ -80,7 +80,7 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("play", help="drive the robot with the arrow keys in a window (--help)")
 
     d = sub.add_parser("render", help="draw one episode per environment as belief heatmaps (and a GIF)")
-    d.add_argument("--env", nargs="+", default=None, help="environment ids (default: the three registered ones)")
+    d.add_argument("--env", nargs="+", default=None, help="environment ids (default: every registered one, the four of gym_gridloc.ENV_IDS)")
     d.add_argument("--seed", type=int, default=3, help="episode seed (actions are random, seeded)")
     d.add_argument("--frames", type=int, default=6, help="frames per environment")
     d.add_argument("--out", default=str(RESULTS / "episode.png"), help="PNG to write")
