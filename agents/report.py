@@ -136,8 +136,8 @@ def terminal_table(rows: Sequence[dict[str, Any]], width: int = TERMINAL_WIDTH) 
     mean steps (95% CI), success, acc@10, ms/decision, and, where rows have them, the gap to the
     best planner and the accuracy at the episode length L.  The full table (every budget, median,
     truncated, ...) is :func:`markdown_table` (``gridloc bench --markdown PATH``; every number:
-    ``--json PATH``).  Columns are dropped from the right of the optional ones, then labels are
-    shortened, until the table fits."""
+    ``--json PATH``).  To fit, long labels are shortened (``~`` marks the cut), then the optional
+    columns dropped from the right (the gap first, acc@L last), then the labels shortened more."""
     with_L = any("accuracy_at_L" in r for r in rows)
     with_gap = any(r.get("gap_to_best_planner") is not None for r in rows)
     columns: list[tuple[str, Any]] = [
@@ -146,11 +146,12 @@ def terminal_table(rows: Sequence[dict[str, Any]], width: int = TERMINAL_WIDTH) 
         ("success", lambda r: f"{r['success_rate']:.3f}"),
         ("acc@10", lambda r: _or_dash(r["accuracy_at"].get("10"), ".3f")),
     ]
-    optional: list[tuple[str, Any]] = [("ms/dec", lambda r: _or_dash(r.get("ms_per_decision"), ".3g"))]
-    if with_gap:
-        optional.append(("/ best", lambda r: _or_dash(r.get("gap_to_best_planner"), ".2f")))
+    optional: list[tuple[str, Any]] = []  # the first ones are kept longest
     if with_L:
         optional.append(("acc@L", lambda r: _or_dash(r.get("accuracy_at_L"), ".3f")))
+    optional.append(("ms/dec", lambda r: _or_dash(r.get("ms_per_decision"), ".3g")))
+    if with_gap:
+        optional.append(("/ best", lambda r: _or_dash(r.get("gap_to_best_planner"), ".2f")))
     columns += optional
 
     def render(cols, cap: int | None) -> list[str]:
@@ -162,13 +163,19 @@ def terminal_table(rows: Sequence[dict[str, Any]], width: int = TERMINAL_WIDTH) 
         out.insert(1, "|" + "|".join("-" * (w + 2) for w in widths) + "|")
         return out
 
-    cols = list(columns)
-    lines = render(cols, None)
-    while max(map(len, lines)) > width and len(cols) > 6:
+    def fits(lines: list[str]) -> bool:
+        return max(map(len, lines)) <= width
+
+    cols, cap = list(columns), None
+    lines = render(cols, cap)
+    for cap in (40, 32):  # long labels first (a policy's options, an environment's keywords) ...
+        if fits(lines):
+            break
+        lines = render(cols, cap)
+    while not fits(lines) and len(cols) > 6:  # ... then the optional columns from the right ...
         cols.pop()
-        lines = render(cols, None)
-    cap = 40
-    while max(map(len, lines)) > width and cap > 8:
+        lines = render(cols, cap)
+    while not fits(lines) and cap > 8:  # ... then the labels again
         cap -= 4
         lines = render(cols, cap)
     return "\n".join(lines)

@@ -234,10 +234,14 @@ def test_test_set_protocol_rows_report_accuracy_at_L(tmp_path, capsys):
     from gym_gridloc import maps
 
     js, front = tmp_path / "d.json", tmp_path / "front.png"
+    md = tmp_path / "d.md"
     code = main(["bench", "--env", "DepthMaze-v0", "--size", "7", "--test-set", "--episode-length", "6",
-                 "--policies", "random,greedy", "--episodes", "5", "--json", str(js), "--frontier", str(front), "--no-progress"])
+                 "--policies", "random,greedy", "--episodes", "5", "--json", str(js), "--frontier", str(front), "--no-progress",
+                 "--markdown", str(md)])
     assert code == 0
-    table = capsys.readouterr().out
+    short = capsys.readouterr().out
+    assert "| acc@L " in short and max(len(line) for line in short.splitlines() if line.startswith("|")) <= 100
+    table = md.read_text()
     assert "acc@L (95% CI)" in table and "DepthMaze-v0 episode_length=6, size=7, test maps | greedy |" in table
     rows = json.loads(js.read_text())
     for r in rows:
@@ -361,7 +365,10 @@ def test_terminal_table_fits_100_columns_and_keeps_the_key_numbers():
             _row("ppo", seeds=5, mean_steps_iqm=4.8, gap_to_best_planner=1.21, ms_per_decision=0.405)]
     table = terminal_table(long)
     assert max(map(len, table.splitlines())) <= 100, table
-    assert len(table.splitlines()) == 4 and "0.0598" in table and "0.405" in table
+    assert len(table.splitlines()) == 4 and "0.910" in table and "~" in table  # labels cut, marked
+    roomy = terminal_table(long, width=140)
+    assert max(map(len, roomy.splitlines())) <= 140 and "0.0598" in roomy and "0.405" in roomy
+    assert "acc@L" in table.splitlines()[0]  # the protocol's number stays longest
     assert terminal_table(long, width=200).count("/ best") == 1  # room: the optional columns stay
 
 

@@ -354,6 +354,7 @@ def test_keys_to_action_digits_for_unnamed_actions():
     assert GridLocEnv(model).get_keys_to_action() == {("0",): 0, ("1",): 1, ("2",): 2, ("3",): 3}
 
 
+@pytest.mark.filterwarnings("ignore:.*matplotlib is not installed")  # gymnasium.utils.play asks for TkAgg
 @pytest.mark.parametrize("env_id", ["WindyMaze-v0", "DepthMaze-v0"])
 def test_gymnasium_play_runs_out_of_the_box(env_id, monkeypatch):
     """``gymnasium.utils.play.play(gym.make(ID, render_mode="rgb_array"))`` finds the key map and
