@@ -49,6 +49,8 @@ from gym_gridloc_agents.rollout import rollout
 from gym_gridloc_agents.stats import wilson_ci95
 
 BUDGETS = (5, 10, 25, 50)
+#: Decisions of the untimed warm-up episode that precedes every timed run (:func:`simulate`).
+WARMUP_DECISIONS = 10
 #: The environments of ``gridloc bench --all`` (fixed maps, shipped policies).
 BENCH_ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0")
 #: The policies ``gridloc bench`` runs when ``--policies`` is not given.
@@ -129,8 +131,12 @@ def _learned_name(name: str, path: str | Path | None) -> str:
 
 
 def simulate(task: Task, specs: Sequence[tuple[int, Any]], *, budgets: Sequence[int] = BUDGETS,
-             progress: bool = True) -> dict[str, Any]:
-    """Run one task on the given episodes; returns per-episode arrays."""
+             progress: bool = True, warmup: bool = True) -> dict[str, Any]:
+    """Run one task on the given episodes; returns per-episode arrays.  ``warmup``: first an
+    untimed episode of the first spec (at most :data:`WARMUP_DECISIONS` decisions) with the same
+    policy and environment, so that compilation and first-call costs stay out of the timed
+    decisions and ``seconds``; every episode resets the environment and the policy with its own
+    seed, so nothing else changes."""
     from tqdm.auto import tqdm
 
     env = make_env(task.env_id, task.env_kwargs)
@@ -144,6 +150,9 @@ def simulate(task: Task, specs: Sequence[tuple[int, Any]], *, budgets: Sequence[
     steps = np.zeros(n, dtype=np.int64)
     localised, success, truncated, collapsed_end = (np.zeros(n, dtype=bool) for _ in range(4))
     correct_at = np.zeros((n, max(limit, max(budgets)) + 1), dtype=bool)
+    if warmup and n:  # compile (numba) and first calls (caches, torch) outside the timed decisions
+        seed, options = specs[0]
+        rollout(env, policy.policy, int(seed), reset_options=options, max_steps=WARMUP_DECISIONS)
     start = time.perf_counter()
     for i, (seed, options) in enumerate(tqdm(specs, desc=f"{task.env_id} {task.policy}", unit="ep", disable=not progress, leave=False)):
         ep = rollout(env, policy, int(seed), reset_options=options)

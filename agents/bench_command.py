@@ -83,9 +83,11 @@ def bench_main(args) -> int:
     """``gridloc bench``: every argument checked before the first episode, then the run and its outputs."""
     from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, add_gaps, run_benchmark
     from gym_gridloc_agents.envs import check_environment
-    from gym_gridloc_agents.files import OutputError, atomic_write_json, expand_models, rescue_write, writable_file
+    from gym_gridloc_agents.files import (OutputError, atomic_write_json, atomic_write_text, expand_models, rescue_write,
+                                         writable_file)
     from gym_gridloc_agents.policies import POLICY_NAMES
-    from gym_gridloc_agents.report import markdown_table, merge_rows, plot, plot_frontier, public_row, read_rows
+    from gym_gridloc_agents.report import (markdown_table, merge_rows, plot, plot_frontier, public_row, read_rows,
+                                          terminal_table)
 
     if args.all == bool(args.env):
         return _fail("bench", "give exactly one of --env ENV_ID or --all")
@@ -119,7 +121,8 @@ def bench_main(args) -> int:
             raise ValueError("--plot takes one environment; --all writes results/bench_<env>.png")
         if args.update and not json_path:
             raise ValueError("--update needs --json PATH (or --all)")
-        outputs = [(json_path, "results JSON"), (args.plot, "plot"), (frontier, "frontier plot")]
+        outputs = [(json_path, "results JSON"), (args.markdown, "markdown table"), (args.plot, "plot"),
+                   (frontier, "frontier plot")]
         outputs += [(RESULTS / f"bench_{e}.png", "plot") for e in envs if args.all]
         for path, what in outputs:
             if path:
@@ -149,9 +152,12 @@ def bench_main(args) -> int:
         print(f"gridloc bench: {note.message}", file=sys.stderr)
     if args.update:  # the gaps are recomputed over the merged rows: a planner run earlier still counts
         rows = add_gaps(merge_rows(old_rows, rows))
-    print(markdown_table(rows))
+    print(terminal_table(rows))  # fits 100 columns; the full table: --markdown, every number: --json
+    if not (args.markdown or json_path):
+        print("(a short table; every column: --markdown PATH, every number: --json PATH)", file=sys.stderr)
     # (path or None, write, what, text before "wrote"); --all: a plot per environment
     writes = [(json_path, lambda p: atomic_write_json(p, rows), "results JSON", "\n"),
+              (args.markdown, lambda p: atomic_write_text(p, markdown_table(rows) + "\n"), "markdown table", ""),
               (args.plot, lambda p: plot([r for r in rows if r["env"] == envs[0]], p), "plot", ""),
               (frontier, lambda p: plot_frontier(rows, p), "frontier plot", "")]
     writes += [(RESULTS / f"bench_{e}.png", lambda p, e=e: plot([r for r in rows if r["env"] == e], p), "plot", "")

@@ -49,7 +49,8 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--policies", default=None, help="comma-separated policy names (default: random,greedy,greedy2,ppo,distilled,recurrent)")
     b.add_argument("--episodes", type=int, default=None, help="episodes per policy (default 200; 1000 with --all)")
     b.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode i uses seed+i)")
-    b.add_argument("--json", metavar="PATH", help="write the rows as JSON")
+    b.add_argument("--json", metavar="PATH", help="write the rows as JSON (every number)")
+    b.add_argument("--markdown", metavar="PATH", help="write the full table as markdown (the terminal shows a short one)")
     b.add_argument("--plot", metavar="PATH.png", help="write the plot (one environment)")
     b.add_argument("--ppo-model", metavar="PATH", nargs="+",
                    help="benchmark this PPO model instead of the shipped one; several files, a directory (its *.zip) or a "
@@ -82,7 +83,7 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("play", help="drive the robot with the arrow keys in a window (--help)")
 
     d = sub.add_parser("render", help="draw one episode per environment as belief heatmaps (and a GIF)")
-    d.add_argument("--env", nargs="+", default=None, help="environment ids (default: the three registered ones)")
+    d.add_argument("--env", nargs="+", default=None, help="environment ids (default: every registered one, the four of gym_gridloc.ENV_IDS)")
     d.add_argument("--seed", type=int, default=3, help="episode seed (actions are random, seeded)")
     d.add_argument("--frames", type=int, default=6, help="frames per environment")
     d.add_argument("--out", default=str(RESULTS / "episode.png"), help="PNG to write")

@@ -127,6 +127,60 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+#: The width ``gridloc bench`` keeps its terminal table to.
+TERMINAL_WIDTH = 100
+
+
+def terminal_table(rows: Sequence[dict[str, Any]], width: int = TERMINAL_WIDTH) -> str:
+    """The rows as a short, aligned markdown table that fits ``width`` characters: env, policy,
+    mean steps (95% CI), success, acc@10, ms/decision, and, where rows have them, the gap to the
+    best planner and the accuracy at the episode length L.  The full table (every budget, median,
+    truncated, ...) is :func:`markdown_table` (``gridloc bench --markdown PATH``; every number:
+    ``--json PATH``).  To fit, long labels are shortened (``~`` marks the cut), then the optional
+    columns dropped from the right (the gap first, acc@L last), then the labels shortened more."""
+    with_L = any("accuracy_at_L" in r for r in rows)
+    with_gap = any(r.get("gap_to_best_planner") is not None for r in rows)
+    columns: list[tuple[str, Any]] = [
+        ("env", env_label), ("policy", policy_label),
+        ("mean steps (95% CI)", lambda r: f"{r['mean_steps']:.2f} ({_interval(*r['mean_steps_ci95'])})"),
+        ("success", lambda r: f"{r['success_rate']:.3f}"),
+        ("acc@10", lambda r: _or_dash(r["accuracy_at"].get("10"), ".3f")),
+    ]
+    optional: list[tuple[str, Any]] = []  # the first ones are kept longest
+    if with_L:
+        optional.append(("acc@L", lambda r: _or_dash(r.get("accuracy_at_L"), ".3f")))
+    optional.append(("ms/dec", lambda r: _or_dash(r.get("ms_per_decision"), ".3g")))
+    if with_gap:
+        optional.append(("/ best", lambda r: _or_dash(r.get("gap_to_best_planner"), ".2f")))
+    columns += optional
+
+    def render(cols, cap: int | None) -> list[str]:
+        cells = [[name for name, _ in cols]] + [[str(f(r)) for _, f in cols] for r in rows]
+        if cap is not None:  # shorten the two labels
+            cells = [[c if j > 1 or len(c) <= cap else c[: cap - 1] + "~" for j, c in enumerate(line)] for line in cells]
+        widths = [max(len(line[j]) for line in cells) for j in range(len(cols))]
+        out = ["| " + " | ".join(c.ljust(w) for c, w in zip(line, widths)) + " |" for line in cells]
+        out.insert(1, "|" + "|".join("-" * (w + 2) for w in widths) + "|")
+        return out
+
+    def fits(lines: list[str]) -> bool:
+        return max(map(len, lines)) <= width
+
+    cols, cap = list(columns), None
+    lines = render(cols, cap)
+    for cap in (40, 32):  # long labels first (a policy's options, an environment's keywords) ...
+        if fits(lines):
+            break
+        lines = render(cols, cap)
+    while not fits(lines) and len(cols) > 6:  # ... then the optional columns from the right ...
+        cols.pop()
+        lines = render(cols, cap)
+    while not fits(lines) and cap > 8:  # ... then the labels again
+        cap -= 4
+        lines = render(cols, cap)
+    return "\n".join(lines)
+
+
 def _save(fig, path: str | Path, title: str | None = None, **savefig: Any) -> None:
     """Give ``fig`` its ``title``, lay it out and write it atomically as a PNG; then close it."""
     import matplotlib.pyplot as plt

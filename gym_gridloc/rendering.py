@@ -58,6 +58,12 @@ class Frame(NamedTuple):
     heading: bool = False
     #: Pixels per cell (None: the default, at most 32 and 512 pixels along the longer side).
     tile: int | None = None
+    #: ``"relative"``: the map's pastel colours darkened towards navy by the belief relative to its
+    #: peak (the default); ``"absolute"`` (the viewer, like seed 000's): each free cell in its own
+    #: map colour (navy on maps without colours) over white, with opacity equal to its probability,
+    #: so a sure cell is fully coloured and a cell of probability 0.5 half; a small corner of every
+    #: coloured cell keeps its map colour, so the map stays readable.
+    shading: str = "relative"
 
 
 def ansi(frame: Frame) -> str:
@@ -84,15 +90,48 @@ def base_image(model) -> np.ndarray:
     return img
 
 
+def cell_colours(model) -> np.ndarray:
+    """(H, W, 3) float: each cell's own colour at full strength (what ``shading="absolute"``
+    draws a sure cell in): its map colour on a colour map, navy (:data:`BELIEF_RGB`) on a map
+    without colours, :data:`OBSTACLE_RGB` on obstacles."""
+    grid = model.grid
+    img = np.empty((*grid.shape, 3), dtype=np.float64)
+    img[:] = BELIEF_RGB
+    if isinstance(model.sensor, ColourSensor):
+        for i, sym in enumerate(grid.symbols):
+            if sym in COLOUR_RGB:
+                img[grid.labels == i] = COLOUR_RGB[sym]
+    img[~grid.free] = OBSTACLE_RGB
+    return img
+
+
+def absolute_shade(colour, p) -> np.ndarray:
+    """``colour`` with opacity ``p`` over white: ``(1 - p) * 255 + p * colour``."""
+    p = np.clip(np.asarray(p, dtype=np.float64), 0.0, 1.0)[..., None]
+    return (1.0 - p) * 255.0 + p * np.asarray(colour, dtype=np.float64)
+
+
 def rgb_frame(frame: Frame) -> np.ndarray:
     """An RGB image: cells, the belief as intensity, the true position, the last reading."""
     model, belief = frame.model, frame.belief
-    img = base_image(model)
-    peak = max(float(belief.max()), 1e-12)
-    alpha = np.sqrt(np.clip(belief / peak, 0.0, 1.0))[..., None] * 0.85
-    img = np.where(model.grid.free[..., None], (1 - alpha) * img + alpha * BELIEF_RGB, img)
     t = int(max(1, min(32, 512 // max(model.shape)))) if frame.tile is None else max(1, int(frame.tile))
-    image = np.kron(img, np.ones((t, t, 1))).astype(np.uint8)
+    if frame.shading == "absolute":
+        own = cell_colours(model)
+        img = np.where(model.grid.free[..., None], absolute_shade(own, belief), own)
+        image = np.rint(np.kron(img, np.ones((t, t, 1)))).astype(np.uint8)
+        if isinstance(model.sensor, ColourSensor) and t >= 8:  # the map colour in each cell's corner
+            k = max(2, t // 5)
+            corner = np.tri(k, dtype=bool)[::-1]  # the top-left triangle
+            for r, c in zip(*np.nonzero(model.grid.free)):
+                image[r * t : r * t + k, c * t : c * t + k][corner] = own[r, c].astype(np.uint8)
+    elif frame.shading == "relative":
+        img = base_image(model)
+        peak = max(float(belief.max()), 1e-12)
+        alpha = np.sqrt(np.clip(belief / peak, 0.0, 1.0))[..., None] * 0.85
+        img = np.where(model.grid.free[..., None], (1 - alpha) * img + alpha * BELIEF_RGB, img)
+        image = np.kron(img, np.ones((t, t, 1))).astype(np.uint8)
+    else:
+        raise ValueError(f"shading must be 'relative' or 'absolute', got {frame.shading!r}")
     if t >= 4:  # grid lines
         image[::t, :, :] = 90
         image[:, ::t, :] = 90

@@ -64,6 +64,8 @@ def test_docs_build_without_warnings(tmp_path):
         name = spec.entry_point.split(":")[0].rsplit(".", 1)[-1]
         text = (html / "envs" / f"{name}.html").read_text(encoding="utf-8")
         assert env_id in text and str(gym.make(env_id).action_space) in text
+        assert f'src="../_images/episode_{env_id}.png"' in text, f"no picture on {env_id}'s page"
+        assert (ROOT / "results" / f"episode_{env_id}.png").stat().st_size < 300_000
     # the figures from results/ are in the site (copied by the build, not committed twice)
     images = {p.name for p in (html / "_images").iterdir()}
     assert {"episode.png", "bench_WindyMaze-v0.png", "compare_filters.png"} <= images
@@ -135,3 +137,12 @@ def test_guide_examples_run(page, tmp_path, monkeypatch):
             exec(compile(code, f"{page}, example {i + 1}", "exec"), namespace)
         except Exception as e:
             raise AssertionError(f"{page}, example {i + 1} fails:\n{code}") from e
+
+
+def test_the_episode_picture_shows_every_environment():
+    """results/episode.png (``gridloc render``'s default): one row per registered environment
+    (``episode_strips``: 2.4 inches a row at 80 dpi)."""
+    Image = pytest.importorskip("PIL.Image")
+    with Image.open(ROOT / "results" / "episode.png") as im:
+        assert im.size[1] == round(2.4 * 80 * len(gym_gridloc.ENV_IDS))
+    assert "DepthMaze-v0" in gym_gridloc.ENV_IDS

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -135,3 +136,68 @@ def test_import_agents_from_outside_the_repository_finds_nothing_of_ours(tmp_pat
     first, second = out.stdout.split()
     assert first == "none" or str(ROOT) not in first
     assert second == "gym_gridloc_agents"
+
+
+def test_setuptools_builds_the_packages_without_warnings(tmp_path):
+    """``build_py`` (what ``pip install``, ``pip wheel`` and ``python -m build`` run) on a copy of the
+    sources: no "Package would be ignored" (the data folders ``agents/policies`` and
+    ``agents/leaves`` are declared packages) and no other setuptools warning; the data lands where
+    the code looks for it."""
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("pyproject.toml", "README.md", "LICENSE"):
+        (src / name).write_bytes((ROOT / name).read_bytes())
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "_build")
+    for folder in ("gym_gridloc", "agents"):
+        shutil.copytree(ROOT / folder, src / folder, ignore=ignore)
+    out = tmp_path / "out"
+    result = subprocess.run([sys.executable, "-W", "default", "-c", "from setuptools import setup; setup()",
+                             "build_py", "--build-lib", str(out)], cwd=src, capture_output=True, text=True, timeout=120)
+    log = result.stdout + result.stderr
+    assert result.returncode == 0, log[-3000:]
+    assert "would be ignored" not in log
+    warnings = [line for line in log.splitlines() if re.search(r"warning", line, re.I)
+                and "byte-compiling is disabled" not in line]  # (PYTHONDONTWRITEBYTECODE, not the config)
+    assert warnings == [], "\n".join(warnings)
+    agents = out / "gym_gridloc_agents"
+    assert sorted(p.name for p in (agents / "policies").glob("*.zip")) == sorted(
+        p.name for p in (ROOT / "agents" / "policies").glob("*.zip")) != []
+    assert sorted(p.name for p in (agents / "leaves").glob("*.json")) == sorted(
+        p.name for p in (ROOT / "agents" / "leaves").glob("*.json")) != []
+    assert (agents / "py.typed").is_file() and (out / "gym_gridloc" / "py.typed").is_file()
+    assert (agents / "planners" / "leaves.py").is_file() and (agents / "viewer" / "app.py").is_file()
+
+
+def test_setup_script_says_what_it_is_doing():
+    """scripts/setup.sh prints one numbered line per stage and keeps pip quiet, torch pinned first."""
+    text = (ROOT / "scripts" / "setup.sh").read_text(encoding="utf-8")
+    stages = re.findall(r'^\s*(?:stage|echo)\b.*\[(\d)/(\d)\]', text, re.M)
+    assert stages, "no numbered stage lines"
+    (total,) = {int(n) for _, n in stages}
+    assert sorted({int(i) for i, _ in stages}) == list(range(1, total + 1))
+    pips = [line for line in text.splitlines() if "pip install" in line and not line.lstrip().startswith("#")]
+    assert pips and all(" -q " in line for line in pips)
+    assert text.index('"torch==2.13.0"') < text.index('-e ".[')
+
+
+def test_citation_file_is_valid_cff_and_matches_the_package():
+    """CITATION.cff: the Citation File Format 1.2.0's required keys and types, the package's
+    version and licence."""
+    yaml = pytest.importorskip("yaml")
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+
+    cff = yaml.safe_load((ROOT / "CITATION.cff").read_text(encoding="utf-8"))
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    assert cff["cff-version"] == "1.2.0"
+    for key in ("message", "title"):
+        assert isinstance(cff[key], str) and cff[key].strip()
+    assert isinstance(cff["authors"], list) and cff["authors"]
+    for author in cff["authors"]:  # a person (family-names) or an entity (name)
+        assert isinstance(author, dict) and ({"name", "family-names"} & set(author)), author
+    assert cff.get("type", "software") in ("software", "dataset")
+    assert str(cff["version"]) == project["version"]
+    assert cff["license"] == project["license"]
+    allowed = {"cff-version", "message", "title", "authors", "type", "version", "license", "abstract", "keywords",
+               "date-released", "doi", "url", "repository-code", "identifiers", "preferred-citation", "references",
+               "commit", "contact", "license-url", "repository", "repository-artifact"}
+    assert set(cff) <= allowed, set(cff) - allowed

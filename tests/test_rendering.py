@@ -108,3 +108,37 @@ def test_large_maps_get_small_tiles():
     model = ring_sensor_model((512, 300))
     img = rendering.rgb_frame(rendering.Frame(model, model.prior()[0], (0, 5, 7)))
     assert tile(model) == 1 and img.shape == (512 + 6, 300, 3)
+
+
+def test_absolute_shading_draws_a_sure_cell_in_its_own_colour_and_half_a_belief_half():
+    """``Frame(shading="absolute")``: opacity = probability over white, in the cell's map colour
+    (navy on a map without colours); the default (relative) picture is unchanged."""
+    import gymnasium as gym
+
+    from gym_gridloc import rendering
+
+    for env_id in ("ColourGrid-v0", "WindyMaze-v0"):
+        env = gym.make(env_id).unwrapped
+        env.reset(seed=0)
+        model = env.model
+        free = list(zip(*np.nonzero(model.grid.free)))
+        a, b, z = free[0], free[1], free[2]
+        belief = np.zeros(model.shape)
+        belief[a], belief[b] = 1.0, 0.0
+        t = 20
+        own = rendering.cell_colours(model)
+        for pa, pb in ((1.0, 0.0), (0.5, 0.5)):
+            belief[a], belief[b] = pa, pb
+            img = rendering.rgb_frame(rendering.Frame(model, belief, None, tile=t, shading="absolute"))
+            for cell, p in ((a, pa), (b, pb), (z, 0.0)):
+                got = img[cell[0] * t + 3, cell[1] * t + t // 2]
+                assert np.allclose(got, (1 - p) * 255 + p * own[cell], atol=1.01), (env_id, cell, p)
+        if env_id == "ColourGrid-v0":
+            sym = model.grid.symbols[model.grid.labels[a]]
+            assert tuple(own[a]) == rendering.COLOUR_RGB[sym]
+        else:
+            assert np.array_equal(own[a], rendering.BELIEF_RGB)
+        relative = rendering.rgb_frame(rendering.Frame(model, belief, None, tile=t))
+        assert not np.array_equal(relative, img)
+    with pytest.raises(ValueError, match="shading"):
+        rendering.rgb_frame(rendering.Frame(model, belief, None, shading="bright"))

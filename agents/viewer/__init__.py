@@ -12,7 +12,11 @@ policy localise it, with the belief, the estimate and the model's own numbers on
   Viterbi path (``v``, :func:`gym_gridloc.viterbi`); ``n`` runs a new episode (the next seed),
   ``r`` rewinds.
 
-Both have the inspector of the seed documents' transition and sensor views: click a cell and the
+Both draw each cell in its own map colour (navy on maps without colours) with opacity equal to its
+probability (absolute, as seed 000's viewer did; ``p`` writes the probabilities in percent), show
+the current reading's likelihood over every cell (seed 003's observation-model view) and have
+clickable buttons for what the keys do.  Both have the inspector of the seed documents' transition
+and sensor views: click a cell and the
 side panel shows ``P(next position | cell, action)`` for every action (``model.outcomes``) and
 ``P(reading | cell)`` for every reading (``model.sensor.distribution``); until a cell is clicked
 (and after a right click or ``c``) it follows the robot.  ``h`` cycles the inspected heading on models

@@ -10,7 +10,8 @@ from gym_gridloc import rendering
 from gym_gridloc.core.ring import RingSensor
 from gym_gridloc.core.sensors import ColourSensor, WallSensor
 from gym_gridloc_agents.viewer.inspector import Inspector
-from gym_gridloc_agents.viewer.style import BAD, BG, DIM, GOOD, GRID_PX, HEADINGS, INK, MIN_H, PAD, PANEL_W, Shown, _font
+from gym_gridloc_agents.viewer.style import (BAD, BG, BUTTON, BUTTON_ON, DIM, GOOD, GRID_PX, HEADINGS, INK, MIN_H, PAD,
+                                             PANEL_W, Shown, _font, percent)
 
 class App(Inspector):
     """What both commands share: the grid picture, the side panel, the inspector, the events.
@@ -33,6 +34,8 @@ class App(Inspector):
         self.dirty = True
         self.message = ""
         self.texts: list[str] = []
+        self.show_numbers = False  # each cell's probability in percent on the grid (key p)
+        self.button_rects: list[tuple[tuple[int, int, int, int], str]] = []  # the last draw's buttons: rect, key
         self.font = _font(pg, 14)
         self.small = _font(pg, 12)
         self.bold = _font(pg, 15, bold=True)
@@ -50,6 +53,10 @@ class App(Inspector):
     def on_key(self, name: str) -> bool:
         """The command's own keys; True when the key was used."""
         return False
+
+    def buttons(self) -> list[tuple[str, str, bool]]:
+        """The panel's buttons: ``(label, key it presses, shown as on)``."""
+        return [("% numbers", "p", self.show_numbers)]
 
     def tick(self, now: float) -> None:
         """Called every loop iteration (e.g. playing)."""
@@ -107,11 +114,17 @@ class App(Inspector):
                 self.pinned_layer = (self.pinned_layer + 1) % model.n_layers
         elif name == "c":
             self.pinned = None
+        elif name == "p":
+            self.show_numbers = not self.show_numbers
         elif not self.on_key(name):
             return
         self.dirty = True
 
     def click(self, x: int, y: int, button: int = 1) -> None:
+        for (bx, by, bw, bh), name in self.button_rects if button == 1 else ():
+            if bx <= x < bx + bw and by <= y < by + bh:
+                self.key(name)
+                return
         if button == 3:
             self.pinned = None
         elif button == 1 and (cell := self.cell_at(x, y)) is not None:
@@ -128,7 +141,7 @@ class App(Inspector):
     def frame_image(self, s: Shown) -> np.ndarray:
         t = self.tile(s.model)
         frame = rendering.Frame(s.model, s.belief, s.state, s.reading, s.action, estimate=s.estimate,
-                                path=s.path, heading=s.model.n_layers == 4, tile=t)
+                                path=s.path, heading=s.model.n_layers == 4, tile=t, shading="absolute")
         image = rendering.rgb_frame(frame)
         grid_h = s.model.shape[0] * t
         if np.all(image[grid_h:] == 255):  # a sensor the strip does not show (depth): no strip
@@ -144,6 +157,8 @@ class App(Inspector):
         img = self.frame_image(s)
         h, w = img.shape[:2]
         surf.blit(pg.image.frombuffer(np.ascontiguousarray(img).tobytes(), (w, h), "RGB"), (PAD, PAD))
+        if self.show_numbers:
+            self.draw_numbers(surf, s)
         if self.pinned is not None:  # the pinned cell: a thin frame in the grid
             x, y, tw, th = self.cell_rect(*self.pinned)
             pg.draw.rect(surf, (255, 140, 0), (x, y, tw + 1, th + 1), width=2)
@@ -167,8 +182,25 @@ class App(Inspector):
             return "strip under the grid: cyan = a cell was reported, white = nothing"
         return "the reading is in the panel"
 
+    def draw_numbers(self, surf, s: Shown) -> None:
+        """Each free cell's probability in percent, centred on the cell (nothing on a cell of
+        probability 0)."""
+        font = self.small if self.tile(s.model) < 40 else self.font
+        for r, c in zip(*np.nonzero(s.model.grid.free)):
+            p = float(s.belief[r, c])
+            if p <= 0.0:
+                continue
+            text = percent(p)
+            x, y, t, _ = self.cell_rect(int(r), int(c))
+            img = font.render(text, True, (255, 255, 255) if p > 0.5 else INK)
+            self.texts.append(text)
+            surf.blit(img, (x + (t - img.get_width()) // 2, y + t - img.get_height() - max(1, t // 12)))
+
     def legend(self, s: Shown) -> list[str]:
-        lines = ["shading: the belief (darker = more probable)",
+        own = "its map colour" if isinstance(s.model.sensor, ColourSensor) else "navy"
+        lines = [f"each cell: {own}, opacity = its probability",
+                 "(absolute: p = 1 full colour, 0.5 half, 0 white)",
+                 "p or '% numbers': each cell's probability in percent",
                  "orange: the true position" + (" and heading" if s.model.n_layers == 4 else ""),
                  "grey square: the estimate (most probable position)"]
         if s.path is not None:
@@ -190,6 +222,8 @@ class App(Inspector):
             y = self._text(surf, text, x0, y, self.bold if colour is None else self.font, colour or INK)
         if self.message:
             y = self._text(surf, self.message, x0, y, self.font, BAD)
+        y = self.draw_buttons(surf, x0, y + 6, width)
+        y = self.draw_likelihood(surf, s, x0, y + 4, width)
         y += 6
         pg.draw.line(surf, (200, 200, 200), (x0, y), (x0 + width, y))
         y = self.draw_inspector(surf, s, x0, y + 6, width)
@@ -199,6 +233,25 @@ class App(Inspector):
         y = max(y + 6, bottom)
         for line in self.help_lines():
             y = self._text(surf, line, x0, y, self.small, DIM)
+
+    def draw_buttons(self, surf, x0: int, y: int, width: int) -> int:
+        """The clickable buttons in rows; each presses its key (:meth:`click`)."""
+        pg = self.pg
+        self.button_rects = []
+        x, h = x0, self.small.get_linesize() + 8
+        for label, name, on in self.buttons():
+            img = self.small.render(label, True, INK)
+            w = img.get_width() + 16
+            if x > x0 and x + w > x0 + width:
+                x, y = x0, y + h + 4
+            rect = (x, y, w, h)
+            pg.draw.rect(surf, BUTTON_ON if on else BUTTON, rect, border_radius=4)
+            pg.draw.rect(surf, DIM, rect, width=1, border_radius=4)
+            surf.blit(img, (x + 8, y + 4))
+            self.texts.append(label)
+            self.button_rects.append((rect, name))
+            x += w + 6
+        return y + h
 
     # -- shared status lines ---------------------------------------------------------------------------
     def referee_lines(self, s: Shown, threshold: float) -> list[tuple[str, tuple[int, int, int]]]:

@@ -69,6 +69,17 @@ class PlayApp(App):
             return False
         return True
 
+    def buttons(self) -> list[tuple[str, str, bool]]:
+        """One button per action (it presses the action's arrow key, or its digit), new episode,
+        the percent numbers."""
+        model = self.env.unwrapped.model
+        key_of = {}
+        for name, a in self.keymap.items():
+            if a not in key_of or (key_of[a].isdigit() and not name.isdigit()):
+                key_of[a] = name
+        acts = [(f"{model.action_names[a]}", key_of[a], False) for a in range(model.n_actions) if a in key_of]
+        return [*acts, ("new episode", "r", False), *super().buttons()]
+
     def shown(self) -> Shown:
         u = self.env.unwrapped
         return Shown(u.model, u.posterior, u.state, u.last_reading, self.action, self.info,
@@ -91,7 +102,8 @@ class PlayApp(App):
     def help_lines(self) -> list[str]:
         model = self.shown().model
         move = self._MOVES.get(tuple(model.action_names), f"digits: actions ({model.action_legend})")
-        return [move, "click: inspect a cell   right click: follow the robot", "r: new episode   esc: quit"]
+        return [move, "click: inspect a cell   right click: follow the robot",
+                "r: new episode   p: probabilities in percent   esc: quit   (or click the buttons)"]
 
 
 # -- view -------------------------------------------------------------------------------------------
@@ -155,6 +167,12 @@ class ViewApp(App):
             return False
         return True
 
+    def buttons(self) -> list[tuple[str, str, bool]]:
+        """Step, play / pause, first / last, then the toggles and a new episode."""
+        return [("|<", "home", False), ("< step", "left", False), ("pause" if self.playing else "play", "space", self.playing),
+                ("step >", "right", False), (">|", "end", False), *super().buttons(),
+                ("smoothed", "s", self.show_smooth), ("Viterbi", "v", self.show_viterbi), ("new episode", "n", False)]
+
     def tick(self, now: float) -> None:
         if self.playing and now - self._last_advance >= self.delay:
             self._last_advance = now
@@ -200,4 +218,5 @@ class ViewApp(App):
     def help_lines(self) -> list[str]:
         return ["right/left arrows: step   space: play/pause   home/end: first/last",
                 "s: smoothed belief   v: Viterbi path   n: new episode   r: rewind",
+                "p: probabilities in percent   (or click the buttons)",
                 "click: inspect a cell   right click: follow the robot   esc: quit"]

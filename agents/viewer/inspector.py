@@ -9,7 +9,7 @@ import numpy as np
 
 from gym_gridloc.core.ring import RingSensor
 from gym_gridloc.core.sensors import ColourSensor, DepthSensor, WallSensor
-from gym_gridloc.rendering import COLOUR_RGB
+from gym_gridloc.rendering import BELIEF_RGB, COLOUR_RGB, absolute_shade
 from gym_gridloc_agents.viewer.style import DIM, HEADINGS, INK, OFF, Shown, _fmt, _shade
 
 
@@ -47,6 +47,43 @@ class Inspector:
                 positions[a][key[1:]] = positions[a].get(key[1:], 0.0) + p
         readings = {int(z): float(p) for z, p in zip(*model.sensor.distribution(r, c, layer))}
         return {"state": (layer, r, c), "transitions": transitions, "positions": positions, "readings": readings}
+
+    def likelihood_view(self) -> np.ndarray | None:
+        """P(the current reading | cell) over every cell, ``(H, W)`` (seed 003's observation-model
+        view): the factor the filter's update multiplies the belief by.  A layered sensor (depth):
+        for the inspected heading.  None before the first reading."""
+        s = self.shown()
+        if s.reading is None:
+            return None
+        lik = np.asarray(s.model.sensor.likelihood(int(s.reading)), dtype=np.float64)
+        return lik[self.inspected()[0]] if lik.ndim == 3 else lik
+
+    def draw_likelihood(self, surf, s: Shown, x0: int, y: int, width: int) -> int:
+        """The likelihood view: a small map, navy with opacity P(reading | cell), obstacles grey,
+        the robot's cell framed orange."""
+        lik = self.likelihood_view()
+        if lik is None:
+            return y
+        model = s.model
+        facing = f", facing {HEADINGS[self.inspected()[0]]}" if model.sensor.layered and model.n_layers == 4 else ""
+        y = self._text(surf, f"P(this reading | cell){facing}: reading {model.sensor.describe(int(s.reading))}", x0, y, self.font)
+        h, w = model.shape
+        px = int(max(2, min(24, (width - 150) // w, 150 // h)))
+        pg = self.pg
+        self.likelihood_at = (x0, y, px)  # where the last draw put it (for tests)
+        colours = absolute_shade(BELIEF_RGB, lik)
+        for r in range(h):
+            for c in range(w):
+                colour = OFF if not model.grid.free[r, c] else tuple(int(round(v)) for v in colours[r, c])
+                pg.draw.rect(surf, colour, (x0 + c * px, y + r * px, px, px))
+        _, tr, tc = s.state
+        pg.draw.rect(surf, (255, 140, 0), (x0 + tc * px - 1, y + tr * px - 1, px + 2, px + 2), width=2)
+        free = lik[model.grid.free]
+        notes = [f"largest {_fmt(float(free.max()))}", f"smallest {_fmt(float(free.min()))}",
+                 "white 0, navy 1 (absolute)", "orange: the robot"]
+        for i, note in enumerate(notes):
+            self._text(surf, note, x0 + w * px + 10, y + i * self.small.get_linesize(), self.small, DIM)
+        return y + max(h * px, len(notes) * self.small.get_linesize()) + 2
 
     # -- drawing ------------------------------------------------------------------------------------
     def draw_inspector(self, surf, s: Shown, x0: int, y: int, width: int) -> int:

@@ -19,6 +19,8 @@ GOOD = (0, 130, 0)
 BAD = (170, 30, 30)
 OFF = (70, 70, 70)
 HEADINGS = ("N", "E", "S", "W")
+BUTTON = (232, 232, 232)
+BUTTON_ON = (190, 215, 245)
 
 
 
@@ -64,6 +66,14 @@ def _fmt(p: float) -> str:
     if p < 0.0005:
         return "<.001"
     return f"{p:.3f}"[1:]
+
+
+def percent(p: float) -> str:
+    """A probability in percent for a cell: ``100``, ``57``, ``3.2``, ``<0.1``."""
+    q = 100.0 * p
+    if q >= 9.95:
+        return f"{q:.0f}"
+    return f"{q:.1f}" if q >= 0.05 else "<0.1"
 
 
 def _shade(p: float) -> tuple[int, int, int]:

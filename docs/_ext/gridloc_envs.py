@@ -63,6 +63,21 @@ def signature(cls: type) -> str:
     return str(sig.replace(parameters=params, return_annotation=inspect.Signature.empty))
 
 
+#: Where the pictures of the environment pages are (``gridloc render --env ID --out
+#: results/episode_ID.png``), from the generated pages in docs/envs/.
+PICTURES = Path(__file__).resolve().parents[2] / "results"
+
+
+def picture(env_id: str) -> list[str]:
+    """The page's picture: one episode of random actions, a few frames, if the file is there."""
+    name = f"episode_{env_id}.png"
+    if not (PICTURES / name).is_file():
+        return []
+    return [f"![One episode of {env_id} under random actions: the belief as shading, the true position in orange, "
+            f"the last reading under the grid](../../results/{name})", "",
+            f"(One episode under random actions, seed 3: `gridloc render --env {env_id} --out results/{name}`.)", ""]
+
+
 def env_page(env_id: str) -> tuple[str, str]:
     """The page name and Markdown text of one registered environment."""
     import gymnasium as gym
@@ -109,6 +124,7 @@ def env_page(env_id: str) -> tuple[str, str]:
         "",
         *table,
         "",
+        *picture(env_id),
         myst_text(rest.strip()),
         "",
         "## Class",

@@ -14,6 +14,10 @@ from gym_gridloc.core.validation import check_choice, check_int, check_threshold
 from gym_gridloc.filter import ForwardFilter
 
 
+# SDL2's key codes of the arrow keys (pygame.K_UP etc.), fixed by SDL.
+_SDLK_RIGHT, _SDLK_LEFT, _SDLK_DOWN, _SDLK_UP = 0x4000004F, 0x40000050, 0x40000051, 0x40000052
+
+
 class GridLocEnv(gym.Env):
     """Active localisation on a grid model (see the subclasses for the documented models).
 
@@ -124,6 +128,26 @@ class GridLocEnv(gym.Env):
             self._window = rendering.Window(f"gym_gridloc: {self.model.name}", self.metadata["render_fps"])
         self._window.show(image)
         return None
+
+    def get_keys_to_action(self) -> dict[tuple[int | str, ...], int]:
+        """Keys for :func:`gymnasium.utils.play.play`: the arrow keys and WASD.
+
+        Moves N / E / S / W: up / right / down / left (``w`` / ``d`` / ``s`` / ``a``); a model with
+        actions ``left, right, forward`` (DepthMaze): left / right turn (``a`` / ``d``), up moves
+        forward (``w``); any other model: the digit keys ``0``..``9``.  Keys are SDL key codes (the
+        arrows' fixed values, so pygame need not be imported) or one-character strings.  ``play``
+        steps every frame with ``noop`` when no key is held: pass ``wait_on_player=True``.
+        """
+        names = tuple(self.model.action_names)
+        arrows = {"up": _SDLK_UP, "right": _SDLK_RIGHT, "down": _SDLK_DOWN, "left": _SDLK_LEFT}
+        letters = {"up": "w", "right": "d", "down": "s", "left": "a"}
+        if names == ("N", "E", "S", "W"):
+            keys = {"up": 0, "right": 1, "down": 2, "left": 3}
+        elif names == ("left", "right", "forward"):
+            keys = {"left": 0, "right": 1, "up": 2}
+        else:
+            return {(str(a),): a for a in range(min(self.model.n_actions, 10))}
+        return {(key,): a for name, a in keys.items() for key in (arrows[name], letters[name])}
 
     def close(self):
         if self._window is not None:

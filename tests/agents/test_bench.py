@@ -244,10 +244,14 @@ def test_test_set_protocol_rows_report_accuracy_at_L(tmp_path, capsys):
     from gym_gridloc import maps
 
     js, front = tmp_path / "d.json", tmp_path / "front.png"
+    md = tmp_path / "d.md"
     code = main(["bench", "--env", "DepthMaze-v0", "--size", "7", "--test-set", "--episode-length", "6",
-                 "--policies", "random,greedy", "--episodes", "5", "--json", str(js), "--frontier", str(front), "--no-progress"])
+                 "--policies", "random,greedy", "--episodes", "5", "--json", str(js), "--frontier", str(front), "--no-progress",
+                 "--markdown", str(md)])
     assert code == 0
-    table = capsys.readouterr().out
+    short = capsys.readouterr().out
+    assert "| acc@L " in short and max(len(line) for line in short.splitlines() if line.startswith("|")) <= 100
+    table = md.read_text()
     assert "acc@L (95% CI)" in table and "DepthMaze-v0 episode_length=6, size=7, test maps | greedy |" in table
     rows = json.loads(js.read_text())
     for r in rows:
@@ -346,3 +350,95 @@ def test_training_curves_plot(tmp_path, capsys):
     (tmp_path / "bare.json").write_text(json.dumps({"algo": "ppo", "env_id": "DepthMaze-v0"}))
     assert main(["plot", "--training", str(tmp_path / "bare.zip"), "--out", str(out)]) == 2
     assert "has no evaluations" in capsys.readouterr().err
+
+
+# -- the terminal table ------------------------------------------------------------------------------
+def _row(policy="greedy", env="WindyMaze-v0", **extra):
+    row = {"env": env, "policy": policy, "episodes": 200, "mean_steps": 5.71, "mean_steps_ci95": [5.03, 6.4],
+           "median_steps": 5, "success_rate": 0.96, "truncated_rate": 0.0, "localised_correct_rate": 0.96,
+           "accuracy_at": {"5": 0.85, "10": 0.935, "25": 0.96, "50": 0.96}, "ms_per_decision": 0.0598, "seconds": 0.2}
+    row.update(extra)
+    return row
+
+
+def test_terminal_table_fits_100_columns_and_keeps_the_key_numbers():
+    from gym_gridloc_agents.report import terminal_table
+
+    plain = terminal_table([_row(), _row("greedy2", mean_steps=4.83)])
+    assert max(map(len, plain.splitlines())) <= 100
+    head = [c.strip() for c in plain.splitlines()[0].strip("|").split("|")]
+    assert head == ["env", "policy", "mean steps (95% CI)", "success", "acc@10", "ms/dec"]
+    assert "5.71 (5.03-6.40)" in plain and "0.935" in plain and "0.0598" in plain
+    # the longest rows there are: kwargs, test maps, options, seeds, the protocol's accuracy at L, a gap
+    long = [_row("expectimax", env="DepthMaze-v0", env_kwargs={"size": 21, "episode_length": 15, "n_colours": 4},
+                 test_set=True, options={"depth": 3, "leaves": "entropy", "threshold": 0.9}, gap_to_best_planner=1.0,
+                 accuracy_at_L=0.91, accuracy_at_L_ci95=[0.88, 0.93], episode_length=15),
+            _row("ppo", seeds=5, mean_steps_iqm=4.8, gap_to_best_planner=1.21, ms_per_decision=0.405)]
+    table = terminal_table(long)
+    assert max(map(len, table.splitlines())) <= 100, table
+    assert len(table.splitlines()) == 4 and "0.910" in table and "~" in table  # labels cut, marked
+    roomy = terminal_table(long, width=140)
+    assert max(map(len, roomy.splitlines())) <= 140 and "0.0598" in roomy and "0.405" in roomy
+    assert "acc@L" in table.splitlines()[0]  # the protocol's number stays longest
+    assert terminal_table(long, width=200).count("/ best") == 1  # room: the optional columns stay
+
+
+def test_cli_bench_prints_the_short_table_and_writes_the_full_one(tmp_path, capsys):
+    md = tmp_path / "full.md"
+    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "random,greedy", "--episodes", "3", "--no-progress",
+                 "--markdown", str(md)]) == 0
+    out = capsys.readouterr().out
+    table = [line for line in out.splitlines() if line.startswith("|")]
+    assert len(table) == 4 and max(map(len, table)) <= 100
+    full = md.read_text()
+    assert full.endswith("\n") and "acc@5" in full and "truncated" in full and "correct if localised" in full
+    assert len(full.splitlines()) == 4 and "acc@5" not in out
+
+
+# -- the warm-up ----------------------------------------------------------------------------------------
+class _SlowFirstCall:
+    """A policy whose first decision costs 0.3 s (a compilation), then nothing."""
+
+    def __init__(self, policy):
+        self.policy, self.calls = policy, 0
+
+    def reset(self, seed=None, model=None):
+        self.policy.reset(seed=seed, model=model)
+
+    def act(self, observation, belief):
+        self.calls += 1
+        if self.calls == 1:
+            import time
+
+            time.sleep(0.3)
+        return self.policy.act(observation, belief)
+
+
+def test_warm_up_keeps_first_call_costs_out_of_the_timed_decisions(monkeypatch):
+    from gym_gridloc_agents import bench
+
+    real = bench.make_task_policy
+    monkeypatch.setattr(bench, "make_task_policy", lambda task, env: _SlowFirstCall(real(task, env)))
+    task = bench.Task("ColourGrid-v0", "greedy", {}, None, {})
+    specs = bench.episode_specs("ColourGrid-v0", {}, 3, 0, False)
+    cold = bench.simulate(task, specs, progress=False, warmup=False)
+    warm = bench.simulate(task, specs, progress=False)
+    assert cold["decision_seconds"] >= 0.3 and cold["seconds"] >= 0.3
+    assert warm["decision_seconds"] < 0.15 and warm["seconds"] < 0.3
+    assert warm["decisions"] == cold["decisions"]
+
+
+@pytest.mark.parametrize("env_id, policy", [("WindyMaze-v0", "random"), ("WindyMaze-v0", "greedy"),
+                                            ("ColourGrid-v0", "greedy2"), ("ColourGrid-v0", "ppo"),
+                                            ("WindyMaze-v0", "recurrent"), ("ColourGrid-v0", "mcts")])
+def test_warm_up_changes_nothing_but_the_timings(env_id, policy):
+    from gym_gridloc_agents import bench
+
+    options = {"simulations": 30} if policy == "mcts" else {}
+    task = bench.Task(env_id, policy, {}, None, options)  # learned: the shipped model
+    specs = bench.episode_specs(env_id, {}, 4, 3, False)
+    cold = bench.simulate(task, specs, progress=False, warmup=False)
+    warm = bench.simulate(task, specs, progress=False, warmup=True)
+    for key in cold:
+        if key not in ("seconds", "decision_seconds"):
+            assert np.array_equal(np.asarray(cold[key]), np.asarray(warm[key])), key

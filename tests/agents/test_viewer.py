@@ -49,16 +49,19 @@ def centre(app, r, c):
     return x + t // 2, y + t // 2
 
 
+def shade_pixel(app, r, c):
+    """A pixel of cell (r, c) that no overlay covers: the middle of its top edge, 3 pixels in."""
+    x, y, t, _ = app.cell_rect(r, c)
+    return x + t // 2, y + 3
+
+
 def assert_belief_drawn(app, surface, belief):
-    """Every free cell's shade (4 pixels in from its corner) is the belief's, relative to the peak."""
+    """Every free cell is its own colour with opacity = its probability (absolute) over white."""
     model = app.shown().model
-    base = rendering.base_image(model)
-    peak = belief.max()
+    own = rendering.cell_colours(model)
     for r, c in zip(*np.nonzero(model.grid.free)):
-        x, y, _, _ = app.cell_rect(r, c)
-        alpha = np.sqrt(belief[r, c] / peak) * 0.85
-        want = (1 - alpha) * base[r, c] + alpha * rendering.BELIEF_RGB
-        assert np.allclose(pixel(surface, x + 4, y + 4), want, atol=1.01), (r, c)
+        want = (1 - belief[r, c]) * 255 + belief[r, c] * own[r, c]
+        assert np.allclose(pixel(surface, *shade_pixel(app, r, c)), want, atol=1.01), (r, c)
 
 
 def test_play_arrow_keys_step_the_robot_and_the_screen_shows_truth_and_filter(pg):
@@ -83,9 +86,7 @@ def test_play_arrow_keys_step_the_robot_and_the_screen_shows_truth_and_filter(pg
     hi = max(free, key=lambda rc: f.position_belief[rc])
     lo = min(free, key=lambda rc: f.position_belief[rc])
     assert f.position_belief[hi] > f.position_belief[lo]
-    xh, yh, _, _ = app.cell_rect(*hi)
-    xl, yl, _, _ = app.cell_rect(*lo)
-    assert sum(pixel(surface, xh + 4, yh + 4)) < sum(pixel(surface, xl + 4, yl + 4))
+    assert sum(pixel(surface, *shade_pixel(app, *hi))) < sum(pixel(surface, *shade_pixel(app, *lo)))
     info = app.info
     assert any(f"entropy {info['entropy']:.2f} bits" in t for t in app.texts)
     assert any(f"error {info['error']} (Manhattan)" in t for t in app.texts)
@@ -266,3 +267,130 @@ def test_missing_pygame_names_the_render_extra(monkeypatch, capsys):
     assert viewer.play_main(["ColourGrid-v0", "--no-window", "--steps", "1"]) == 2
     err = capsys.readouterr().err
     assert "pip install 'gym_gridloc[render]'" in err and err.count("\n") == 1
+
+
+# -- the shading, the numbers, the likelihood view, the buttons ----------------------------------------
+def _shown_with(app, belief):
+    """The app showing ``belief`` (the rest as it is)."""
+    import dataclasses
+
+    s = dataclasses.replace(app.shown(), belief=belief, estimate=None, path=None)
+    app.shown = lambda: s
+    return s
+
+
+def test_a_sure_cell_is_its_own_map_colour_and_half_a_belief_half_of_it(pg):
+    """ColourGrid: a sure red cell, a sure blue cell and an unsure cell look different; the opacity
+    is the probability itself, not relative to the peak."""
+    app, _ = viewer.play_app(["ColourGrid-v0", "--seed", "0"])
+    model = app.shown().model
+    grid = model.grid
+    free = list(zip(*np.nonzero(grid.free)))
+    colour = {rc: grid.symbols[grid.labels[rc]] for rc in free}
+    red = next(rc for rc in free if colour[rc] == "R" and rc != app.shown().state[1:])
+    blue = next(rc for rc in free if colour[rc] == "B" and rc != app.shown().state[1:])
+    seen = {}
+    for name, cell in (("red", red), ("blue", blue)):
+        belief = np.zeros(model.shape)
+        belief[cell] = 1.0
+        _shown_with(app, belief)
+        surf = app.draw()
+        seen[name] = pixel(surf, *shade_pixel(app, *cell))
+        assert seen[name] == rendering.COLOUR_RGB[colour[cell]]
+        other = next(rc for rc in free if rc not in (cell, app.shown().state[1:]))
+        assert pixel(surf, *shade_pixel(app, *other)) == (255, 255, 255)  # probability 0: white
+    belief = np.zeros(model.shape)
+    belief[red] = belief[blue] = 0.5
+    _shown_with(app, belief)
+    surf = app.draw()
+    for cell in (red, blue):
+        want = 0.5 * 255 + 0.5 * np.array(rendering.COLOUR_RGB[colour[cell]])
+        got = pixel(surf, *shade_pixel(app, *cell))
+        assert np.allclose(got, want, atol=1.01) and got != seen["red"] and got != seen["blue"]
+    assert any("opacity = its probability" in t for t in app.texts) and any("absolute" in t for t in app.texts)
+
+
+def test_p_and_its_button_show_each_cells_probability_in_percent(pg):
+    from gym_gridloc_agents.viewer.style import percent
+
+    app, _ = viewer.play_app(["WindyMaze-v0", "--seed", "3"])
+    loop = viewer.Loop(app, window=True)
+    loop.show()
+    belief = app.shown().belief
+    cells = [rc for rc in zip(*np.nonzero(app.shown().model.grid.free)) if belief[rc] > 0]
+    assert not app.show_numbers and "% numbers" in app.texts
+    post_keys(pg, loop, pg.K_p)
+    assert app.show_numbers
+    drawn = app.texts.copy()
+    assert len(cells) >= 2 and all(percent(belief[rc]) in drawn for rc in cells)
+    post_keys(pg, loop, pg.K_p)
+    assert not app.show_numbers and not any(percent(belief[rc]) in app.texts for rc in cells if belief[rc] < 0.9)
+    post_keys(pg, loop, pg.K_p)
+    assert percent(1.0) == "100" and percent(0.5) == "50" and percent(0.032) == "3.2" and percent(1e-4) == "<0.1"
+    (x, y, w, h), _ = next(b for b in app.button_rects if b[1] == "p")
+    pg.event.post(pg.event.Event(pg.MOUSEBUTTONDOWN, pos=(x + w // 2, y + h // 2), button=1))
+    loop.pump()
+    assert not app.show_numbers
+
+
+@pytest.mark.parametrize("env_id", ["ColourGrid-v0", "WindyMaze-v0", "RingSensor8x8-v0", "DepthMaze-v0"])
+def test_likelihood_view_draws_the_current_readings_likelihood_over_all_cells(pg, env_id):
+    app, _ = viewer.play_app([env_id, "--seed", "2"])
+    app.key("up")
+    surf = app.draw()
+    s = app.shown()
+    lik = np.asarray(s.model.sensor.likelihood(int(s.reading)))
+    if lik.ndim == 3:  # depth: the robot's heading
+        lik = lik[s.state[0]]
+    np.testing.assert_allclose(app.likelihood_view(), lik)
+    assert any(t.startswith("P(this reading | cell)") for t in app.texts)
+    x0, y0, px = app.likelihood_at
+    tr, tc = s.state[1:]
+    for r, c in zip(*np.nonzero(s.model.grid.free)):
+        if abs(r - tr) <= 1 and abs(c - tc) <= 1:
+            continue  # the robot's frame
+        want = rendering.absolute_shade(rendering.BELIEF_RGB, lik[r, c])
+        assert np.allclose(pixel(surf, x0 + c * px + px // 2, y0 + r * px + px // 2), want, atol=1.01), (r, c)
+
+
+def test_view_buttons_step_play_and_pause(pg):
+    app, _ = viewer.view_app(["WindyMaze-v0", "--policy", "random", "--seed", "4", "--steps", "6"])
+    loop = viewer.Loop(app, window=True)
+    loop.show()
+
+    def press(label):
+        (x, y, w, h), _ = next(b for b, (text, _, _) in zip(app.button_rects, app.buttons()) if text == label)
+        pg.event.post(pg.event.Event(pg.MOUSEBUTTONDOWN, pos=(x + w // 2, y + h // 2), button=1))
+        loop.pump()
+
+    assert app.k == 0
+    press("step >")
+    press("step >")
+    assert app.k == 2
+    press("< step")
+    assert app.k == 1
+    press("play")
+    assert app.playing and "pause" in app.texts
+    app.tick(app._last_advance + app.delay + 0.01)
+    assert app.k == 2
+    press("pause")
+    assert not app.playing
+    press(">|")
+    assert app.k == app.last
+    press("|<")
+    assert app.k == 0
+    press("smoothed")
+    assert app.show_smooth
+
+
+def test_play_buttons_take_the_actions(pg):
+    app, _ = viewer.play_app(["DepthMaze-v0", "--seed", "1"])
+    loop = viewer.Loop(app, window=True)
+    loop.show()
+    labels = [b[0] for b in app.buttons()]
+    assert labels[:3] == ["left", "right", "forward"] and "new episode" in labels
+    for label in ("forward", "left"):
+        (x, y, w, h), _ = app.button_rects[labels.index(label)]
+        pg.event.post(pg.event.Event(pg.MOUSEBUTTONDOWN, pos=(x + w // 2, y + h // 2), button=1))
+        loop.pump()
+    assert app.actions == [2, 0][: app.steps] and app.steps >= 1

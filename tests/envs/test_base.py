@@ -326,3 +326,52 @@ def test_env_teleports_at_the_model_rate():
     np.testing.assert_allclose(expected.sum(), 1.0)
     assert np.all(expected >= 0.3 / model.n_states - 1e-12)
     assert np.all(np.abs(counts - n * expected) <= 5 * np.sqrt(n * expected * (1 - expected)) + 1)
+
+
+# -- keys for gymnasium.utils.play ------------------------------------------------------------------
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_keys_to_action_arrows_and_wasd_name_the_moves(env_id):
+    pygame = pytest.importorskip("pygame")
+    env = gym.make(env_id, render_mode="rgb_array")
+    keys = env.get_wrapper_attr("get_keys_to_action")()
+    names = env.unwrapped.model.action_names
+    by_key = {k: names[a] for (k,), a in keys.items()}
+    assert set(keys.values()) == set(range(env.action_space.n))
+    if names == ("left", "right", "forward"):
+        want = {pygame.K_LEFT: "left", pygame.K_RIGHT: "right", pygame.K_UP: "forward",
+                "a": "left", "d": "right", "w": "forward"}
+    else:
+        want = {pygame.K_UP: "N", pygame.K_RIGHT: "E", pygame.K_DOWN: "S", pygame.K_LEFT: "W",
+                "w": "N", "d": "E", "s": "S", "a": "W"}
+    assert by_key == want
+
+
+def test_keys_to_action_digits_for_unnamed_actions():
+    from gym_gridloc.core.model import GridModel
+
+    m = ring_sensor_model()
+    model = GridModel(m.grid, m.transitions, m.sensor, name="renamed", action_names=("up", "across", "down", "back"))
+    assert GridLocEnv(model).get_keys_to_action() == {("0",): 0, ("1",): 1, ("2",): 2, ("3",): 3}
+
+
+@pytest.mark.filterwarnings("ignore:.*matplotlib is not installed")  # gymnasium.utils.play asks for TkAgg
+@pytest.mark.parametrize("env_id", ["WindyMaze-v0", "DepthMaze-v0"])
+def test_gymnasium_play_runs_out_of_the_box(env_id, monkeypatch):
+    """``gymnasium.utils.play.play(gym.make(ID, render_mode="rgb_array"))`` finds the key map and
+    steps the actions of the keys pressed (events scripted; SDL's dummy video driver)."""
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")
+    pygame = pytest.importorskip("pygame")
+    from gymnasium.utils import play
+
+    down = lambda k: pygame.event.Event(pygame.KEYDOWN, key=k, mod=0, unicode="", scancode=0)  # noqa: E731
+    up = lambda k: pygame.event.Event(pygame.KEYUP, key=k, mod=0, unicode="", scancode=0)  # noqa: E731
+    script = iter([[down(pygame.K_UP)], [up(pygame.K_UP), down(pygame.K_d)], [up(pygame.K_d)],
+                   [pygame.event.Event(pygame.QUIT)]])
+    monkeypatch.setattr(pygame.event, "get", lambda *a, **k: next(script, [pygame.event.Event(pygame.QUIT)]))
+    taken = []
+    env = gym.make(env_id, render_mode="rgb_array")
+    play.play(env, wait_on_player=True, fps=1000, seed=0,
+              callback=lambda o0, o1, action, *rest: taken.append(int(action)))
+    forward, right = (2, 1) if env_id == "DepthMaze-v0" else (0, 1)
+    assert taken == [forward, right]
