@@ -61,6 +61,17 @@ PLANNERS = ("central", "expectimax", "mcts", "pomcp", "optimal")
 LEARNED = ("ppo", "distilled", "recurrent")
 
 
+class BenchmarkInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_benchmark`: ``rows`` holds the rows that were finished."""
+
+    def __init__(self, rows: list[dict[str, Any]], total: int) -> None:
+        super().__init__(f"interrupted after {len(rows)} of {total} rows")
+        self.rows = rows
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
 @dataclass(frozen=True)
 class Task:
     """One row's policy on one environment: ``env_kwargs`` for ``gym.make``, ``model_path`` for a
@@ -339,18 +350,40 @@ def run_benchmark(
             paths = given.get(name) or ([recurrent_model] if name == "recurrent" else [None])
             groups.append([Task(env_id, _learned_name(name, p), kwargs, p, dict(options.get(name, {}))) for p in paths])
     tasks = [t for group in groups for t in group]
-    for task in tasks:  # fail before any long run if a model is missing or does not fit
-        if task.policy in LEARNED:
-            env = make_env(task.env_id, task.env_kwargs)
+    for task in tasks:  # every policy and option built before the first episode: a late one never fails a long run
+        env = make_env(task.env_id, task.env_kwargs)
+        try:
             make_task_policy(task, env)
+        except TypeError as exc:  # an option the policy's class does not take
+            raise ValueError(f"policy {task.policy!r} on {task.env_id}: {exc}") from None
+        except ValueError as exc:
+            raise ValueError(f"policy {task.policy!r} on {task.env_id}: {exc}") from None
+        finally:
             env.close()
     specs = {env_id: episode_specs(env_id, kwargs, int(episodes), seed_start, test_set) for env_id in env_ids}
     if torch_threads is not None and any(t.policy in LEARNED for t in tasks):
         import torch
 
         torch.set_num_threads(int(torch_threads))
+    def finished(parts: list) -> list[dict[str, Any]]:
+        """The rows of the groups whose every task is done (the first ``len(parts)`` tasks)."""
+        rows, i = [], 0
+        for group in groups:
+            if i + len(group) > len(parts):
+                break
+            runs = parts[i: i + len(group)]
+            rows.append(seed_aggregate(group[0], runs, seed_start=seed_start, test_set=test_set) if len(group) > 1
+                        else summarise(group[0], parts=runs[0], seed_start=seed_start, test_set=test_set))
+            i += len(group)
+        return add_gaps(rows)
+
     if jobs <= 1:
-        parts = [[simulate(t, specs[t.env_id], progress=progress)] for t in tasks]
+        parts = []
+        try:
+            for t in tasks:
+                parts.append([simulate(t, specs[t.env_id], progress=progress)])
+        except KeyboardInterrupt:
+            raise BenchmarkInterrupted(finished(parts), len(groups)) from None
     else:
         import multiprocessing as mp
 
@@ -358,16 +391,20 @@ def run_benchmark(
 
         chunk = max(1, math.ceil(episodes / (4 * jobs)))
         work = [(i, (t, specs[t.env_id][lo: lo + chunk], BUDGETS, torch_threads)) for i, t in enumerate(tasks) for lo in range(0, episodes, chunk)]
-        with mp.get_context("spawn").Pool(jobs) as pool:
-            done = list(tqdm(pool.imap(_job, [w for _, w in work]), total=len(work), desc="benchmark chunks", disable=not progress))
-            pool.close()  # let the workers exit on their own (``with`` alone terminates them)
-            pool.join()
+        done: list = []
+        try:
+            with mp.get_context("spawn").Pool(jobs) as pool:
+                for part in tqdm(pool.imap(_job, [w for _, w in work]), total=len(work), desc="benchmark chunks",
+                                 disable=not progress):
+                    done.append(part)
+                pool.close()  # let the workers exit on their own (``with`` alone terminates them)
+                pool.join()
+        except KeyboardInterrupt:  # imap is in order: the tasks whose every chunk came back are finished
+            complete = [i for i in range(len(tasks)) if all(k < len(done) for k, (j, _) in enumerate(work) if j == i)]
+            parts = [[part for (j, _), part in zip(work, done) if j == i] for i in complete]
+            raise BenchmarkInterrupted(finished(parts), len(groups)) from None
         parts = [[part for (j, _), part in zip(work, done) if j == i] for i in range(len(tasks))]
-    per_task = iter(parts)
-    mine = [[next(per_task) for _ in group] for group in groups]
-    return add_gaps([seed_aggregate(group[0], runs, seed_start=seed_start, test_set=test_set) if len(group) > 1
-                     else summarise(group[0], parts=runs[0], seed_start=seed_start, test_set=test_set)
-                     for group, runs in zip(groups, mine)])
+    return finished(parts)
 
 
 def add_gaps(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -388,5 +425,5 @@ def _env_key(row: dict[str, Any]) -> str:
     return f"{row['env']} {sorted(row.get('env_kwargs', {}).items())} {row.get('test_set', False)}"
 
 
-__all__ = ["BENCH_ENV_IDS", "BUDGETS", "DEFAULT_POLICIES", "PLANNERS", "Task", "add_gaps", "applicable", "default_model_path",
+__all__ = ["BENCH_ENV_IDS", "BUDGETS", "BenchmarkInterrupted", "DEFAULT_POLICIES", "PLANNERS", "Task", "add_gaps", "applicable", "default_model_path",
            "episode_specs", "run_benchmark", "run_episodes", "seed_aggregate", "simulate", "summarise"]

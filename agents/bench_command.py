@@ -4,11 +4,17 @@ and the outputs (a failing write puts computed rows elsewhere and says where).  
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import warnings
 from pathlib import Path
 
 RESULTS = Path("results")
+#: The most episodes per policy ``gridloc bench`` runs (its per-episode arrays must fit in memory).
+MAX_EPISODES = 10**7
+#: Environment keywords the held-out test maps replace (``--test-set`` refuses them: the row would
+#: report keywords its maps ignored).
+MAP_KWARGS = ("layout", "map_seed", "obstacle_density", "new_map_each_reset", "n_colours")
 
 
 def _fail(command: str, message: str) -> int:
@@ -81,13 +87,12 @@ def _available_defaults(envs: list[str], policies: list[str], env_kwargs: dict, 
 
 def bench_main(args) -> int:
     """``gridloc bench``: every argument checked before the first episode, then the run and its outputs."""
-    from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, add_gaps, run_benchmark
+    from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, BenchmarkInterrupted, add_gaps, run_benchmark
     from gym_gridloc_agents.envs import check_environment
-    from gym_gridloc_agents.files import (OutputError, atomic_write_json, atomic_write_text, expand_models, rescue_write,
-                                         writable_file)
+    from gym_gridloc_agents import files
+    from gym_gridloc_agents.files import OutputError, expand_models
     from gym_gridloc_agents.policies import POLICY_NAMES
-    from gym_gridloc_agents.report import (markdown_table, merge_rows, plot, plot_frontier, public_row, read_rows,
-                                          terminal_table)
+    from gym_gridloc_agents.report import merge_rows, read_rows
 
     if args.all == bool(args.env):
         return _fail("bench", "give exactly one of --env ENV_ID or --all")
@@ -95,7 +100,11 @@ def bench_main(args) -> int:
     policies = [p.strip() for p in (args.policies or ",".join(DEFAULT_POLICIES)).split(",") if p.strip()]
     episodes = args.episodes if args.episodes is not None else (1000 if args.all else 200)
     json_path = args.json or (str(RESULTS / "bench.json") if args.all else None)
-    frontier = args.frontier or (str(RESULTS / "bench_frontier.png") if args.all else None)
+    # --all: the figures and the table go beside its JSON (results/ by default), as `gridloc plot` draws them
+    here = Path(json_path).parent if json_path else RESULTS
+    stem = Path(json_path).stem if json_path else "bench"
+    frontier = args.frontier or (str(here / f"{stem}_frontier.png") if args.all else None)
+    table = here / f"{stem}_table.json" if args.all else None
     # Everything is checked before the first episode: a long run never ends in a traceback.
     try:
         env_kwargs = _bench_env_kwargs(args)
@@ -112,6 +121,17 @@ def bench_main(args) -> int:
             raise ValueError("--test-set needs --size N: the held-out maps are drawn per size")
         if episodes < 1:
             raise ValueError(f"--episodes must be >= 1, got {episodes}")
+        if episodes > MAX_EPISODES:  # the per-episode arrays must fit in memory
+            raise ValueError(f"--episodes must be at most {MAX_EPISODES:_} (per policy), got {episodes}")
+        if args.test_set and (given := [k for k in env_kwargs if k in MAP_KWARGS]):
+            raise ValueError(f"--test-set runs on the stored test maps, which replace {', '.join(given)}: leave "
+                             f"{'it' if len(given) == 1 else 'them'} out (the row would report keywords its maps ignored)")
+        if args.test_set and not isinstance(env_kwargs["size"], int):
+            raise ValueError(f"--test-set: the test maps are square; give --size N, not size={env_kwargs['size']!r}")
+        for flag, name in (("--ppo-model", "ppo"), ("--distilled-model", "distilled"), ("--recurrent-model", "recurrent")):
+            if getattr(args, flag[2:].replace("-", "_")) and name not in policies:
+                raise ValueError(f"{flag} is given but {name!r} is not among the benchmarked policies "
+                                 f"({', '.join(policies)}): add it to --policies or leave {flag} out")
         if args.seed < 0 or args.seed + episodes > 2**32:
             raise ValueError(f"--seed must be in 0..{2**32 - episodes} (episode i uses seed+i), got {args.seed}")
         for flag, value in (("--jobs", args.jobs), ("--torch-threads", args.torch_threads)):
@@ -121,22 +141,25 @@ def bench_main(args) -> int:
             raise ValueError("--plot takes one environment; --all writes results/bench_<env>.png")
         if args.update and not json_path:
             raise ValueError("--update needs --json PATH (or --all)")
-        outputs = [(json_path, "results JSON"), (args.markdown, "markdown table"), (args.plot, "plot"),
-                   (frontier, "frontier plot")]
-        outputs += [(RESULTS / f"bench_{e}.png", "plot") for e in envs if args.all]
-        for path, what in outputs:
-            if path:
-                writable_file(path, what)
-        old_rows = read_rows(json_path) if args.update and Path(json_path).exists() else []
         seeds_models = {}
         for name in ("ppo", "distilled"):
             given = getattr(args, f"{name}_model")
             found = expand_models(given, flag=f"--{name}-model") if given else None
             if found is not None and len(found) > 1 and len(envs) > 1:
                 raise ValueError(f"several --{name}-model files (one per seed) are models of one environment: give --env ENV_ID, not --all")
-            seeds_models[name] = found[0] if found is not None and len(found) == 1 else found
+            seeds_models[name] = found
+        outputs = [(json_path, files.BENCH_RESULTS, "results JSON"), (args.markdown, files.MARKDOWN, "markdown table"),
+                   (args.plot, files.FIGURE, "plot"), (frontier, files.FIGURE, "frontier plot"), (table, files.TABLE, "table JSON")]
+        outputs += [(here / f"bench_{e}.png", files.FIGURE, f"plot of {e}") for e in envs if args.all]
+        inputs = [*(seeds_models["ppo"] or []), *(seeds_models["distilled"] or []), args.recurrent_model]
+        files.check_outputs(outputs, inputs=inputs, replace=args.update or args.force, flag="--update or --force")
+        old_rows = read_rows(json_path) if args.update and Path(json_path).exists() else []
+        for name, found in seeds_models.items():
+            if found is not None and len(found) == 1:
+                seeds_models[name] = found[0]
     except (ValueError, OutputError) as exc:
         return _fail("bench", str(exc))
+    interrupted = None
     try:
         with warnings.catch_warnings(record=True) as notes:
             warnings.simplefilter("always", UserWarning)
@@ -146,29 +169,57 @@ def bench_main(args) -> int:
                 recurrent_model=args.recurrent_model, policy_options=options,
                 progress=not args.no_progress, jobs=args.jobs, torch_threads=args.torch_threads,
             )
-    except (ValueError, FileNotFoundError) as exc:
-        return _fail("bench", str(exc))
+    except BenchmarkInterrupted as exc:  # Ctrl-C: the finished rows are written, then exit 130
+        rows, interrupted = exc.rows, exc
+    except (ValueError, TypeError, FileNotFoundError) as exc:
+        return _fail("bench", " ".join(str(exc).split()))
     for note in notes:  # e.g. a policy that does not apply to an environment: one line each
         print(f"gridloc bench: {note.message}", file=sys.stderr)
-    if args.update:  # the gaps are recomputed over the merged rows: a planner run earlier still counts
-        rows = add_gaps(merge_rows(old_rows, rows))
+    if interrupted is not None and not rows:
+        print(f"gridloc bench: {interrupted}; no row was finished, nothing written", file=sys.stderr)
+        return 130
+    from gym_gridloc_agents.report import env_label
+
+    labels = {env_label(r) for r in rows}  # what this run measured (merged rows of other keywords are not plotted with it)
+    lock = files.locked(json_path, what="results JSON") if json_path else contextlib.nullcontext()
+    with lock:  # two --update runs at once: each merges into what the other wrote
+        if args.update:  # re-read under the lock; the gaps are recomputed over the merged rows
+            try:
+                old_rows = read_rows(json_path) if Path(json_path).exists() else []
+            except ValueError as exc:
+                return _fail("bench", f"{exc} (it changed during the run)")
+            rows = add_gaps(merge_rows(old_rows, rows))
+        code = _write_bench(args, rows, labels, json_path, frontier, table, here)
+    if interrupted is not None and code == 0:
+        print(f"gridloc bench: {interrupted}; the {len(rows)} finished row(s) are kept"
+              + (f" in {json_path}" if json_path else " (printed above)"), file=sys.stderr)
+        return 130
+    return code
+
+
+def _write_bench(args, rows, labels, json_path, frontier, table, here) -> int:
+    from gym_gridloc_agents.files import OutputError, atomic_write_json, atomic_write_text, rescue_write
+    from gym_gridloc_agents.report import env_label, markdown_table, plot, plot_frontier, public_row, terminal_table
+
+    mine = [r for r in rows if env_label(r) in labels]
+
     print(terminal_table(rows))  # fits 100 columns; the full table: --markdown, every number: --json
     if not (args.markdown or json_path):
         print("(a short table; every column: --markdown PATH, every number: --json PATH)", file=sys.stderr)
     # (path or None, write, what, text before "wrote"); --all: a plot per environment
     writes = [(json_path, lambda p: atomic_write_json(p, rows), "results JSON", "\n"),
               (args.markdown, lambda p: atomic_write_text(p, markdown_table(rows) + "\n"), "markdown table", ""),
-              (args.plot, lambda p: plot([r for r in rows if r["env"] == envs[0]], p), "plot", ""),
+              (args.plot if mine else None, lambda p: plot(mine, p), "plot", ""),
               (frontier, lambda p: plot_frontier(rows, p), "frontier plot", "")]
-    writes += [(RESULTS / f"bench_{e}.png", lambda p, e=e: plot([r for r in rows if r["env"] == e], p), "plot", "")
-               for e in sorted({r["env"] for r in rows}) if args.all]
+    writes += [(here / f"bench_{e}.png", lambda p, e=e: plot([r for r in mine if r["env"] == e], p), "plot", "")
+               for e in sorted({r["env"] for r in mine}) if args.all]
     try:  # the rows are computed: a failing write puts them elsewhere and says where
         for path, write, what, before in writes:
             if path:
                 rescue_write(write, Path(path), what)
                 print(f"{before}wrote {path}", file=sys.stderr)
         if args.all:
-            rescue_write(lambda p: atomic_write_json(p, [public_row(r) for r in rows]), RESULTS / "bench_table.json", "table JSON")
+            rescue_write(lambda p: atomic_write_json(p, [public_row(r) for r in rows]), table, "table JSON")
     except OutputError as exc:
         return _fail("bench", str(exc))
     return 0
@@ -179,18 +230,19 @@ def bound_main(args) -> int:
     import json
 
     from gym_gridloc_agents.envs import check_environment, make_env
-    from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write, writable_file
+    from gym_gridloc_agents import files
+    from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write
     from gym_gridloc_agents.planners import lower_bound
+    from gym_gridloc_agents.planners.expectimax import MAX_BOUND_DEPTH
 
     try:
         kwargs = _key_values(args.env_kwarg, "--env-kwarg")
         check_environment(args.env, kwargs, what=f"--env {args.env}", error=ValueError)
-        if args.depth < 1:
-            raise ValueError(f"--depth must be at least 1, got {args.depth}")
+        if not 1 <= args.depth <= MAX_BOUND_DEPTH:
+            raise ValueError(f"--depth must be in 1..{MAX_BOUND_DEPTH} (the search grows about |A x Z|^K), got {args.depth}")
         if not 0.0 <= args.prune < 1.0:
             raise ValueError(f"--prune must be in [0, 1), got {args.prune}")
-        if args.json:
-            writable_file(args.json, "bound JSON")
+        files.check_outputs([(args.json, files.BOUND, "bound JSON")], replace=args.force)
     except (ValueError, OutputError) as exc:
         return _fail("bound", str(exc))
     env = make_env(args.env, kwargs)
@@ -198,6 +250,10 @@ def bound_main(args) -> int:
     if getattr(u, "episode_length", None):
         env.close()
         return _fail("bound", "the bound is on steps to localise; fixed-length episodes (episode_length) have no such count")
+    if getattr(u, "_map_factory", None) is not None:  # the first map's bound is no bound of the environment
+        env.close()
+        return _fail("bound", f"{args.env} draws a new map at every reset (new_map_each_reset): the bound is of one map; "
+                              "give a fixed map (--env-kwarg map_seed=N or layout=PATH)")
     print(f"gridloc bound: {args.env}, depth {args.depth}: exhaustive search over actions and readings ...", file=sys.stderr)
     result = lower_bound(u.model, args.depth, threshold=u.localise_threshold, prune=args.prune, progress=True)
     env.close()

@@ -21,11 +21,12 @@ Each subcommand lives in its module; this one parses and dispatches.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
 from gym_gridloc_agents.bench_command import RESULTS, _fail, bench_main, bound_main
-from gym_gridloc_agents.files import OutputError, writable_file
+from gym_gridloc_agents.files import OutputError
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -73,6 +74,7 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--jobs", type=int, default=1, help="parallel processes, each running chunks of episodes (default 1)")
     b.add_argument("--update", action="store_true",
                    help="merge the new rows into the existing JSON file (the same environment, policy and options: replaced) and plot the merged rows")
+    b.add_argument("--force", action="store_true", help="replace an existing results JSON (default: refused; see --update)")
     b.add_argument("--torch-threads", type=int, default=1, metavar="N",
                    help="torch threads of the learned policies, per process (default 1: fastest for these small networks)")
     b.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -108,6 +110,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="drop readings below this probability (keeps it a bound, a looser one; default 0)")
     lb.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE", help="a keyword of gym.make (repeatable)")
     lb.add_argument("--json", metavar="PATH", help="write the bound as JSON")
+    lb.add_argument("--force", action="store_true", help="replace an existing bound JSON")
 
     q = sub.add_parser("plot", help="redraw the benchmark figures from a results JSON")
     q.add_argument("json", nargs="?", default=str(RESULTS / "bench.json"), help="a bench JSON (default results/bench.json)")
@@ -130,9 +133,20 @@ def _render(args) -> int:
     import gym_gridloc
     from gym_gridloc_agents.figures import episode_frames, episode_strips, write_gif
 
+    from gym_gridloc_agents import files
+    from gym_gridloc_agents.envs import check_environment
+
     envs = args.env or list(gym_gridloc.ENV_IDS)
-    if args.frames < 1:
-        return _fail("render", f"--frames must be at least 1, got {args.frames}")
+    try:
+        if args.frames < 1:
+            raise ValueError(f"--frames must be at least 1, got {args.frames}")
+        if not 0 <= args.seed < 2**63:
+            raise ValueError(f"--seed must be in 0..2**63-1, got {args.seed}")
+        for e in envs:
+            check_environment(e, {}, what=f"--env {e}", error=ValueError)
+        files.check_outputs([(args.out, files.FIGURE, "picture"), (args.gif, files.FIGURE, "GIF")])
+    except (ValueError, OutputError) as exc:
+        return _fail("render", str(exc))
     episode_strips(envs, args.seed, args.frames, args.out)
     print(f"wrote {args.out}")
     if args.gif:
@@ -143,7 +157,8 @@ def _render(args) -> int:
 
 
 def _plot(args) -> int:
-    from gym_gridloc_agents.report import plot, plot_frontier, plot_training, read_rows
+    from gym_gridloc_agents import files
+    from gym_gridloc_agents.report import env_label, plot, plot_frontier, plot_training, read_rows
 
     if args.curves and args.training:
         return _fail("plot", "give --curves or --training, not both")
@@ -155,7 +170,7 @@ def _plot(args) -> int:
             for m in args.training:
                 if not Path(m).is_file():
                     raise ValueError(f"--training {m}: no such model file")
-            writable_file(args.out, "plot")
+            files.check_outputs([(args.out, files.FIGURE, "plot")], inputs=args.training)
             plot_training(args.training, args.out)
         except (ValueError, OutputError) as exc:
             return _fail("plot", str(exc))
@@ -166,16 +181,23 @@ def _plot(args) -> int:
         return _fail("plot", f"{src} does not exist; run `gridloc bench --all` first")
     try:
         rows = read_rows(src)
-    except ValueError as exc:
+        if not all("localised_curve" in r and "accuracy_curve" in r for r in rows):
+            raise ValueError(f"{src} holds rows without their curves (a table such as bench_table.json): "
+                             "plot the results JSON gridloc bench wrote")
+        # one figure per environment with its keywords and maps (bench.json: bench_<env>.png)
+        groups = {label: [r for r in rows if env_label(r) == label] for label in sorted({env_label(r) for r in rows})}
+        names = {label: "bench_" + re.sub(r"[^A-Za-z0-9._=+-]+", "_", label).strip("_") + ".png" for label in groups}
+        outs = [(src.parent / names[label], files.FIGURE, f"plot of {label}") for label in groups]
+        frontier = src.parent / f"{src.stem}_frontier.png" if any(r.get("ms_per_decision") for r in rows) else None
+        files.check_outputs([*outs, (frontier, files.FIGURE, "frontier plot")], inputs=[src])
+    except (ValueError, OutputError) as exc:
         return _fail("plot", str(exc))
-    for env in sorted({r["env"] for r in rows}):
-        out = src.parent / f"bench_{env}.png"
-        plot([r for r in rows if r["env"] == env], out)
+    for (out, _, _), group in zip(outs, groups.values()):
+        plot(group, out)
         print(f"wrote {out}")
-    if any(r.get("ms_per_decision") for r in rows):
-        out = src.parent / f"{src.stem}_frontier.png"  # bench.json: bench_frontier.png
-        plot_frontier(rows, out)
-        print(f"wrote {out}")
+    if frontier is not None:  # bench.json: bench_frontier.png
+        plot_frontier(rows, frontier)
+        print(f"wrote {frontier}")
     return 0
 
 

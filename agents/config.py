@@ -118,17 +118,52 @@ def activation(name: str):
 
 def load_config(path: str | Path) -> dict[str, Any]:
     """Read and validate a YAML config; returns a dict with every default filled in."""
+    return validate_config(read_yaml(path), source=str(path))
+
+
+#: How deep a config's mappings and lists may nest (a real one nests three or four levels).
+MAX_DEPTH = 50
+
+
+def read_yaml(path: str | Path) -> Any:
+    """A config file's YAML, or a one-line :class:`ConfigError` naming the file: missing, not
+    UTF-8, not YAML, nested deeper than :data:`MAX_DEPTH`."""
     import yaml
 
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file {str(path)!r} does not exist")
-    with open(path, encoding="utf-8") as fh:
-        try:
-            raw = yaml.safe_load(fh)
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML: {exc}") from None
-    return validate_config(raw, source=str(path))
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason}); save the config as UTF-8") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    depth = level = 0
+    for ch in text:  # flow collections nest by brackets; the composer recurses on each level
+        level += (ch in "[{") - (ch in "]}")
+        depth = max(depth, level)
+    if depth > MAX_DEPTH:
+        raise ConfigError(f"{path}: nested {depth} levels deep (at most {MAX_DEPTH})")
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deep (at most {MAX_DEPTH} levels)") from None
+    if _depth(raw) > MAX_DEPTH:
+        raise ConfigError(f"{path}: nested more than {MAX_DEPTH} levels deep")
+    return raw
+
+
+def _depth(value: Any, level: int = 0) -> int:
+    if level > MAX_DEPTH:
+        return level
+    if isinstance(value, dict):
+        return max((_depth(v, level + 1) for v in value.values()), default=level + 1)
+    if isinstance(value, list):
+        return max((_depth(v, level + 1) for v in value), default=level + 1)
+    return level
 
 
 def _num(source: str, key: str, value: Any, *, integer: bool, minimum: float, maximum: float | None = None,

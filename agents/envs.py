@@ -33,9 +33,13 @@ def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, err
     except (TypeError, ValueError, gym.error.Error) as exc:
         raise error(f"{what}: {env_id} does not build with {env_kwargs}: {exc}") from None
     ok = isinstance(env.unwrapped, GridLocEnv)
+    length, limit = getattr(env.unwrapped, "episode_length", None), env.spec.max_episode_steps if env.spec else None
     env.close()
     if not ok:
         raise error(f"{what}: {env_id} is not a gym_gridloc environment (allowed: {', '.join(gym_gridloc.ENV_IDS)})")
+    if length and limit and length > limit:  # the time limit would cut the protocol's episodes short
+        raise error(f"{what}: episode_length {length} exceeds {env_id}'s max_episode_steps {limit}: the episodes "
+                    f"would be truncated at step {limit}; give episode_length <= {limit}")
 
 
 def default_kwargs(env_id: str) -> dict[str, Any]:
@@ -44,7 +48,9 @@ def default_kwargs(env_id: str) -> dict[str, Any]:
     params = _parameters(env_id)
     if params is None:
         return {}
-    out = {p.name: p.default for p in params if p.default is not p.empty and p.name != "render_mode"}
+    # (a class's DEFAULTS: what a None default stands for, e.g. DepthMaze's size 7)
+    stands = getattr(load_env_creator(gym.registry[env_id].entry_point), "DEFAULTS", {})
+    out = {p.name: stands.get(p.name, p.default) for p in params if p.default is not p.empty and p.name != "render_mode"}
     return {**out, **dict(gym.registry[env_id].kwargs or {})}
 
 

@@ -51,6 +51,117 @@ def writable_file(path: str | Path, what: str) -> Path:
     return path
 
 
+#: Kinds of files the commands write, as :func:`file_kind` names them.
+FIGURE, MODEL, MODEL_METADATA, BENCH_RESULTS, BOUND, TABLE, MARKDOWN = (
+    "figure", "model", "model metadata", "bench results", "bound", "bench table", "markdown table")
+#: Kinds that may be replaced by an output of the same kind without --force (derived, redrawable).
+REDRAWABLE = (FIGURE, TABLE, MARKDOWN)
+
+
+def file_kind(path: str | Path) -> str | None:
+    """What an existing file holds, judged by its content: :data:`FIGURE` (PNG/GIF), :data:`MODEL`
+    (a zip), :data:`MODEL_METADATA` (a JSON object beside a model, or with ``algo``/``env_id``),
+    :data:`BENCH_RESULTS` (a JSON list of benchmark rows), :data:`TABLE` (the public table of
+    ``bench --all``), :data:`BOUND` (``gridloc bound``'s JSON), :data:`MARKDOWN` (a ``.md`` file
+    that starts with a table row, as ``bench --markdown`` writes); ``"other"`` for anything else,
+    ``None`` if there is no file (or an empty one: nothing to lose)."""
+    path = Path(path)
+    if not path.is_file() or path.stat().st_size == 0:
+        return None
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError:
+        return "other"
+    if head.startswith(b"\x89PNG") or head[:4] == b"GIF8":
+        return FIGURE
+    if head[:2] == b"PK":
+        return MODEL
+    if path.with_suffix(".zip").is_file() and path.suffix == ".json":
+        return MODEL_METADATA
+    if path.suffix == ".md" and head.startswith(b"| "):
+        return MARKDOWN
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):
+        return "other"
+    if isinstance(data, dict):
+        if "bound" in data:
+            return BOUND
+        if "algo" in data or "env_id" in data or "num_timesteps" in data:
+            return MODEL_METADATA
+    if isinstance(data, list) and data and all(isinstance(r, dict) and "env" in r and "policy" in r for r in data):
+        return TABLE if all("localised_curve" not in r for r in data) else BENCH_RESULTS
+    return "other"
+
+
+def check_outputs(outputs, *, inputs=(), replace: bool = False, flag: str = "--force") -> None:
+    """Refuse, before any work, outputs that would lose finished work.  ``outputs``: ``(path, kind,
+    what)`` triples of one run (``path`` None: not written).  Refused (:class:`OutputError` naming
+    the path): two outputs of the run on one path, an output that is one of ``inputs``, a
+    directory, an existing file of another kind (a model, its metadata -- also a JSON beside a
+    model ``X.zip`` --, results, a file this project does not write), and an existing file of the
+    same kind unless ``replace`` (the command's ``--update``/``--force``) or the kind is
+    :data:`REDRAWABLE`.  Then every output's directory is created and probed."""
+    seen: dict[Path, str] = {}
+    ins = {Path(p).expanduser().resolve(): str(p) for p in inputs if p}
+    for path, kind, what in outputs:
+        if not path:
+            continue
+        path = Path(path)
+        key = path.expanduser().resolve()
+        if key in seen:
+            raise OutputError(f"the {what} {path} is also the {seen[key]}: give each output its own file")
+        seen[key] = what
+        if key in ins:
+            raise OutputError(f"the {what} {path} is an input of this command ({ins[key]}): writing it would replace it")
+        if path.is_dir():
+            raise OutputError(f"the {what} {path} is a directory; give a file name")
+        if kind != MODEL and path.suffix == ".json" and path.with_suffix(".zip").is_file() and kind != MODEL_METADATA:
+            raise OutputError(f"the {what} {path} is the metadata file of the model {path.with_suffix('.zip')}: "
+                              "writing it would replace that model's metadata; choose another name")
+        found = file_kind(path)
+        if found is not None and found != kind:
+            raise OutputError(f"the {what} {path} exists and holds {'a file of another kind' if found == 'other' else found}, "
+                              f"not {kind}: it would be replaced; choose another name")
+        if found is not None and not replace and kind not in REDRAWABLE:
+            raise OutputError(f"the {what} {path} exists ({kind}); pass {flag} to replace it, or choose another name")
+        writable_directory(path.parent, f"directory of the {what}")
+
+
+@contextlib.contextmanager
+def locked(path: str | Path, *, wait: bool = True, what: str = "file", directory: bool | None = None):
+    """An exclusive ``fcntl.flock`` for the block: on ``<dir>/.gridloc-lock`` for a directory, for
+    a file on a lock file named by the hash of its full path in the system's temporary directory
+    (no lock files beside results or models).  ``wait=False``: :class:`OutputError` if another
+    process holds it."""
+    import hashlib
+
+    path = Path(path)
+    if path.is_dir() if directory is None else directory:
+        path.mkdir(parents=True, exist_ok=True)
+        lock = path / ".gridloc-lock"
+    else:
+        digest = hashlib.sha1(str(path.expanduser().resolve()).encode()).hexdigest()[:16]
+        lock = Path(tempfile.gettempdir()) / "gridloc-locks" / f"{path.name[:40]}-{digest}.lock"
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    with open(lock, "a+") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            raise OutputError(f"another process is writing the {what} {path} (it holds {lock}); "
+                              "wait for it to finish or choose another output") from None
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 def rescue_write(write, path: Path, what: str, *, places: tuple[Path, ...] = (), problem: str | None = None) -> None:
     """Call ``write(target)`` for ``path`` (unless ``problem`` already says why not); if that
     fails, for ``<stem>-rescued-<time><suffix>`` in each of ``places``, then the working
@@ -62,9 +173,12 @@ def rescue_write(write, path: Path, what: str, *, places: tuple[Path, ...] = (),
             return
         except OSError as exc:
             problem = f"cannot write the {what} {path}: {exc.strerror or exc}"
-    stamp = time.strftime("%Y%m%d-%H%M%S")
+    stamp = f"{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}"  # two processes in one second: two names
     for directory in (*places, Path.cwd(), Path(tempfile.gettempdir())):
         target = directory / f"{path.stem}-rescued-{stamp}{path.suffix}"
+        n = 1
+        while target.exists() or target.with_suffix(".json").exists():  # never over another rescue
+            target, n = directory / f"{path.stem}-rescued-{stamp}-{n}{path.suffix}", n + 1
         try:
             write(target)
         except OSError:
@@ -101,10 +215,30 @@ def clean_stale_temporaries(directory: str | Path, name: str | None = None) -> l
     pattern = f".{name}{TMP_MARK}*" if name else f".*{TMP_MARK}*"
     removed = []
     for p in d.glob(pattern):
+        if _in_use(p):  # another process's live temporary (it holds a lock on it while writing)
+            continue
         with contextlib.suppress(OSError):
             p.unlink()
             removed.append(p)
     return removed
+
+
+def _in_use(path: Path) -> bool:
+    """Whether a process holds the ``flock`` :func:`atomic_path` keeps on its temporary."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        return False
+    try:
+        with open(path, "rb") as fh:
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+            fcntl.flock(fh, fcntl.LOCK_UN)
+    except OSError:
+        return False
+    return False
 
 
 @contextlib.contextmanager
@@ -116,7 +250,12 @@ def atomic_path(path: str | Path):
     path.parent.mkdir(parents=True, exist_ok=True)
     clean_stale_temporaries(path.parent, path.name)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TMP_MARK}", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
+    try:  # held while the temporary lives: another process's clean_stale_temporaries leaves it alone
+        import fcntl
+
+        fcntl.flock(fd, fcntl.LOCK_EX)
+    except ImportError:  # pragma: no cover - not POSIX
+        pass
     try:
         yield tmp
         os.chmod(tmp, _umask_mode())
@@ -125,6 +264,8 @@ def atomic_path(path: str | Path):
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+    finally:
+        os.close(fd)
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
@@ -246,6 +387,21 @@ def expand_models(items: Sequence[str | Path], flag: str = "--ppo-model") -> lis
         if m.resolve() in seen:
             raise ValueError(f"{flag}: {m} is given twice (each model is one seed)")
         seen.add(m.resolve())
+    if len(models) > 1:  # several models are several seeds: not one training's checkpoints
+        import re
+
+        ckpts = [m for m in models if re.fullmatch(r"(interrupted_)?step_\d+\.zip|best(-before-.*)?\.zip", m.name)]
+        if ckpts:
+            raise ValueError(f"--ppo-model: {ckpts[0]} is a training checkpoint (step_N.zip, best.zip): several models "
+                             f"are one per seed, and {ckpts[0].parent} looks like one training's checkpoint directory; "
+                             "pass one model file")
+        seeds: dict[Any, Path] = {}
+        for m in models:
+            seed = read_metadata(m).get("seed")
+            if seed is not None and seed in seeds:
+                raise ValueError(f"--ppo-model: {seeds[seed]} and {m} were trained with the same seed {seed}: "
+                                 "several models are one per seed")
+            seeds[seed if seed is not None else object()] = m
     return models
 
 

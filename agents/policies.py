@@ -283,6 +283,10 @@ def make_policy(
     ``optimal`` (noiseless models only, :mod:`gym_gridloc_agents.optimal`) plans for the
     environment's ``episode_length`` (or ``horizon=``, default 30).
     """
+    takes = {"optimal": ("horizon",), "random": (), "greedy": (), "greedy2": (), "ppo": (), "recurrent": ()}.get(name)
+    if takes is not None and (extra := sorted(set(options) - set(takes))):  # never ignored (nor printed in a row's label)
+        raise ValueError(f"policy {name!r} takes no option {', '.join(map(repr, extra))}"
+                         f" ({'its options: ' + ', '.join(takes) if takes else 'it takes no options'})")
     if name == "random":
         return RandomPolicy(model, seed=seed)
     if name in ("greedy", "greedy2"):

@@ -106,6 +106,8 @@ __all__ = [
 
 #: Tune's experiment directory, under the sweep's output directory.
 EXPERIMENT = "tune"
+#: What a sweep writes in its output directory (a new sweep refuses a directory holding any of them).
+SWEEP_OUTPUTS = ("models", "checkpoints", "results", "tensorboard", "summary.md", "summary.json", "best.zip", "best.json")
 
 
 # -- one trial (runs in a Ray worker) ---------------------------------------------------------------
@@ -258,12 +260,19 @@ def run(spec: dict[str, Any], *, address: str | None = None, cpus: int | None = 
             raise SweepError(f"--resume: {out} holds no sweep (no {stored_path.name}); run the command without --resume")
         try:
             stored = json.loads(stored_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise SweepError(f"--resume: {stored_path} is not readable ({exc})") from None
+        except (OSError, ValueError, RecursionError) as exc:
+            raise SweepError(f"--resume: {stored_path} is not readable ({' '.join(str(exc).split())})") from None
+        if not isinstance(stored, dict):
+            raise SweepError(f"--resume: {stored_path} is not a sweep's record (a JSON object), got a {type(stored).__name__}")
         check_resume(spec, stored, out)
     else:
         if stored_path.exists() or exp_dir.exists():
             raise SweepError(f"{out} already holds a sweep: pass --resume to continue it, or choose another --output")
+        # what a sweep writes there: never over another run's files (a best.zip, results/, ...)
+        taken = sorted(p.name for p in (out / n for n in SWEEP_OUTPUTS) if p.exists() or p.is_symlink())
+        if taken:
+            raise SweepError(f"{out} holds {', '.join(taken)}, which the sweep would replace (it holds no sweep: no "
+                             "sweep.json); choose another --output, or move them away")
         try:
             writable_directory(out, "sweep output directory")
         except OSError as exc:

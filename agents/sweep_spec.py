@@ -12,15 +12,19 @@ import copy
 import hashlib
 import itertools
 import json
+import math
 import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from gym_gridloc_agents.config import ConfigError, load_config, validate_config
+from gym_gridloc_agents.config import ConfigError, load_config, read_yaml, validate_config
 
 #: Config keys the sweep sets itself (seeds come from ``--seeds``, paths from ``--output``).
 OWNED_KEYS = ("seed", "output", "checkpoint_dir", "tensorboard_log")
+#: The most seeds per configuration, and trainings per sweep (seeds x configurations), checked
+#: before Ray starts.
+MAX_SEEDS, MAX_TRIALS = 1000, 10_000
 #: What is compared on ``--resume``: a sweep resumes only with the same arguments.
 SPEC_KEYS = ("config", "grid", "seeds", "search", "trials")
 
@@ -132,13 +136,22 @@ def config_label(overrides: dict[str, Any], keys: Sequence[str]) -> str:
     short = [k.split(".")[-1] for k in keys]
     names = {k: (s if short.count(s) == 1 else k) for k, s in zip(keys, short)}
     present = [k for k in keys if k in overrides]  # Optuna's validation trials set one key of several
-    texts = {k: json.dumps(overrides[k]) if not isinstance(overrides[k], str) else overrides[k] for k in present}
+    # a string that reads back as another value ('1', 'true') is quoted: 1 and '1' never share a name
+    texts = {k: overrides[k] if isinstance(overrides[k], str) and _reads_back(overrides[k]) else json.dumps(overrides[k])
+             for k in present}
     label = "_".join(f"{names[k]}={t if _SAFE.match(t) else re.sub(r'[^A-Za-z0-9._+-]+', '_', t).strip('_') or 'x'}"
                      for k, t in texts.items())
     if not all(map(_SAFE.match, texts.values())) or len(label) > 80:
         digest = hashlib.sha1(_canonical({k: overrides[k] for k in present}).encode()).hexdigest()[:6]
         label = f"{label[:72]}-{digest}"
     return label
+
+
+def _reads_back(text: str) -> bool:
+    try:
+        return parse_value(text) == text
+    except SweepError:
+        return False
 
 
 # -- the sweep's specification ----------------------------------------------------------------------
@@ -169,26 +182,28 @@ def prepare(config: str | Path, *, seeds: int = 1, grid: Sequence[str] | dict | 
     the sweep's specification (what ``sweep.json`` holds).  Raises :class:`SweepError` or
     :class:`ConfigError` with a one-line message.  (``address`` and ``cpus`` only go into the
     recorded command: a sweep may be resumed elsewhere.)"""
-    import yaml
-
     command = command_line(config, seeds=seeds, grid=grid, search=search, trials=trials, output=output,
                            address=address, cpus=cpus)
 
-    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
-        raise SweepError(f"--seeds must be a whole number >= 1, got {seeds!r}")
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or not 1 <= seeds <= MAX_SEEDS:
+        raise SweepError(f"--seeds must be a whole number in 1..{MAX_SEEDS}, got {seeds!r}")
     if search not in (None, "optuna"):
         raise SweepError(f"--search must be optuna, got {search!r}")
     if search == "optuna" and trials is None:
         raise SweepError("--search optuna needs --trials N (how many configurations Optuna tries, each with every seed)")
     if search is None and trials is not None:
         raise SweepError("--trials N needs --search optuna (a --grid sweep runs every combination)")
-    if trials is not None and (isinstance(trials, bool) or not isinstance(trials, int) or trials < 1):
-        raise SweepError(f"--trials must be a whole number >= 1, got {trials!r}")
+    if trials is not None and (isinstance(trials, bool) or not isinstance(trials, int) or not 1 <= trials <= MAX_TRIALS):
+        raise SweepError(f"--trials must be a whole number in 1..{MAX_TRIALS}, got {trials!r}")
     grid = dict(grid) if isinstance(grid, dict) else parse_grid(grid)
+    n_configs = trials if search == "optuna" else math.prod(len(v) for v in grid.values())
+    if n_configs * seeds > MAX_TRIALS:  # checked before Ray starts: Tune would list them all
+        raise SweepError(f"--seeds {seeds} x {n_configs} {'--trials' if search else '--grid configurations'} "
+                         f"= {n_configs * seeds} trainings; at most {MAX_TRIALS}")
     if search == "optuna" and not grid:
         raise SweepError("--search optuna chooses among --grid values: give at least one --grid KEY=V1,V2,...")
     base = load_config(config)  # a missing or malformed config fails here, naming its file
-    raw = yaml.safe_load(Path(config).read_text(encoding="utf-8"))
+    raw = read_yaml(config)
     if base["seed"] + seeds - 1 > 2**32 - 1:
         raise SweepError(f"--seeds {seeds}: seeds {base['seed']}..{base['seed'] + seeds - 1} exceed 2**32 - 1")
     out = Path(output) if output is not None else default_output(config)
@@ -210,7 +225,11 @@ def checked_configs(spec: dict[str, Any]) -> list[dict[str, Any]]:
     config alone and with each single ``--grid`` value (a combination that does not validate
     fails as that trial's error)."""
     if spec["search"] != "optuna":
-        return [trial_config(spec, o, 0) for o in configurations(spec["grid"])]
+        configs = configurations(spec["grid"])
+        labels = [config_label(o, list(spec["grid"])) for o in configs]
+        if len(set(labels)) != len(labels):  # (config_label hashes what it cannot spell; never expected)
+            raise SweepError(f"--grid: two configurations share the name {next(x for x in labels if labels.count(x) > 1)}")
+        return [trial_config(spec, o, 0) for o in configs]
     return [trial_config(spec, {}, 0)] + [trial_config(spec, {k: v}, 0) for k, vs in spec["grid"].items() for v in vs]
 
 

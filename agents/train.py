@@ -17,6 +17,7 @@ Model zip files are pickles: load only files from a trusted source.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import hashlib
 import os
@@ -36,6 +37,7 @@ from gym_gridloc_agents.envs import make_env, make_training_env
 from gym_gridloc_agents.features import EXTRACTORS
 from gym_gridloc_agents.files import (
     OutputError,
+    locked,
     algo_class,
     atomic_save_model,
     atomic_write_json,
@@ -218,9 +220,15 @@ def record_evaluation(model, cfg, episodes, directory: Path, history: list, on_e
 
 
 # -- training -------------------------------------------------------------------------------------
-def train(
+def train(config: dict[str, Any] | str | Path, **kwargs: Any) -> dict[str, Any]:
+    with contextlib.ExitStack() as locks:  # the checkpoint directory and the output: one training each
+        return _train(config, locks=locks, **kwargs)
+
+
+def _train(
     config: dict[str, Any] | str | Path,
     *,
+    locks: contextlib.ExitStack,
     force: bool = False,
     resume: str | Path | None = None,
     output: str | Path | None = None,
@@ -262,7 +270,10 @@ def train(
                 f"checkpoint {resume} was trained with {prev.get('algo')} on {prev.get('env_id')}, "
                 f"but the config asks for {cfg['algo']} on {cfg['env_id']}"
             )
+        check_resumed_config(resume, prev, cfg)
     check_outputs(cfg, ckpt_dir, force=force)
+    locks.enter_context(locked(ckpt_dir, wait=False, what="checkpoint directory", directory=True))
+    locks.enter_context(locked(cfg["output"], wait=False, what="model", directory=False))
     if resume is None and (ckpt_dir / "best.zip").exists():  # an earlier run's best: kept aside, not mixed in
         stamp = time.strftime("%Y%m%d-%H%M%S")
         for name in ("best.zip", "best.json"):
@@ -333,6 +344,14 @@ def train(
     if cfg["eval_freq"] > 0 and cfg.get("pretrain") and int(model.num_timesteps) == 0 and not evaluations:
         # The warm-started policy itself competes for "best" (PPO may not improve on it).
         evaluate_now(model)
+    if resume is not None and cfg["eval_freq"] > 0:  # the evaluation due at the checkpoint's own step
+        due = int(model.num_timesteps) // cfg["eval_freq"] * cfg["eval_freq"]  # (it ran after the checkpoint was saved)
+        if due > 0 and not any(e["num_timesteps"] >= due for e in evaluations):
+            kept = best_entry(ckpt_dir)
+            if kept is not None and kept["num_timesteps"] == int(model.num_timesteps):
+                evaluations.append(kept)
+            else:
+                evaluate_now(model)
     cbs = list(callbacks or []) + schedule_callbacks
     if cfg["checkpoint_freq"] > 0:
         cbs.append(_every(cfg["checkpoint_freq"], lambda m: save(m, f"step_{m.num_timesteps}.zip")))
@@ -367,6 +386,39 @@ def train(
     save_final(model, info, Path(cfg["output"]), ckpt_dir, force=force)
     venv.close()
     return info
+
+
+train.__doc__ = _train.__doc__
+
+
+#: Config keys that define the model a checkpoint holds: a resumed training must not change them
+#: (its metadata would describe a model it is not).
+RESUME_KEYS = ("seed", "policy", "policy_kwargs", "hyperparams", "wrapper", "pretrain")
+
+
+def check_resumed_config(resume: Path, prev: dict[str, Any], cfg: dict[str, Any]) -> None:
+    """``ValueError`` naming the first difference between the checkpoint's config and ``cfg`` in
+    the environment's keywords (defaults filled in) or :data:`RESUME_KEYS`."""
+    import json
+
+    from gym_gridloc_agents.envs import default_kwargs
+
+    def canon(value: Any) -> str:
+        return json.dumps(value, sort_keys=True, default=str)
+
+    old = prev.get("config") or {}
+    if "env_kwargs" in prev:
+        defaults = default_kwargs(cfg["env_id"])
+        a, b = {**defaults, **prev["env_kwargs"]}, {**defaults, **cfg["env_kwargs"]}
+        diff = sorted(k for k in set(a) | set(b) if canon(a.get(k)) != canon(b.get(k)))
+        if diff:
+            raise ValueError(f"checkpoint {resume} was trained with env_kwargs {prev['env_kwargs']}, the config asks for "
+                             f"{cfg['env_kwargs']} (differs in {', '.join(diff)}): resume with the checkpoint's config")
+    for key in RESUME_KEYS:
+        if key in old and canon(old[key]) != canon(cfg.get(key)):
+            raise ValueError(f"checkpoint {resume} was trained with {key} {canon(old[key])}, the config asks for "
+                             f"{canon(cfg.get(key))}: the resumed model would not be what its metadata says; "
+                             "resume with the checkpoint's config")
 
 
 def save_final(model, info: dict[str, Any], out: Path, ckpt_dir: Path, *, force: bool) -> None:

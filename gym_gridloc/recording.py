@@ -27,7 +27,8 @@ class Trajectory:
     """One episode: ``observations[0]`` is the reading at reset and ``actions[k]`` was taken
     between ``observations[k]`` and ``observations[k+1]``; ``infos[k]`` came with
     ``observations[k]``.  This is the input :func:`gym_gridloc.smooth` and
-    :func:`gym_gridloc.viterbi` take."""
+    :func:`gym_gridloc.viterbi` take; ``model`` is the episode's own model (its map: a map redrawn
+    at the next reset does not change it), and :meth:`smooth` / :meth:`viterbi` use it."""
 
     observations: list[Any] = field(default_factory=list)
     actions: list[int] = field(default_factory=list)
@@ -35,6 +36,25 @@ class Trajectory:
     infos: list[dict[str, Any]] = field(default_factory=list)
     terminated: bool = False
     truncated: bool = False
+    model: Any = None
+
+    def _model(self):
+        if self.model is None:
+            raise ValueError("this trajectory has no model (it was not recorded by RecordTrajectory): pass one to "
+                             "gym_gridloc.smooth / viterbi")
+        return self.model
+
+    def smooth(self, **kwargs: Any) -> np.ndarray:
+        """:func:`gym_gridloc.smooth` of this episode on its own model."""
+        from gym_gridloc.inference import smooth
+
+        return smooth(self._model(), self.actions, self.sensor_observations, **kwargs)
+
+    def viterbi(self, **kwargs: Any):
+        """:func:`gym_gridloc.viterbi` of this episode on its own model."""
+        from gym_gridloc.inference import viterbi
+
+        return viterbi(self._model(), self.actions, self.sensor_observations, **kwargs)
 
     def __len__(self) -> int:
         """The number of steps (actions)."""
@@ -84,7 +104,8 @@ class RecordTrajectory(gym.Wrapper, gym.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options)
         if self.trajectory is not None and self.max_episodes > 0:
             self.episodes.append(self.trajectory)
-        self.trajectory = Trajectory(observations=[_copy(obs)], infos=[dict(info)])
+        self.trajectory = Trajectory(observations=[_copy(obs)], infos=[dict(info)],
+                                     model=getattr(self.env.unwrapped, "model", None))  # the episode's map, kept
         return obs, info
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:

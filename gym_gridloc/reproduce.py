@@ -232,6 +232,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.runs < 1 or args.steps < 1:
         parser.error(f"--runs and --steps must be at least 1, got --runs {args.runs} --steps {args.steps}")
+    if args.runs * args.steps > 10**8:  # the simulation's arrays must fit in memory
+        parser.error(f"--runs x --steps must be at most 10**8, got {args.runs * args.steps}")
+    if not 0 <= args.seed < 2**63:
+        parser.error(f"--seed must be in 0..2**63-1, got {args.seed}")
 
     report = Report()
     for check_seed in (seed000, seed004, seed001):

@@ -81,9 +81,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             raise ValueError(f"the native vector env does not render (render_mode must be None, got {render_mode!r}); use vectorization_mode='sync' to render")
         self.belief = check_belief_option(belief, ("exact", None))
         for name, value in (("flatten", flatten), ("full_state", full_state), ("map", map)):
-            if not isinstance(value, bool):
+            if not isinstance(value, (bool, np.bool_)):  # (np.bool_ as the wrapper takes it)
                 raise TypeError(f"{name} must be True or False, got {value!r}")
-            setattr(self, name, value)
+            setattr(self, name, bool(value))
         self.lookahead = check_lookahead(lookahead)
         if self.lookahead and self.belief is None:
             raise ValueError("lookahead needs a belief (belief='exact')")

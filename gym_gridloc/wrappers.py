@@ -64,6 +64,10 @@ def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: 
              + int(np.prod(look_shape)))
         return spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
     parts = ((key, shape, True), ("map", map_shape, map), ("lookahead", look_shape, lookahead))
+    if not isinstance(key, str) or not key:
+        raise TypeError(f"key must be a non-empty string, got {key!r}")
+    if (key == "map" and map) or (key == "lookahead" and lookahead):  # one of them would be dropped
+        raise ValueError(f"key={key!r} is also the key of the {key} observation ({key}=...): choose another key for the belief")
     extra = {name: spaces.Box(0.0, 1.0, shape=s, dtype=np.float32) for name, s, wanted in parts if wanted}
     if isinstance(inner, spaces.Dict):
         clash = sorted(set(extra) & set(inner.spaces))

@@ -40,9 +40,27 @@ from gym_gridloc_agents.planners.ops import BeliefOps, initial_beliefs, predict_
 PLANNER_NAMES = ("central", "expectimax", "mcts")
 
 
+def _options(*classes: type) -> set[str]:
+    """The keyword arguments the ``__init__`` methods of ``classes`` (and their bases) name."""
+    import inspect
+
+    names: set[str] = set()
+    for cls in classes:
+        for klass in cls.__mro__:
+            if "__init__" in vars(klass) and klass is not object:
+                params = inspect.signature(vars(klass)["__init__"]).parameters.values()
+                names |= {p.name for p in params if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD)}
+    return names - {"self", "model"}
+
+
 def make_planner(name: str, model: GridModel, *, env_id: str | None = None, **kw: Any) -> PlannerPolicy:
     """``central``, ``expectimax`` or ``mcts`` with keyword options (see the classes); ``leaf``
     defaults to ``"shipped"`` (the entropy leaf fitted for ``env_id``, if one ships)."""
+    classes = {"central": (CentralPolicy,), "expectimax": (ExpectimaxPolicy,), "mcts": (ExpectedMCTSPolicy, MCTSPolicy)}
+    unknown = sorted(set(kw) - _options(*classes.get(name, ())) - {"leaf", "readings" if name == "mcts" else "leaf"})
+    if name in classes and unknown:  # (the classes take **kw: an unknown option would be ignored)
+        raise ValueError(f"planner {name!r} takes no option {', '.join(map(repr, unknown))} "
+                         f"(its options: {', '.join(sorted(_options(*classes[name]) | {'leaf'}))})")
     if "leaf" in kw or name in ("expectimax", "mcts"):
         kw["leaf"] = load_leaf(kw.get("leaf", "shipped"), env_id)
     if name == "central":

@@ -106,6 +106,10 @@ class ExpectimaxPolicy(PlannerPolicy):
         return expectimax_q(self.ops, b, self.depth, self.leaf, prune=self.prune, memo=self.memo)
 
 
+#: The deepest :func:`lower_bound` search (beyond it the search cannot finish, nor its recursion fit the stack).
+MAX_BOUND_DEPTH = 12
+
+
 def lower_bound(model, depth: int, *, threshold: float = 0.9, prune: float = 0.0, progress: bool = False) -> dict:
     """``LB_k = E_{z0}[ W_k(b0(z0)) ]``, below which no policy's expected steps can go.
 
@@ -120,6 +124,8 @@ def lower_bound(model, depth: int, *, threshold: float = 0.9, prune: float = 0.0
     benchmark counts truncated episodes at ``max_episode_steps`` (>= ``k + 1``), the bound also holds
     for the benchmark's mean steps.
     """
+    if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or not 1 <= depth <= MAX_BOUND_DEPTH:
+        raise ValueError(f"depth must be a whole number in 1..{MAX_BOUND_DEPTH} (the search grows about |A x Z|^depth), got {depth!r}")
     ops = BeliefOps(model, threshold)
     b0, p0 = initial_beliefs(ops)
     one = ConstantLeaf(1.0)

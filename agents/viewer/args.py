@@ -84,6 +84,8 @@ def _parser(prog: str, description: str) -> _Parser:
 def _checked(args: argparse.Namespace) -> None:
     if args.steps is not None and args.steps < 1:
         raise UsageError(f"--steps must be at least 1, got {args.steps}")
+    if not 0 <= args.seed < 2**63:
+        raise UsageError(f"--seed must be in 0..2**63-1, got {args.seed}")
     if args.delay < 1:
         raise UsageError(f"--delay must be at least 1 ms, got {args.delay}")
     if args.tile is not None and not 2 <= args.tile <= 200:

@@ -64,11 +64,22 @@ def _check_inspect(app: App, args) -> None:
             raise UsageError(f"--inspect {args.inspect[0]},{args.inspect[1]} is outside the {h}x{w} map")
 
 
+def known_keys(app: App) -> set[str]:
+    """The key names ``app`` acts on (``--keys`` takes only these)."""
+    common = {"escape", "q", "h", "c"}
+    if isinstance(app, ViewApp):
+        return common | {"right", "left", "home", "end", "space", "s", "v", "r", "n"}
+    return common | set(app.keymap) | {"r"}
+
+
 def _run(command: str, build, argv: Sequence[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
         app, args = build(argv)
-        keys = args.keys
+        keys, generated = args.keys, args.keys is None
+        if keys is not None and (unknown := [k for k in keys if k not in known_keys(app)]):
+            raise UsageError(f"--keys: unknown key(s) {', '.join(map(repr, unknown))} "
+                             f"(this command's keys: {', '.join(sorted(known_keys(app)))})")
         if keys is None and args.no_window:
             if isinstance(app, ViewApp):
                 keys = ["right"] * app.last
@@ -86,7 +97,7 @@ def _run(command: str, build, argv: Sequence[str] | None) -> int:
     end = None
     try:
         if keys is not None:
-            loop.script(keys, args.delay / 1000.0)
+            loop.script(keys, args.delay / 1000.0, until_done=generated and isinstance(app, PlayApp))
             end = loop.end
         else:
             loop.run()

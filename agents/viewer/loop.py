@@ -117,13 +117,13 @@ class Loop:
             self.pump()
             self.clock.tick(self.fps)
 
-    def script(self, keys: Sequence[str], delay: float) -> None:
+    def script(self, keys: Sequence[str], delay: float, *, until_done: bool = False) -> None:
         """Press ``keys`` one after another (``delay`` seconds apart in the recording; on screen
-        too when there is a window)."""
+        too when there is a window); ``until_done``: stop when the episode is over."""
         t = 0.0
         self.show(now=t)
         for name in keys:
-            if not self.app.running:
+            if not self.app.running or (until_done and getattr(self.app, "done", False)):
                 break
             self.app.key(name)
             t += delay

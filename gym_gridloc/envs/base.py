@@ -76,7 +76,11 @@ class GridLocEnv(gym.Env):
             if self._builder is None:
                 raise ValueError(
                     f"{type(self).__name__} takes no 'map' reset option (it has no builder for other maps)")
-            self._set_model(self._builder(options["map"]))
+            model = self._builder(options["map"])
+            if model.belief_shape != self._fixed_model.belief_shape:  # the declared spaces are of that size
+                raise ValueError(f"reset option 'map': a {'x'.join(map(str, model.shape))} map, but this environment's maps are "
+                                 f"{'x'.join(map(str, self._fixed_model.shape))} (its spaces are declared for that size)")
+            self._set_model(model)
         elif self._map_factory is not None:  # a new map from np_random: same seed, same map
             self._set_model(self._map_factory(self.np_random))
         elif self.model is not self._fixed_model:

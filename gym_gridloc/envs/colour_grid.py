@@ -2,6 +2,8 @@ from __future__ import annotations
 
 import functools
 
+import numpy as np
+
 from gym_gridloc.envs.base import GridLocEnv, redraw
 from gym_gridloc.generators import colour_map
 from gym_gridloc.models import colour_grid_model
@@ -72,8 +74,9 @@ class ColourGridEnv(GridLocEnv):
         if generated and layout is not None:
             given = [k for k, v in options.items() if v is not None] or ["new_map_each_reset"]
             raise ValueError(f"give either layout=... or a generated map ({', '.join(given)}), not both")
-        if not isinstance(new_map_each_reset, bool):
+        if not isinstance(new_map_each_reset, (bool, np.bool_)):
             raise TypeError(f"new_map_each_reset must be True or False, got {new_map_each_reset!r}")
+        new_map_each_reset = bool(new_map_each_reset)
 
         # Module-level functions bound with partial: the environment pickles with them.
         build = functools.partial(_build, slip=slip, accuracy=accuracy, kidnap_prob=kidnap_prob)

@@ -2,6 +2,8 @@ from __future__ import annotations
 
 import functools
 
+import numpy as np
+
 from gym_gridloc.core.validation import check_int
 from gym_gridloc.envs.base import GridLocEnv, redraw
 from gym_gridloc.generators import perfect_maze
@@ -15,6 +17,10 @@ def _build(grid, *, p_turn_fail, p_move_fail, p_depth_error, max_depth, kidnap_p
 
 def _draw(rng, *, size):
     return perfect_maze(size, seed=rng)
+
+
+#: The largest DepthMaze side: its tables grow about as size**2.7 (401 needs 4.2 GB); 201 about 0.6 GB.
+MAX_SIZE = 201
 
 
 class DepthMazeEnv(GridLocEnv):
@@ -68,17 +74,21 @@ class DepthMazeEnv(GridLocEnv):
     * v0: initial version.
     """
 
-    def __init__(self, size: int = 7, *, layout=None, map_seed: int | None = None,
+    #: What a None keyword stands for (size None: 7, or a layout's own size).
+    DEFAULTS = {"size": 7}
+
+    def __init__(self, size: int | None = None, *, layout=None, map_seed: int | None = None,
                  new_map_each_reset: bool | None = None, p_turn_fail: float = 0.0, p_move_fail: float = 0.0,
                  p_depth_error: float = 0.0, localise_threshold: float = 0.9, episode_length: int | None = None,
                  reward: str = "step", kidnap_prob: float = 0.0, render_mode: str | None = None) -> None:
         if new_map_each_reset is None:
             new_map_each_reset = layout is None and map_seed is None
-        if not isinstance(new_map_each_reset, bool):
+        if not isinstance(new_map_each_reset, (bool, np.bool_)):
             raise TypeError(f"new_map_each_reset must be True or False, got {new_map_each_reset!r}")
+        new_map_each_reset = bool(new_map_each_reset)
         if layout is not None and (map_seed is not None or new_map_each_reset):
             raise ValueError("give either layout=... (a fixed maze) or a generated one (map_seed, new_map_each_reset), not both")
-        n = check_int("size", size, 5, 4095)
+        n = check_int("size", 7 if size is None else size, 5, MAX_SIZE)  # (the cap: tables that fit in memory)
         if n % 2 == 0:
             raise ValueError(f"size must be odd (rooms at odd coordinates, walls all round), got {size!r}")
 
@@ -88,6 +98,10 @@ class DepthMazeEnv(GridLocEnv):
         draw = functools.partial(_draw, size=n)
 
         first = layout if layout is not None else draw(0 if map_seed is None else map_seed)
+        if layout is not None and size is not None:  # the layout's size is the maze's: a different size= is no size
+            model = build(layout)
+            if model.shape != (n, n):
+                raise ValueError(f"size={size!r} but the layout is a {model.shape[0]}x{model.shape[1]} maze: give one of them")
         super().__init__(build(first), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
                          map_factory=functools.partial(redraw, build=build, draw=draw) if new_map_each_reset else None,
                          referee_pose=True, episode_length=episode_length, reward=reward)

@@ -2,6 +2,8 @@ from __future__ import annotations
 
 import functools
 
+import numpy as np
+
 from gym_gridloc.envs.base import GridLocEnv, redraw
 from gym_gridloc.generators import maze_map
 from gym_gridloc.models import windy_maze_model
@@ -65,8 +67,9 @@ class WindyMazeEnv(GridLocEnv):
         generated = new_map_each_reset or size is not None or map_seed is not None
         if generated and layout is not None:
             raise ValueError("give either layout=... or a generated maze (size, map_seed, new_map_each_reset), not both")
-        if not isinstance(new_map_each_reset, bool):
+        if not isinstance(new_map_each_reset, (bool, np.bool_)):
             raise TypeError(f"new_map_each_reset must be True or False, got {new_map_each_reset!r}")
+        new_map_each_reset = bool(new_map_each_reset)
 
         # Module-level functions bound with partial: the environment pickles with them.
         build = functools.partial(_build, drift=drift, p_detect=p_detect, p_false_alarm=p_false_alarm,

@@ -148,7 +148,9 @@ def test_cli_update_merges_rows(tmp_path, capsys):
     assert main([*base, "--policies", "random", "--update"]) == 0
     rows = json.loads(js.read_text())
     assert [r["policy"] for r in rows] == ["random", "greedy"]
-    assert main([*base, "--policies", "random"]) == 0  # without --update: replaced
+    assert main([*base, "--policies", "random"]) == 2  # without --update or --force: refused, the rows kept
+    assert [r["policy"] for r in json.loads(js.read_text())] == ["random", "greedy"]
+    assert main([*base, "--policies", "random", "--force"]) == 0  # --force: replaced
     assert [r["policy"] for r in json.loads(js.read_text())] == ["random"]
 
 
@@ -213,7 +215,7 @@ def test_unwritable_outputs_are_refused_before_the_first_episode(tmp_path, capsy
     other = tmp_path / "other.json"
     other.write_text('{"not": "rows"}')
     assert main(["bench", "--env", "WindyMaze-v0", "--policies", "random", "--json", str(other), "--update", "--no-progress"]) == 2
-    assert "is not a bench JSON" in capsys.readouterr().err
+    assert "holds a file of another kind, not bench results" in capsys.readouterr().err
     assert other.read_text() == '{"not": "rows"}'
 
 

@@ -417,9 +417,10 @@ def test_bench_aggregates_models_across_seeds(tmp_path, capsys):
 
     seeds = tmp_path / "seeds"
     seeds.mkdir()
-    for name in ("a", "b"):  # the shipped model twice, as two "seeds"
+    for i, name in enumerate(("a", "b")):  # the shipped model twice, as two "seeds" (two seeds in its metadata)
         shutil.copy(SHIPPED, seeds / f"seed_{name}.zip")
-        shutil.copy(SHIPPED.with_suffix(".json"), seeds / f"seed_{name}.json")
+        meta = json.loads(SHIPPED.with_suffix(".json").read_text())
+        (seeds / f"seed_{name}.json").write_text(json.dumps({**meta, "seed": 100 + i}))
     train({"algo": "ppo", "env_id": "ColourGrid-v0", "n_envs": 2, "seed": 1, "total_timesteps": 256,
            "policy_kwargs": {"net_arch": [16]}, "hyperparams": {"n_steps": 64, "batch_size": 64, "n_epochs": 1},
            "output": str(seeds / "seed_c.zip"), "checkpoint_dir": str(tmp_path / "ckpt")}, progress_bar=False)

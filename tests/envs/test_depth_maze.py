@@ -87,7 +87,7 @@ def test_a_new_maze_at_every_reset_follows_the_seed():
 def test_arguments_are_checked():
     with pytest.raises(ValueError, match=r"^size must be odd \(rooms at odd coordinates, walls all round\), got 8"):
         gym.make("DepthMaze-v0", size=8)
-    with pytest.raises(ValueError, match=r"^size must be at least 5 and at most 4095, got 3"):
+    with pytest.raises(ValueError, match=r"^size must be at least 5 and at most 201, got 3"):
         gym.make("DepthMaze-v0", size=3)
     with pytest.raises(ValueError, match=r"give either layout=\.\.\. \(a fixed maze\) or a generated one"):
         gym.make("DepthMaze-v0", layout=["#####", "#OOO#", "#####"], map_seed=1)
