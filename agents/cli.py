@@ -202,7 +202,7 @@ def _plot(args) -> int:
 
 
 def _plot_curves(args) -> int:
-    from gym_gridloc_agents import curves
+    from gym_gridloc_agents import curves, files
     from gym_gridloc_agents.report import read_rows
 
     out = args.out or str(RESULTS / "curves.png")
@@ -216,9 +216,8 @@ def _plot_curves(args) -> int:
             raise ValueError("--curves: the runs are of different tasks; plot one task per figure")
         rows = read_rows(args.baselines) if Path(args.baselines).is_file() else []
         lines = curves.baselines(rows, made[0]["env_id"], made[0]["metric"], made[0]["lower_is_better"])
-        writable_file(out, "plot")
-        if args.curves_json:
-            writable_file(args.curves_json, "curves JSON")
+        files.check_outputs([(out, files.FIGURE, "plot"), (args.curves_json, files.CURVES, "curves JSON")],
+                            inputs=[*args.curves, args.baselines], replace=True)
     except (ValueError, OutputError) as exc:
         return _fail("plot", str(exc))
     curves.plot_curves(made, lines, out)

@@ -52,10 +52,10 @@ def writable_file(path: str | Path, what: str) -> Path:
 
 
 #: Kinds of files the commands write, as :func:`file_kind` names them.
-FIGURE, MODEL, MODEL_METADATA, BENCH_RESULTS, BOUND, TABLE, MARKDOWN = (
-    "figure", "model", "model metadata", "bench results", "bound", "bench table", "markdown table")
+FIGURE, MODEL, MODEL_METADATA, BENCH_RESULTS, BOUND, TABLE, MARKDOWN, CURVES = (
+    "figure", "model", "model metadata", "bench results", "bound", "bench table", "markdown table", "learning curves")
 #: Kinds that may be replaced by an output of the same kind without --force (derived, redrawable).
-REDRAWABLE = (FIGURE, TABLE, MARKDOWN)
+REDRAWABLE = (FIGURE, TABLE, MARKDOWN, CURVES)
 
 
 def file_kind(path: str | Path) -> str | None:
@@ -88,6 +88,8 @@ def file_kind(path: str | Path) -> str | None:
     if isinstance(data, dict):
         if "bound" in data:
             return BOUND
+        if "curves" in data and "baselines" in data:
+            return CURVES
         if "algo" in data or "env_id" in data or "num_timesteps" in data:
             return MODEL_METADATA
     if isinstance(data, list) and data and all(isinstance(r, dict) and "env" in r and "policy" in r for r in data):

@@ -11,7 +11,7 @@ import pytest
 
 from gym_gridloc_agents.cli import main
 
-MODEL = Path(__file__).resolve().parents[2] / "agents" / "policies" / "ColourGrid-v0.zip"
+MODEL = Path(__file__).resolve().parents[2] / "agents" / "policies" / "ColourGrid-v0-distilled.zip"
 BENCH = ["bench", "--env", "ColourGrid-v0", "--episodes", "2", "--no-progress"]
 
 
