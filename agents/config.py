@@ -2,7 +2,7 @@
 
 A config (rl-baselines3-zoo style, one experiment per file)::
 
-    algo: ppo                       # ppo | recurrent_ppo
+    algo: ppo                       # ppo | recurrent_ppo | a2c | dqn
     env_id: WindyMaze-v0
     env_kwargs: {}                  # keyword arguments of gym.make
     wrapper:                        # HMMBeliefWrapper options; belief: false = raw observations
@@ -35,7 +35,7 @@ from gym_gridloc_agents.files import ALGOS, algo_class  # the algorithms table l
 from gym_gridloc_agents.policies import EXPERT_NAMES
 
 TOP_KEYS = {
-    "algo": "ppo or recurrent_ppo",
+    "algo": "ppo, recurrent_ppo, a2c or dqn",
     "env_id": "a registered environment id",
     "env_kwargs": "keyword arguments of gym.make",
     "wrapper": "HMMBeliefWrapper options: belief, flatten, full_state, map, lookahead",
@@ -82,6 +82,8 @@ WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool
 POLICIES = {
     "ppo": ("MlpPolicy", "MultiInputPolicy"),
     "recurrent_ppo": ("MlpLstmPolicy", "MultiInputLstmPolicy"),
+    "a2c": ("MlpPolicy", "MultiInputPolicy"),
+    "dqn": ("MlpPolicy", "MultiInputPolicy"),
 }
 
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "gelu")
@@ -93,6 +95,9 @@ POLICY_KWARGS = {
         "net_arch", "activation_fn", "ortho_init", "lstm_hidden_size", "n_lstm_layers",
         "shared_lstm", "enable_critic_lstm", "share_features_extractor",
     },
+    "a2c": {"net_arch", "activation_fn", "ortho_init", "share_features_extractor", "features_extractor",
+            "features_extractor_kwargs"},
+    "dqn": {"net_arch", "activation_fn", "features_extractor", "features_extractor_kwargs"},
 }
 
 # Keys of the algorithm's constructor that the config must not set through ``hyperparams``
@@ -232,7 +237,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
 
     wrapper = cfg.setdefault("wrapper", {})
     _known_keys(source, wrapper, WRAPPER_KEYS, "wrapper")
-    wrapper.setdefault("belief", algo == "ppo")
+    wrapper.setdefault("belief", algo != "recurrent_ppo")
     wrapper.setdefault("flatten", bool(wrapper["belief"]))
     wrapper.setdefault("full_state", False)
     wrapper.setdefault("map", False)
@@ -306,9 +311,9 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             raise ConfigError(f"{source}: hyperparams.{k} must be a finite number, got {v!r}")
     sched = cfg.setdefault("schedule", {})
     _known_keys(source, sched, SCHEDULED, "schedule")
-    if sched and algo != "ppo":
-        raise ConfigError(f"{source}: schedule needs algo: ppo, not {algo}")
     for k, v in sched.items():
+        if k not in allowed_hyperparams(algo):
+            raise ConfigError(f"{source}: schedule.{k}: {algo} has no {k} to anneal")
         if k not in hp:
             raise ConfigError(f"{source}: schedule.{k} needs hyperparams.{k}, the value it starts from")
         integer, lo, above, hi = HYPER_RANGES[k]

@@ -190,7 +190,11 @@ def rescue_write(write, path: Path, what: str, *, places: tuple[Path, ...] = (),
 
 
 #: The algorithms a model file may hold: their modules and classes.
-_ALGO_CLASSES = {"ppo": ("stable_baselines3", "PPO"), "recurrent_ppo": ("sb3_contrib", "RecurrentPPO")}
+#: The algorithms a config may name: ``algo`` -> (module, class).  Another stable-baselines3
+#: algorithm that acts on the belief observation trains from the same config format once it has a
+#: line here and its policy classes in :data:`gym_gridloc_agents.config.POLICIES`.
+_ALGO_CLASSES = {"ppo": ("stable_baselines3", "PPO"), "recurrent_ppo": ("sb3_contrib", "RecurrentPPO"),
+                 "a2c": ("stable_baselines3", "A2C"), "dqn": ("stable_baselines3", "DQN")}
 ALGOS = tuple(_ALGO_CLASSES)
 
 
@@ -353,14 +357,17 @@ METHODS = ("ppo", "distilled", "recurrent")
 
 def model_method(meta: dict[str, Any]) -> str:
     """How the model a metadata dict describes was made: ``"recurrent"`` (RecurrentPPO on the
-    readings), ``"distilled"`` (a planner imitated: its training had a ``pretrain`` warm start)
-    or ``"ppo"`` (PPO from the environment's reward alone).  ``method`` when the metadata says
+    readings), ``"distilled"`` (a planner imitated: its training had a ``pretrain`` warm start),
+    ``"ppo"`` (PPO from the environment's reward alone) or another algorithm's name (``"a2c"``,
+    ``"dqn"``: from the reward alone).  ``method`` when the metadata says
     it; older metadata is read from its ``algo`` and ``pretrain``."""
     if meta.get("method") in METHODS:
         return meta["method"]
     if meta.get("algo") == "recurrent_ppo":
         return "recurrent"
-    return "distilled" if meta.get("pretrain") or (meta.get("config") or {}).get("pretrain") else "ppo"
+    if meta.get("pretrain") or (meta.get("config") or {}).get("pretrain"):
+        return "distilled"
+    return meta.get("algo") if meta.get("algo") in ("a2c", "dqn") else "ppo"
 
 
 #: Environment keywords that shape episodes, not the model a policy acts on: they may differ

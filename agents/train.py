@@ -43,6 +43,7 @@ from gym_gridloc_agents.files import (
     atomic_write_json,
     load_model,
     metadata_path,
+    model_method,
     read_metadata,
     rescue_write,
     writable_directory,
@@ -300,7 +301,7 @@ def _train(
     def meta() -> dict[str, Any]:
         return {
             "algo": cfg["algo"],
-            "method": "recurrent" if cfg["algo"] == "recurrent_ppo" else "distilled" if cfg.get("pretrain") else "ppo",
+            "method": model_method({"algo": cfg["algo"], "pretrain": cfg.get("pretrain")}),
             "env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"], "wrapper": cfg["wrapper"],
             "observation_space": repr(venv.observation_space), "action_space": repr(venv.action_space),
             "seed": cfg["seed"], "total_timesteps": cfg["total_timesteps"], "num_timesteps": int(model.num_timesteps),

@@ -174,6 +174,30 @@ def test_linear_schedules(tmp_path):
                       ({"learning_rate": -1.0}, "schedule.learning_rate must be > 0")]:
         with pytest.raises(ConfigError, match=says):
             validate_config({**base, "schedule": bad})
-    with pytest.raises(ConfigError, match="schedule needs algo: ppo"):
-        validate_config({**base, "algo": "recurrent_ppo", "policy_kwargs": {}, "hyperparams": {"learning_rate": 1e-3},
-                         "schedule": {"learning_rate": 1e-4}})
+    with pytest.raises(ConfigError, match="schedule.ent_coef: dqn has no ent_coef"):
+        validate_config({**base, "algo": "dqn", "policy_kwargs": {}, "hyperparams": {"learning_rate": 1e-3},
+                         "schedule": {"ent_coef": 0.0}})
+
+
+@pytest.mark.parametrize("algo, hyperparams", [
+    ("a2c", {"n_steps": 8, "learning_rate": 1e-3, "ent_coef": 0.01}),
+    ("dqn", {"learning_starts": 64, "buffer_size": 1000, "train_freq": 4, "learning_rate": 1e-3}),
+])
+def test_another_sb3_algorithm_trains_from_the_same_config_format(tmp_path, algo, hyperparams):
+    """A2C and DQN: the same YAML keys as PPO, the same held-out evaluations (learning curves),
+    metadata that names the algorithm as the method (from the reward alone, no planner)."""
+    from gym_gridloc_agents.files import algo_class
+    from gym_gridloc_agents.train import train
+
+    path = tmp_path / f"{algo}.yml"
+    path.write_text(yaml.safe_dump({
+        "algo": algo, "env_id": "ColourGrid-v0", "n_envs": 2, "seed": 1, "total_timesteps": 256,
+        "wrapper": {"belief": True, "flatten": True},
+        "policy_kwargs": {"net_arch": [16], "features_extractor": "belief_log", "features_extractor_kwargs": {"readings": 4}},
+        "hyperparams": hyperparams, "schedule": {"learning_rate": 1e-4},
+        "eval_freq": 128, "eval_episodes": 3, "output": str(tmp_path / f"{algo}.zip"), "checkpoint_dir": str(tmp_path / "ck")}))
+    info = train(path, progress_bar=False)
+    assert info["algo"] == algo and info["method"] == algo and len(info["evaluations"]) >= 2
+    assert isinstance(algo_class(algo).load(tmp_path / f"{algo}.zip"), algo_class(algo))
+    runs = curves.load_runs(tmp_path / f"{algo}.zip")
+    assert runs[0]["method"] == algo and curves.curve(runs)["steps"]
