@@ -54,6 +54,8 @@ TOP_KEYS = {
     "eval_episodes": "episodes per evaluation (seeds 2_000_000 + i)",
     "pretrain": "optional behaviour-cloning warm start: expert, episodes, epochs, batch_size, learning_rate",
     "vec_env": "dummy (SB3's DummyVecEnv of wrapped envs, default) or native (gym_gridloc's vector env)",
+    "deterministic": "how the policy acts in evaluations and the benchmark: true (default) the most probable action, "
+                     "false sampled from the policy (seeded per episode)",
     "schedule": "final values of learning_rate, clip_range or ent_coef: each goes linearly from its hyperparams value to this",
 }
 
@@ -329,6 +331,8 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         if cfg.setdefault(key, None) is not None and not isinstance(cfg[key], str):
             raise ConfigError(f"{source}: {key} must be a path or null, got {cfg[key]!r}")
     cfg.setdefault("description", "")
+    if not isinstance(cfg.setdefault("deterministic", True), bool):
+        raise ConfigError(f"{source}: deterministic must be true or false, got {cfg['deterministic']!r}")
     pre = cfg.setdefault("pretrain", None)
     if pre is not None:
         if algo != "ppo" or not wrapper["belief"]:

@@ -107,6 +107,11 @@ class PPOPolicy(Policy):
     """A stable-baselines3 PPO model trained on ``HMMBeliefWrapper`` observations from the
     environment's reward alone (:class:`DistilledPolicy`: one that imitated a planner).
 
+    ``deterministic``: act with the most probable action (True) or sample from the policy
+    (False; torch's generator is seeded from the episode's seed at ``reset``, so a seeded episode
+    is the same every time); ``None`` (default): as the model's metadata says (``deterministic``,
+    true when absent).
+
     ``path`` defaults to the shipped model for ``env_id`` (``agents/policies/<env_id>-ppo.zip``).  The
     observation is built as the wrapper the model was trained behind built it: its options
     (``flatten``, ``full_state``, ``map``) come from the metadata beside the model (or
@@ -130,10 +135,10 @@ class PPOPolicy(Policy):
         sb3_model: Any = None,
         wrapper: dict[str, Any] | None = None,
         seed: int | None = None,
-        deterministic: bool = True,
+        deterministic: bool | None = None,
     ) -> None:
         super().__init__(model, seed=seed)
-        self.deterministic = bool(deterministic)
+        self.deterministic = True if deterministic is None else bool(deterministic)
         if sb3_model is not None:  # a model in memory (e.g. evaluated during training)
             self.path, self.sb3, self.meta = None, sb3_model, {}
             self.wrapper = _wrapper_options(wrapper)
@@ -148,6 +153,15 @@ class PPOPolicy(Policy):
         expected = self.expected_space(model) if observation_space is None else observation_space
         self.sb3, self.meta = load_model(self.path, algo=self.algo, env_id=env_id, env_kwargs=env_kwargs,
                                          observation_space=expected)
+        if deterministic is None:  # how the model was meant to act (its config's ``deterministic``)
+            self.deterministic = bool(self.meta.get("deterministic", True))
+
+    def reset(self, seed: int | None = None, model: GridModel | None = None) -> None:
+        super().reset(seed, model)
+        if not self.deterministic:  # sampled actions: torch's generator seeded from the episode's seed
+            import torch
+
+            torch.manual_seed(int(self.rng.integers(2**63 - 1)))
 
     def expected_space(self, model: GridModel) -> spaces.Space:
         from gym_gridloc.wrappers import belief_observation_space

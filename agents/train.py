@@ -152,15 +152,17 @@ def evaluation_episodes(env, cfg: dict[str, Any], episodes: int) -> list[tuple[i
 
 
 def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
-    """``model`` (deterministic) on the held-out evaluation episodes: mean steps to localise (a
+    """``model`` (acting as ``cfg["deterministic"]`` says; sampled actions are seeded per episode
+    and leave training's torch generator as it was) on the held-out evaluation episodes: mean steps to localise (a
     truncated episode counts at its length), the fraction that end collapsed onto the truth
     (``accuracy``) and the fraction whose most probable state is the truth at the end."""
     from gym_gridloc_agents.rollout import rollout
 
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
     cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy  # (RecurrentPolicy ignores the wrapper)
-    policy = cls(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"])
-    eps = [rollout(env, policy, seed, reset_options=opts) for seed, opts in evaluation_episodes(env, cfg, episodes)]
+    policy = cls(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"], deterministic=cfg.get("deterministic", True))
+    with torch.random.fork_rng():
+        eps = [rollout(env, policy, seed, reset_options=opts) for seed, opts in evaluation_episodes(env, cfg, episodes)]
     env.close()
     n = len(eps)
     return {"mean_steps": sum(e.steps for e in eps) / n, "accuracy": sum(e.collapsed[-1] for e in eps) / n,
@@ -302,6 +304,7 @@ def _train(
         return {
             "algo": cfg["algo"],
             "method": model_method({"algo": cfg["algo"], "pretrain": cfg.get("pretrain")}),
+            "deterministic": cfg.get("deterministic", True),
             "env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"], "wrapper": cfg["wrapper"],
             "observation_space": repr(venv.observation_space), "action_space": repr(venv.action_space),
             "seed": cfg["seed"], "total_timesteps": cfg["total_timesteps"], "num_timesteps": int(model.num_timesteps),
