@@ -11,7 +11,7 @@ with each: the native env through :class:`gym_gridloc_agents.envs.SB3VecEnv`, an
 ``DummyVecEnv`` over ``HMMBeliefWrapper`` environments.  All ratios come from this one run.
 
     .venv/bin/python scripts/bench_vector.py
-    .venv/bin/python scripts/bench_vector.py --env WindyMaze-v0 --ppo-envs 16 --ppo-steps 8192
+    .venv/bin/python scripts/bench_vector.py --env WindyMaze-v0 --ppo-envs 8 64 --ppo-steps 8192
 """
 
 from __future__ import annotations
@@ -66,12 +66,15 @@ def main(argv=None) -> None:
     p.add_argument("--env", default="ColourGrid-v0", choices=gym_gridloc.ENV_IDS, help="environment id")
     p.add_argument("--num-envs", type=int, nargs="+", default=[1, 16, 64, 256], help="values of N")
     p.add_argument("--seconds", type=float, default=0.5, help="minimum seconds per timing")
-    p.add_argument("--ppo-envs", type=int, default=16, help="N for the PPO comparison (0: skip PPO)")
+    p.add_argument("--ppo-envs", type=int, nargs="+", default=[8, 64], help="values of N for the PPO comparison (0: skip PPO)")
     p.add_argument("--ppo-steps", type=int, default=16384, help="PPO timesteps per timing")
     args = p.parse_args(argv)
     for n in args.num_envs:
         if n < 1:
             p.error(f"--num-envs: each N must be at least 1, got {n}")
+    ppo_envs = [n for n in args.ppo_envs if n != 0]
+    if any(n < 0 for n in ppo_envs):
+        p.error(f"--ppo-envs: each N must be at least 1 (or 0: skip PPO), got {args.ppo_envs}")
 
     rows = []
     for n in tqdm(args.num_envs, desc="N", file=sys.stderr):
@@ -86,7 +89,7 @@ def main(argv=None) -> None:
     for n, a, b in rows:
         print(f"{n:>5} | {a:>10.0f}/s {b:>10.0f}/s | {a / b:>12.1f}x")
 
-    if args.ppo_envs > 0:
+    if ppo_envs:
         import torch
         from stable_baselines3.common.env_util import make_vec_env
         from stable_baselines3.common.vec_env import DummyVecEnv
@@ -94,18 +97,20 @@ def main(argv=None) -> None:
         from gym_gridloc_agents.envs import SB3VecEnv
 
         torch.set_num_threads(1)
-        n = args.ppo_envs
-        with tqdm(total=2, desc="PPO", file=sys.stderr) as bar:
-            fast = ppo_throughput(SB3VecEnv.make(args.env, n), args.ppo_steps, seed=0)
-            bar.update()
-            slow = ppo_throughput(make_vec_env(lambda: gym_gridloc.HMMBeliefWrapper(gym.make(args.env)), n_envs=n,
-                                               vec_env_cls=DummyVecEnv), args.ppo_steps, seed=0)
-            bar.update()
-        print(f"\nPPO (stable-baselines3, MultiInputPolicy, {n} envs, n_steps {max(8, 1024 // n)}, "
-              f"batch 256, 2 epochs, torch 1 thread): training timesteps per second")
-        print(f"  native vector env (SB3VecEnv)       {fast:8.0f}/s")
-        print(f"  DummyVecEnv of HMMBeliefWrapper envs {slow:8.0f}/s")
-        print(f"  native / DummyVecEnv                 {fast / slow:8.2f}x")
+        results = []
+        with tqdm(total=2 * len(ppo_envs), desc="PPO", file=sys.stderr) as bar:
+            for n in ppo_envs:
+                fast = ppo_throughput(SB3VecEnv.make(args.env, n), args.ppo_steps, seed=0)
+                bar.update()
+                slow = ppo_throughput(make_vec_env(lambda: gym_gridloc.HMMBeliefWrapper(gym.make(args.env)), n_envs=n,
+                                                   vec_env_cls=DummyVecEnv), args.ppo_steps, seed=0)
+                bar.update()
+                results.append((n, fast, slow))
+        print(f"\nPPO (stable-baselines3, MultiInputPolicy, n_steps 1024 / N, batch 256, 2 epochs, torch 1 thread): "
+              "training timesteps per second")
+        print(f"{'N':>5} | {'native (SB3VecEnv)':>18} {'DummyVecEnv':>12} | {'native / Dummy':>14}")
+        for n, fast, slow in results:
+            print(f"{n:>5} | {fast:>16.0f}/s {slow:>10.0f}/s | {fast / slow:>13.2f}x")
 
 
 if __name__ == "__main__":

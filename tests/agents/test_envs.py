@@ -66,7 +66,9 @@ def test_bench_vector_script_runs_its_ppo_comparison():
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[2] / "scripts" / "bench_vector.py"
-    out = subprocess.run([sys.executable, str(script), "--num-envs", "2", "--seconds", "0.05", "--ppo-envs", "2",
+    out = subprocess.run([sys.executable, str(script), "--num-envs", "2", "--seconds", "0.05", "--ppo-envs", "2", "3",
                           "--ppo-steps", "128"], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert "native / sync" in out.stdout and "native / DummyVecEnv" in out.stdout
+    assert "native / sync" in out.stdout and "native / Dummy" in out.stdout
+    ppo_rows = [line.split("|")[0].strip() for line in out.stdout.split("PPO")[-1].splitlines() if line.count("|") == 2]
+    assert ppo_rows[1:] == ["2", "3"]  # one row per N (after the header)
