@@ -203,23 +203,26 @@ def test_another_sb3_algorithm_trains_from_the_same_config_format(tmp_path, algo
     assert runs[0]["method"] == algo and curves.curve(runs)["steps"]
 
 
-def test_sampled_acting_is_seeded_per_episode_and_read_from_the_metadata():
+def test_sampled_acting_is_seeded_per_episode_and_read_from_the_metadata(tmp_path):
     """A model whose config says ``deterministic: false`` samples its actions; a seeded episode is
     the same every time (torch's generator seeded at reset), so benchmark rows stay reproducible."""
-    import gymnasium as gym
+    import shutil
 
     from gym_gridloc_agents.envs import make_env
-    from gym_gridloc_agents.policies import make_policy
+    from gym_gridloc_agents.policies import POLICY_DIR, make_policy
     from gym_gridloc_agents.rollout import rollout
 
     env = make_env("RingSensor8x8-v0")
-    policy = make_policy("recurrent", env.unwrapped.model, env_id="RingSensor8x8-v0")
-    assert policy.deterministic is False  # the shipped RingSensor recurrent model's metadata says so
+    shipped = POLICY_DIR / "RingSensor8x8-v0-recurrent.zip"
+    assert make_policy("recurrent", env.unwrapped.model, env_id="RingSensor8x8-v0").deterministic is True
+    sampled = tmp_path / "sampled.zip"
+    shutil.copy(shipped, sampled)
+    meta = json.loads(shipped.with_suffix(".json").read_text())
+    sampled.with_suffix(".json").write_text(json.dumps({**meta, "deterministic": False}))
+    policy = make_policy("recurrent", env.unwrapped.model, env_id="RingSensor8x8-v0", path=sampled)
+    assert policy.deterministic is False  # read from the metadata
     first = [rollout(env, policy, s, keep=True, max_steps=30).actions for s in range(3)]
     again = [rollout(env, policy, s, keep=True, max_steps=30).actions for s in range(3)]
     assert first == again and first[0] != first[1]
     det = make_policy("recurrent", env.unwrapped.model, env_id="RingSensor8x8-v0")
-    det.deterministic = True
     assert [rollout(env, det, s, keep=True, max_steps=30).actions for s in range(3)] != first
-    other = make_policy("recurrent", gym.make("WindyMaze-v0").unwrapped.model, env_id="WindyMaze-v0")
-    assert other.deterministic is True  # no such key in its metadata: the most probable action
