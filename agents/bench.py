@@ -280,13 +280,17 @@ def run_benchmark(
     progress: bool = True,
     jobs: int = 1,
     torch_threads: int | None = None,
+    address: str | None = None,
 ) -> list[dict[str, Any]]:
     """Rows for every environment x policy, in that order, on the same episodes.  With
     ``jobs > 1`` the episodes are split into chunks run in parallel processes (the same
     episodes, so the same numbers).  Several ``ppo_model`` files (one per seed) make the ``ppo``
     row the aggregate across seeds (:func:`seed_aggregate`).  ``policy_options`` maps a policy
     name to its options (e.g. ``{"expectimax": {"depth": 3}}``).  ``torch_threads``: torch's
-    threads for the learned policies, in this process and in every job (None: torch's default)."""
+    threads for the learned policies, in this process and in every job (None: torch's default).
+    ``address``: run the same chunks as Ray tasks on the Ray cluster there (``HOST:PORT`` or
+    ``auto``; :mod:`gym_gridloc_agents.bench_cluster`), the same rows, each with a ``cluster``
+    entry saying where its chunks ran."""
     models = list(ppo_model) if isinstance(ppo_model, (list, tuple)) else [ppo_model]
     if not models:
         raise ValueError("ppo_model: an empty list of models")
@@ -318,25 +322,50 @@ def run_benchmark(
         import torch
 
         torch.set_num_threads(int(torch_threads))
-    if jobs <= 1:
+    where = None
+    if address is not None:  # Ray is imported there only (the 'sweep' extra)
+        from gym_gridloc_agents import bench_cluster
+
+        parts, where = bench_cluster.run_chunks(address, tasks, specs, episodes, torch_threads=torch_threads, progress=progress)
+    elif jobs <= 1:
         parts = [[simulate(t, specs[t.env_id], progress=progress)] for t in tasks]
     else:
         import multiprocessing as mp
 
         from tqdm.auto import tqdm
 
-        chunk = max(1, math.ceil(episodes / (4 * jobs)))
-        work = [(i, (t, specs[t.env_id][lo: lo + chunk], BUDGETS, torch_threads)) for i, t in enumerate(tasks) for lo in range(0, episodes, chunk)]
+        work = chunk_work(tasks, specs, episodes, jobs, torch_threads)
         with mp.get_context("spawn").Pool(jobs) as pool:
             done = list(tqdm(pool.imap(_job, [w for _, w in work]), total=len(work), desc="benchmark chunks", disable=not progress))
             pool.close()  # let the workers exit on their own (``with`` alone terminates them)
             pool.join()
-        parts = [[part for (j, _), part in zip(work, done) if j == i] for i in range(len(tasks))]
+        parts = gather_chunks(work, done, len(tasks))
     per_task = iter(parts)
     mine = [[next(per_task) for _ in group] for group in groups]
-    return add_gaps([seed_aggregate(group[0], runs, seed_start=seed_start, test_set=test_set) if len(group) > 1
-                     else summarise(group[0], parts=runs[0], seed_start=seed_start, test_set=test_set)
-                     for group, runs in zip(groups, mine)])
+    rows = [seed_aggregate(group[0], runs, seed_start=seed_start, test_set=test_set) if len(group) > 1
+            else summarise(group[0], parts=runs[0], seed_start=seed_start, test_set=test_set)
+            for group, runs in zip(groups, mine)]
+    if where is not None:  # where each row's chunks ran
+        per_task = iter(where["tasks"])
+        for row, group in zip(rows, groups):
+            row["cluster"] = bench_cluster.row_cluster(where, [next(per_task) for _ in group])
+    return add_gaps(rows)
+
+
+def chunk_work(tasks: Sequence[Task], specs: dict[str, list], episodes: int, workers: int,
+               torch_threads: int | None) -> list[tuple[int, tuple]]:
+    """The chunks of episodes that ``workers`` parallel workers run (local processes with
+    ``jobs``, a cluster's CPUs with ``address``): about 4 per worker and task, each ``(task index,
+    (task, its episodes, budgets, torch threads))``, in the order of the tasks and episodes."""
+    chunk = max(1, math.ceil(episodes / (4 * max(1, workers))))
+    return [(i, (t, specs[t.env_id][lo: lo + chunk], BUDGETS, torch_threads)) for i, t in enumerate(tasks)
+            for lo in range(0, episodes, chunk)]
+
+
+def gather_chunks(work: Sequence[tuple[int, tuple]], done: Sequence[dict[str, Any]], n_tasks: int) -> list[list[dict[str, Any]]]:
+    """The :func:`simulate` parts of every task, in episode order, from the chunks' results
+    (``done[k]``: chunk ``work[k]``'s): the rows of a parallel run are those of a serial one."""
+    return [[part for (j, _), part in zip(work, done) if j == i] for i in range(n_tasks)]
 
 
 def add_gaps(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
