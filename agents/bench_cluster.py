@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import os
+import sys
 import tempfile
 from collections import Counter
 from pathlib import Path
@@ -158,6 +159,8 @@ def run_chunks(address: str, tasks: Sequence, specs: dict[str, list], episodes: 
                         raise ClusterError(f"a chunk of {work[k][1][0].env_id} {work[k][1][0].policy} was lost "
                                            f"{reruns[k] + 1} times ({type(exc).__name__}); last: {' '.join(str(exc).split())[:300]}") from None
                     reruns[k] += 1
+                    print(f"gridloc bench: a chunk of {work[k][1][0].env_id} {work[k][1][0].policy} was lost with its worker "
+                          f"or node ({type(exc).__name__}): running it again", file=sys.stderr)
                     pending[submit(k)] = k
                     continue
                 bar.update(1)
