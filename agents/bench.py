@@ -326,7 +326,10 @@ def run_benchmark(
     if address is not None:  # Ray is imported there only (the 'sweep' extra)
         from gym_gridloc_agents import bench_cluster
 
-        parts, where = bench_cluster.run_chunks(address, tasks, specs, episodes, torch_threads=torch_threads, progress=progress)
+        models = {i: (path, _model_name(path)) for i, t in enumerate(tasks) if (path := _model_file(t)) is not None}
+        work, done, where = bench_cluster.run_chunks(address, lambda cpus: chunk_work(tasks, specs, episodes, cpus, torch_threads),
+                                                     len(tasks), models, _job, progress=progress)
+        parts = gather_chunks(work, done, len(tasks))
     elif jobs <= 1:
         parts = [[simulate(t, specs[t.env_id], progress=progress)] for t in tasks]
     else:
@@ -354,17 +357,21 @@ def run_benchmark(
 
 def chunk_work(tasks: Sequence[Task], specs: dict[str, list], episodes: int, workers: int,
                torch_threads: int | None) -> list[tuple[int, tuple]]:
-    """The chunks of episodes that ``workers`` parallel workers run (local processes with
-    ``jobs``, a cluster's CPUs with ``address``): about 4 per worker and task, each ``(task index,
-    (task, its episodes, budgets, torch threads))``, in the order of the tasks and episodes."""
+    """The chunks of episodes of ``workers`` parallel workers (``jobs`` processes, a cluster's CPUs):
+    about 4 per worker and task, each ``(task index, (task, its episodes, budgets, torch threads))``."""
     chunk = max(1, math.ceil(episodes / (4 * max(1, workers))))
     return [(i, (t, specs[t.env_id][lo: lo + chunk], BUDGETS, torch_threads)) for i, t in enumerate(tasks)
             for lo in range(0, episodes, chunk)]
 
 
+def _model_file(task: Task) -> Path | None:
+    """The model file of a learned task (its ``model_path``, else the shipped one); None for the others."""
+    algo = {"ppo": "ppo", "recurrent": "recurrent_ppo"}.get(task.policy)
+    return None if algo is None else Path(task.model_path) if task.model_path else default_model_path(task.env_id, algo, task.env_kwargs)
+
+
 def gather_chunks(work: Sequence[tuple[int, tuple]], done: Sequence[dict[str, Any]], n_tasks: int) -> list[list[dict[str, Any]]]:
-    """The :func:`simulate` parts of every task, in episode order, from the chunks' results
-    (``done[k]``: chunk ``work[k]``'s): the rows of a parallel run are those of a serial one."""
+    """Every task's :func:`simulate` parts in episode order (``done[k]``: chunk ``work[k]``'s result)."""
     return [[part for (j, _), part in zip(work, done) if j == i] for i in range(n_tasks)]
 
 

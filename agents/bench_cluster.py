@@ -28,7 +28,7 @@ import sys
 import tempfile
 from collections import Counter
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 #: How many times one chunk is run again after its worker or node was lost.
 RERUNS = 3
@@ -63,18 +63,6 @@ def connect(address: str) -> bool:
     return True
 
 
-def model_file(task) -> Path | None:
-    """The model file a learned task's policy loads (its ``model_path``, else the shipped one)."""
-    from gym_gridloc_agents.bench import LEARNED
-    from gym_gridloc_agents.policies import default_model_path
-
-    if task.policy not in LEARNED:
-        return None
-    if task.model_path is not None:
-        return Path(task.model_path)
-    return default_model_path(task.env_id, "ppo" if task.policy == "ppo" else "recurrent_ppo", dict(task.env_kwargs))
-
-
 def model_blob(path: Path) -> dict[str, Any]:
     """A model file's bytes and those of its metadata beside it (what travels to the workers)."""
     meta = path.with_suffix(".json")
@@ -96,32 +84,34 @@ def materialise(blob: dict[str, Any]) -> Path:
     return path
 
 
-def run_chunk(args: tuple, blob: dict[str, Any] | None, name: str | None) -> dict[str, Any]:
-    """One chunk on a worker: :func:`gym_gridloc_agents.bench._job` with the task's model written
-    on this node; the part names the model as a local run does and says where it ran."""
+def run_chunk(job: Callable[[tuple], dict[str, Any]], args: tuple, blob: dict[str, Any] | None, name: str | None) -> dict[str, Any]:
+    """One chunk on a worker: ``job(args)`` (:func:`gym_gridloc_agents.bench._job`) with the
+    task's model written on this node; the part names the model as a local run does and says
+    where it ran."""
     import ray
-
-    from gym_gridloc_agents import bench
 
     if blob is not None:
         args = (dataclasses.replace(args[0], model_path=materialise(blob)), *args[1:])
-    part = bench._job(args)
+    part = job(args)
     if blob is not None:
         part["model"] = name
     part["node"] = f"{ray.util.get_node_ip_address()}/{ray.get_runtime_context().get_node_id()[:8]}"
     return part
 
 
-def run_chunks(address: str, tasks: Sequence, specs: dict[str, list], episodes: int, *, torch_threads: int | None = None,
-               progress: bool = True) -> tuple[list[list[dict[str, Any]]], dict[str, Any]]:
-    """Every task's :func:`gym_gridloc_agents.bench.simulate` parts (in episode order), run as Ray
-    tasks on the cluster at ``address``, and where they ran: ``{"address", "nodes", "cpus",
-    "chunk_episodes", "tasks": [per task: {"chunks_per_node": {node: n}, "reruns": n}]}``."""
+def run_chunks(address: str, chunks: Callable[[int], list[tuple[int, tuple]]], n_tasks: int,
+               models: dict[int, tuple[Path, str]], job: Callable[[tuple], dict[str, Any]], *,
+               progress: bool = True) -> tuple[list[tuple[int, tuple]], list[dict[str, Any]], dict[str, Any]]:
+    """Run ``job`` on every chunk as a Ray task on the cluster at ``address``.
+
+    ``chunks(cpus)``: the chunks ``(task index, job arguments)`` for the cluster's CPUs
+    (:func:`gym_gridloc_agents.bench.chunk_work`); ``models``: task index -> (its model file, the
+    name rows give it).  Returns the chunks, their results (the same order) and where they ran:
+    ``{"address", "nodes", "cpus", "chunk_episodes", "tasks": [per task: {"chunks_per_node":
+    {node: n}, "reruns": n}]}``."""
     import ray
     from ray.exceptions import RayTaskError
     from tqdm.auto import tqdm
-
-    from gym_gridloc_agents.bench import _model_name, chunk_work, gather_chunks
 
     started = connect(address)
     try:
@@ -129,19 +119,16 @@ def run_chunks(address: str, tasks: Sequence, specs: dict[str, list], episodes: 
         cpus = int(ray.cluster_resources().get("CPU", 0))
         if cpus < 1:
             raise ClusterError(f"the Ray cluster at {address} has no CPU to run the benchmark's chunks")
-        work = chunk_work(tasks, specs, episodes, cpus, torch_threads)
-        models = {}  # task index -> (the model's bytes in the object store, its name in the rows)
-        for i, task in enumerate(tasks):
-            path = model_file(task)
-            if path is not None:
-                models[i] = (ray.put(model_blob(path)), _model_name(path))
+        work = chunks(cpus)
+        # task index -> (the model's bytes, once in the object store, and its name in the rows)
+        blobs = {i: (ray.put(model_blob(path)), name) for i, (path, name) in models.items()}
         # Retries are the driver's (not Ray's max_retries), so that each rerun is counted in the row.
         remote = ray.remote(run_chunk).options(num_cpus=1, max_retries=0, scheduling_strategy="SPREAD")
 
         def submit(k: int):
             i, args = work[k]
-            blob, name = models.get(i, (None, None))
-            return remote.remote(args, blob, name)
+            blob, name = blobs.get(i, (None, None))
+            return remote.remote(job, args, blob, name)
 
         pending = {submit(k): k for k in range(len(work))}
         done: list[dict[str, Any] | None] = [None] * len(work)
@@ -164,7 +151,7 @@ def run_chunks(address: str, tasks: Sequence, specs: dict[str, list], episodes: 
                     pending[submit(k)] = k
                     continue
                 bar.update(1)
-        per_task = [{"chunks_per_node": Counter(), "reruns": 0} for _ in tasks]
+        per_task = [{"chunks_per_node": Counter(), "reruns": 0} for _ in range(n_tasks)]
         for k, ((i, _), part) in enumerate(zip(work, done)):
             per_task[i]["chunks_per_node"][part.pop("node")] += 1
             per_task[i]["reruns"] += reruns[k]
@@ -174,7 +161,7 @@ def run_chunks(address: str, tasks: Sequence, specs: dict[str, list], episodes: 
             ray.shutdown()
     where = {"address": address_used, "nodes": len(nodes), "cpus": cpus, "chunk_episodes": len(work[0][1][1]),
              "tasks": [{"chunks_per_node": dict(sorted(t["chunks_per_node"].items())), "reruns": t["reruns"]} for t in per_task]}
-    return gather_chunks(work, done, len(tasks)), where
+    return work, done, where
 
 
 def row_cluster(where: dict[str, Any], tasks: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -188,4 +175,4 @@ def row_cluster(where: dict[str, Any], tasks: Sequence[dict[str, Any]]) -> dict[
             "chunks_per_node": dict(sorted(per_node.items())), "reruns": sum(t["reruns"] for t in tasks)}
 
 
-__all__ = ["RERUNS", "ClusterError", "connect", "materialise", "model_blob", "model_file", "row_cluster", "run_chunk", "run_chunks"]
+__all__ = ["RERUNS", "ClusterError", "connect", "materialise", "model_blob", "row_cluster", "run_chunk", "run_chunks"]

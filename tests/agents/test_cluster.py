@@ -5,12 +5,14 @@ stopped at the end by ending those process groups -- never with ``ray stop``, wh
 Ray process on the machine, other people's included.
 
 The rows and summaries on the cluster equal those of local runs (all but the timing columns and
-where things ran).  Marked ``cluster``: ``-m 'not cluster'`` leaves them out; CI runs them.
+where things ran).  The checks on the cluster are one test (``pytest -n 2`` would start a cluster
+per xdist worker otherwise), marked ``cluster``: ``-m 'not cluster'`` leaves it out; CI runs it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import io
 import importlib.util
 import json
 import os
@@ -32,10 +34,6 @@ from gym_gridloc_agents.cli import main
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("ray") is None or importlib.util.find_spec("optuna") is None,
                                 reason="needs the sweep extra (ray[tune], optuna)")
-#: The tests on the two-node cluster: one xdist worker runs them all (``--dist loadgroup``, as
-#: .ci/run), so that ``-n 2`` starts one cluster, not one per worker.
-def cluster_test(fn):
-    return pytest.mark.cluster(pytest.mark.xdist_group("ray-cluster")(fn))
 
 RAY = Path(sys.executable).parent / "ray"
 #: Columns that measure time (or say where a row ran): they differ between two runs of the same rows.
@@ -191,17 +189,15 @@ def _timeless(row: dict) -> dict:
 WINDY = ["bench", "--env", "WindyMaze-v0", "--policies", "greedy2,ppo", "--episodes", "200"]
 
 
-@pytest.fixture(scope="module")
-def windy_local(tmp_path_factory):
+def windy_local(tmp_path: Path) -> tuple[list[dict], float]:
     """The rows of :data:`WINDY` run here (one process), and how long they took."""
-    path = tmp_path_factory.mktemp("local") / "local.json"
+    path = tmp_path / "local.json"
     start = time.monotonic()
     assert main([*WINDY, "--no-progress", "--json", str(path)]) == 0
     return json.loads(path.read_text()), time.monotonic() - start
 
 
-@cluster_test
-def test_bench_on_two_nodes_gives_the_local_rows(cluster, windy_local, tmp_path):
+def bench_on_two_nodes_gives_the_local_rows(cluster, windy_local, tmp_path):
     """The rows of :data:`WINDY` on the cluster equal the local run's, and each says where its
     chunks ran (both nodes)."""
     local, local_s = windy_local
@@ -223,8 +219,7 @@ def test_bench_on_two_nodes_gives_the_local_rows(cluster, windy_local, tmp_path)
     print(f"\n[bench 2 x 200 episodes: local {local_s:.1f} s, on the cluster {cluster_s:.1f} s (cluster up in {cluster.up:.1f} s)]")
 
 
-@cluster_test
-def test_test_set_maps_and_a_users_model_travel(cluster, tmp_path):
+def maps_and_a_users_model_travel(cluster, tmp_path):
     """Held-out maps (in the chunks' episodes) and a model file of the user's (its bytes, written
     on the node that runs the chunk, the row naming the user's path) give the local rows too."""
     from gym_gridloc_agents.policies import default_model_path
@@ -248,15 +243,16 @@ def test_test_set_maps_and_a_users_model_travel(cluster, tmp_path):
     assert remote[1]["model"] == "models/mine.zip" and remote[0]["test_set"] is True
 
 
-@cluster_test
-def test_a_chunks_own_error_stops_the_run_as_locally(cluster, tmp_path):
+def a_chunks_own_error_stops_the_run_as_locally(cluster, tmp_path):
     """An error of the chunk itself (here a planner's bad depth, found when a worker makes the
     policy) is not rerun: the run stops with the same one-line error as a local run."""
     args = ["bench", "--env", "WindyMaze-v0", "--policies", "expectimax", "--option", "expectimax.depth=0", "--episodes", "4",
             "--no-progress"]
-    local = _gridloc(*args, env=cluster.env, cwd=tmp_path, status=2)
+    local = io.StringIO()
+    with contextlib.redirect_stderr(local):
+        assert main(args) == 2
     remote = _gridloc(*args, "--address", cluster.address, env=cluster.env, cwd=tmp_path, status=2)
-    assert remote.stderr.strip().splitlines()[-1] == local.stderr.strip() == "gridloc bench: error: depth must be >= 1, got 0"
+    assert remote.stderr.strip().splitlines()[-1] == local.getvalue().strip() == "gridloc bench: error: depth must be >= 1, got 0"
 
 
 def _summary(out: Path) -> dict:
@@ -271,16 +267,26 @@ def _summary(out: Path) -> dict:
     return s
 
 
-@cluster_test
-def test_sweep_on_two_nodes_gives_the_local_summary(cluster, tmp_path):
+def start_local_sweep(tmp_path: Path) -> subprocess.Popen:
+    """The tiny sweep on a Ray of its own on this machine (``--cpus 2``), started in the background
+    while the benchmark's checks run; its output in ``tmp_path/local``."""
     from tests.agents.test_sweep import tiny_config
 
     cfg = tiny_config(tmp_path, total_timesteps=1024, eval_freq=512)
-    args = ["sweep", str(cfg), "--seeds", "2"]
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("RAY_AUTH", "RAY_ADDRESS"))}
+    with open(tmp_path / "local.log", "w") as log:
+        return subprocess.Popen([sys.executable, "-m", "gym_gridloc_agents.cli", "sweep", str(cfg), "--seeds", "2", "--cpus", "2",
+                                 "--output", str(tmp_path / "local")], stdout=log, stderr=subprocess.STDOUT, env=env,
+                                cwd=tmp_path, start_new_session=True)
+
+
+def sweep_on_two_nodes_gives_the_local_summary(cluster, local_sweep, tmp_path):
+    """The same tiny sweep on the cluster: the same summary (scores, aggregates, best
+    configuration and median seed) and the same best model's weights as the local sweep."""
     start = time.monotonic()
-    env = {k: v for k, v in cluster.env.items() if not k.startswith("RAY_AUTH")}
-    _gridloc(*args, "--cpus", "2", "--output", str(tmp_path / "local"), env=env, cwd=tmp_path)
+    assert local_sweep.wait(300) == 0, (tmp_path / "local.log").read_text()[-3000:]
     local_s = time.monotonic() - start
+    args = ["sweep", str(tmp_path / "tiny.yml"), "--seeds", "2"]
     run = _gridloc(*args, "--address", cluster.address, "--output", str(tmp_path / "cluster"), env=cluster.env, cwd=tmp_path)
     cluster_s = time.monotonic() - start - local_s
     local, remote = _summary(tmp_path / "local"), _summary(tmp_path / "cluster")
@@ -289,11 +295,11 @@ def test_sweep_on_two_nodes_gives_the_local_summary(cluster, tmp_path):
     weights = [{n: z.read(n) for n in ("policy.pth", "policy.optimizer.pth")}  # (its "data" holds times)
                for z in (zipfile.ZipFile(tmp_path / where / "best.zip") for where in ("local", "cluster"))]
     assert weights[0] == weights[1]
-    print(f"\n[sweep 2 seeds x 1024 steps: local {local_s:.1f} s, on the cluster {cluster_s:.1f} s]")
+    print(f"\n[sweep 2 seeds x 1024 steps: the local sweep (started first, in the background) waited for "
+          f"{local_s:.1f} s more, on the cluster {cluster_s:.1f} s]")
 
 
-@cluster_test
-def test_chunks_lost_with_a_node_are_rerun(cluster, windy_local, tmp_path):
+def chunks_lost_with_a_node_are_rerun(cluster, windy_local, tmp_path):
     """The second node is killed (SIGKILL to all its processes) as soon as it runs a chunk of the
     benchmark: the lost chunks run again on the head, the rows are still the local run's and say
     how many chunks were rerun.  (Last in this module: it ends the second node.)"""
@@ -320,3 +326,30 @@ def test_chunks_lost_with_a_node_are_rerun(cluster, windy_local, tmp_path):
     reruns = sum(r["cluster"]["reruns"] for r in remote)
     assert reruns >= 1 and all(r["cluster"]["chunks"] == 8 for r in remote)
     print(f"[{reruns} chunk(s) rerun]")
+
+
+@pytest.mark.cluster
+def test_on_a_two_node_cluster(cluster, tmp_path):
+    """The checks above, in this order (the last ends the second node), on one cluster: as one
+    test, so that ``pytest -n 2`` never starts a cluster per xdist worker."""
+    (tmp_path / "sweep").mkdir()
+    local_sweep = start_local_sweep(tmp_path / "sweep")  # beside the benchmark's checks
+    local = windy_local(tmp_path)
+    steps = [
+        (bench_on_two_nodes_gives_the_local_rows, (local,)),
+        (maps_and_a_users_model_travel, ()),
+        (a_chunks_own_error_stops_the_run_as_locally, ()),
+        (sweep_on_two_nodes_gives_the_local_summary, (local_sweep,)),
+        (chunks_lost_with_a_node_are_rerun, (local,)),
+    ]
+    try:
+        for check, extra in steps:
+            folder = tmp_path / ("sweep" if check is sweep_on_two_nodes_gives_the_local_summary else check.__name__)
+            folder.mkdir(exist_ok=True)
+            start = time.monotonic()
+            check(cluster, *extra, folder)
+            print(f"[{check.__name__}: {time.monotonic() - start:.1f} s]")
+    finally:
+        if local_sweep.poll() is None:
+            _kill_session(local_sweep.pid)
+            local_sweep.wait(30)
