@@ -318,6 +318,7 @@ def run_benchmark(
     jobs: int = 1,
     distilled_model: str | Path | Sequence[str | Path] | None = None,
     torch_threads: int | None = None,
+    address: str | None = None,
 ) -> list[dict[str, Any]]:
     """Rows for every environment x policy, in that order, on the same episodes.  With
     ``jobs > 1`` the episodes are split into chunks run in parallel processes (the same
@@ -326,7 +327,10 @@ def run_benchmark(
     a ``ppo_model`` that was distilled from a planner is benchmarked as ``distilled``, with a
     ``FutureWarning`` (the name ``ppo`` meant the distilled models before 0.2).  ``policy_options`` maps a policy
     name to its options (e.g. ``{"expectimax": {"depth": 3}}``).  ``torch_threads``: torch's
-    threads for the learned policies, in this process and in every job (None: torch's default)."""
+    threads for the learned policies, in this process and in every job (None: torch's default).
+    ``address``: run the same chunks as Ray tasks on the Ray cluster there (``HOST:PORT`` or
+    ``auto``; :mod:`gym_gridloc_agents.bench_cluster`), the same rows, each with a ``cluster``
+    entry saying where its chunks ran."""
     given = {}
     for key, value in (("ppo", ppo_model), ("distilled", distilled_model)):
         given[key] = list(value) if isinstance(value, (list, tuple)) else [value]
@@ -375,9 +379,21 @@ def run_benchmark(
             rows.append(seed_aggregate(group[0], runs, seed_start=seed_start, test_set=test_set) if len(group) > 1
                         else summarise(group[0], parts=runs[0], seed_start=seed_start, test_set=test_set))
             i += len(group)
+        if where is not None:  # where each row's chunks ran
+            per_task = iter(where["tasks"])
+            for row, group in zip(rows, groups):
+                row["cluster"] = bench_cluster.row_cluster(where, [next(per_task) for _ in group])
         return add_gaps(rows)
 
-    if jobs <= 1:
+    where = None
+    if address is not None:  # Ray is imported there only (the 'sweep' extra)
+        from gym_gridloc_agents import bench_cluster
+
+        models = {i: (path, _model_name(path)) for i, t in enumerate(tasks) if (path := _model_file(t)) is not None}
+        work, done, where = bench_cluster.run_chunks(address, lambda cpus: chunk_work(tasks, specs, episodes, cpus, torch_threads),
+                                                     len(tasks), models, _job, progress=progress)
+        parts = gather_chunks(work, done, len(tasks))
+    elif jobs <= 1:
         parts = []
         try:
             for t in tasks:
@@ -389,8 +405,7 @@ def run_benchmark(
 
         from tqdm.auto import tqdm
 
-        chunk = max(1, math.ceil(episodes / (4 * jobs)))
-        work = [(i, (t, specs[t.env_id][lo: lo + chunk], BUDGETS, torch_threads)) for i, t in enumerate(tasks) for lo in range(0, episodes, chunk)]
+        work = chunk_work(tasks, specs, episodes, jobs, torch_threads)
         done: list = []
         try:
             with mp.get_context("spawn").Pool(jobs) as pool:
@@ -403,8 +418,29 @@ def run_benchmark(
             complete = [i for i in range(len(tasks)) if all(k < len(done) for k, (j, _) in enumerate(work) if j == i)]
             parts = [[part for (j, _), part in zip(work, done) if j == i] for i in complete]
             raise BenchmarkInterrupted(finished(parts), len(groups)) from None
-        parts = [[part for (j, _), part in zip(work, done) if j == i] for i in range(len(tasks))]
+        parts = gather_chunks(work, done, len(tasks))
     return finished(parts)
+
+
+def chunk_work(tasks: Sequence[Task], specs: dict[str, list], episodes: int, workers: int,
+               torch_threads: int | None) -> list[tuple[int, tuple]]:
+    """The chunks of episodes of ``workers`` parallel workers (``jobs`` processes, a cluster's CPUs):
+    about 4 per worker and task, each ``(task index, (task, its episodes, budgets, torch threads))``."""
+    chunk = max(1, math.ceil(episodes / (4 * max(1, workers))))
+    return [(i, (t, specs[t.env_id][lo: lo + chunk], BUDGETS, torch_threads)) for i, t in enumerate(tasks)
+            for lo in range(0, episodes, chunk)]
+
+
+def _model_file(task: Task) -> Path | None:
+    """The model file of a learned task (its ``model_path``, else the shipped one); None for the others."""
+    if task.policy not in LEARNED:
+        return None
+    return Path(task.model_path) if task.model_path else default_model_path(task.env_id, task.policy, task.env_kwargs)
+
+
+def gather_chunks(work: Sequence[tuple[int, tuple]], done: Sequence[dict[str, Any]], n_tasks: int) -> list[list[dict[str, Any]]]:
+    """Every task's :func:`simulate` parts in episode order (``done[k]``: chunk ``work[k]``'s result)."""
+    return [[part for (j, _), part in zip(work, done) if j == i] for i in range(n_tasks)]
 
 
 def add_gaps(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -88,6 +88,7 @@ def _available_defaults(envs: list[str], policies: list[str], env_kwargs: dict, 
 def bench_main(args) -> int:
     """``gridloc bench``: every argument checked before the first episode, then the run and its outputs."""
     from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, BenchmarkInterrupted, add_gaps, run_benchmark
+    from gym_gridloc_agents.bench_cluster import ClusterError  # (Ray itself only once a run on a cluster starts)
     from gym_gridloc_agents.envs import check_environment
     from gym_gridloc_agents import files
     from gym_gridloc_agents.files import OutputError, expand_models
@@ -137,6 +138,16 @@ def bench_main(args) -> int:
         for flag, value in (("--jobs", args.jobs), ("--torch-threads", args.torch_threads)):
             if value < 1:
                 raise ValueError(f"{flag} must be >= 1, got {value}")
+        address = getattr(args, "address", None)
+        if address is not None:
+            if not address.strip():
+                raise ValueError("--address needs a Ray cluster's address: HOST:PORT, or auto")
+            if args.jobs > 1:
+                raise ValueError("--jobs sets the processes of a run on this machine; with --address the cluster's CPUs run the chunks")
+            import importlib.util
+
+            if importlib.util.find_spec("ray") is None:
+                raise ValueError("--address runs on Ray: install the 'sweep' extra (pip install 'gym_gridloc[rl,sweep]')")
         if args.plot and len(envs) > 1:
             raise ValueError("--plot takes one environment; --all writes results/bench_<env>.png")
         if args.update and not json_path:
@@ -167,11 +178,11 @@ def bench_main(args) -> int:
                 envs, policies, episodes, seed_start=args.seed, env_kwargs=env_kwargs, test_set=args.test_set,
                 ppo_model=seeds_models["ppo"], distilled_model=seeds_models["distilled"],
                 recurrent_model=args.recurrent_model, policy_options=options,
-                progress=not args.no_progress, jobs=args.jobs, torch_threads=args.torch_threads,
+                progress=not args.no_progress, jobs=args.jobs, torch_threads=args.torch_threads, address=address,
             )
     except BenchmarkInterrupted as exc:  # Ctrl-C: the finished rows are written, then exit 130
         rows, interrupted = exc.rows, exc
-    except (ValueError, TypeError, FileNotFoundError) as exc:
+    except (ValueError, TypeError, FileNotFoundError, ClusterError) as exc:  # ClusterError: --address could not run
         return _fail("bench", " ".join(str(exc).split()))
     for note in notes:  # e.g. a policy that does not apply to an environment: one line each
         print(f"gridloc bench: {note.message}", file=sys.stderr)

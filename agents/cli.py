@@ -72,6 +72,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="an option of one policy (a YAML scalar), e.g. expectimax.depth=3 or mcts.simulations=2000")
     b.add_argument("--frontier", metavar="PATH.png", help="write the speed-quality plot: mean steps against ms per decision")
     b.add_argument("--jobs", type=int, default=1, help="parallel processes, each running chunks of episodes (default 1)")
+    b.add_argument("--address", metavar="ADDRESS",
+                   help="run the chunks of episodes as Ray tasks on this running Ray cluster (HOST:PORT, or auto; the 'sweep' "
+                        "extra): the same rows as a local run, each saying where its chunks ran (docs/cluster.md)")
     b.add_argument("--update", action="store_true",
                    help="merge the new rows into the existing JSON file (the same environment, policy and options: replaced) and plot the merged rows")
     b.add_argument("--force", action="store_true", help="replace an existing results JSON (default: refused; see --update)")

@@ -153,7 +153,7 @@ def test_sweep_needs_its_extra(monkeypatch, capsys, tmp_path):
 
 def test_ray_is_imported_only_by_the_sweep():
     code = ("import sys, gym_gridloc, gym_gridloc_agents.cli, gym_gridloc_agents.train, gym_gridloc_agents.bench, "
-            "gym_gridloc_agents.sweep, gym_gridloc_agents.stats; "
+            "gym_gridloc_agents.sweep, gym_gridloc_agents.stats, gym_gridloc_agents.bench_command, gym_gridloc_agents.bench_cluster; "
             "bad = [m for m in ('ray', 'optuna') if m in sys.modules]; assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
     tomllib = pytest.importorskip("tomllib")  # Python 3.11+

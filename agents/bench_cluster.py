@@ -1,0 +1,178 @@
+"""``gridloc bench --address``: the benchmark's chunks of episodes as Ray tasks on a Ray cluster.
+
+The chunks are those of ``--jobs`` (:func:`gym_gridloc_agents.bench.chunk_work`, about 4 per CPU
+of the cluster and row) and each runs :func:`gym_gridloc_agents.bench.simulate` on its episodes,
+with the seeds of a local run: the rows are a local run's (common random numbers), except the
+timing columns (``seconds``, ``ms_per_decision``) and the ``cluster`` entry saying where the
+chunks ran.
+
+What travels to the workers: each chunk's task and episodes (seeds, and with ``--test-set`` the
+held-out maps and start states), and the bytes of every model file (``.zip`` and its metadata
+``.json``), put once in Ray's object store and written to a temporary directory on the node that
+runs a chunk; the code itself is not sent (every node needs the same install).
+
+A chunk whose worker or node is lost is run again (up to :data:`RERUNS` times; the episodes are
+seeded, so the rerun gives the same numbers), and counted in the row's ``cluster.reruns``.  An
+error of the chunk itself (a bad option, say) is not retried: it stops the run, as locally.
+
+This module and :mod:`gym_gridloc_agents.sweep` are the only ones importing Ray (the ``sweep``
+extra), and only when a run on a cluster starts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import sys
+import tempfile
+from collections import Counter
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+#: How many times one chunk is run again after its worker or node was lost.
+RERUNS = 3
+
+
+class ClusterError(RuntimeError):
+    """The cluster could not be joined, or a chunk was lost more than :data:`RERUNS` times."""
+
+
+def connect(address: str) -> bool:
+    """Join the Ray cluster at ``address`` (``HOST:PORT`` or ``auto``) unless Ray is already
+    initialised; whether this call started the connection (the caller then shuts it down)."""
+    import ray
+
+    if ray.is_initialized():
+        return False
+    host, colon, port = address.rpartition(":")
+    if colon and port.isdigit() and "://" not in address:  # Ray would retry an address where nothing listens for ever
+        import socket
+
+        try:
+            socket.create_connection((host.strip("[]"), int(port)), timeout=10).close()
+        except OSError as exc:
+            raise ClusterError(f"cannot join the Ray cluster at {address}: nothing answers there ({exc.strerror or exc}); "
+                               "start one with `ray start --head` or give the head's HOST:PORT") from None
+    try:
+        ray.init(address=address, logging_level="WARNING")
+    except (ConnectionError, ValueError, RuntimeError) as exc:
+        hint = (" (a cluster with token authentication needs RAY_AUTH_MODE=token and its token: RAY_AUTH_TOKEN or "
+                "~/.ray/auth_token)") if isinstance(exc, ConnectionError) else ""
+        raise ClusterError(f"cannot join the Ray cluster at {address}: {' '.join(str(exc).split())}{hint}") from None
+    return True
+
+
+def model_blob(path: Path) -> dict[str, Any]:
+    """A model file's bytes and those of its metadata beside it (what travels to the workers)."""
+    meta = path.with_suffix(".json")
+    return {"name": path.name, "zip": path.read_bytes(), "json": meta.read_bytes() if meta.is_file() else None}
+
+
+def materialise(blob: dict[str, Any]) -> Path:
+    """The model of ``blob`` as files on this node (a temporary directory named by the bytes'
+    hash, written once per node and atomically: chunks running at once share it)."""
+    digest = hashlib.sha256(blob["zip"] + (blob["json"] or b"")).hexdigest()[:16]
+    folder = Path(tempfile.gettempdir()) / "gridloc-models" / digest
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / blob["name"]
+    for target, data in ((path.with_suffix(".json"), blob["json"]), (path, blob["zip"])):
+        if data is not None and not (target.is_file() and target.stat().st_size == len(data)):
+            tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+            tmp.write_bytes(data)
+            os.replace(tmp, target)
+    return path
+
+
+def run_chunk(job: Callable[[tuple], dict[str, Any]], args: tuple, blob: dict[str, Any] | None, name: str | None) -> dict[str, Any]:
+    """One chunk on a worker: ``job(args)`` (:func:`gym_gridloc_agents.bench._job`) with the
+    task's model written on this node; the part names the model as a local run does and says
+    where it ran."""
+    import ray
+
+    if blob is not None:
+        args = (dataclasses.replace(args[0], model_path=materialise(blob)), *args[1:])
+    part = job(args)
+    if blob is not None:
+        part["model"] = name
+    part["node"] = f"{ray.util.get_node_ip_address()}/{ray.get_runtime_context().get_node_id()[:8]}"
+    return part
+
+
+def run_chunks(address: str, chunks: Callable[[int], list[tuple[int, tuple]]], n_tasks: int,
+               models: dict[int, tuple[Path, str]], job: Callable[[tuple], dict[str, Any]], *,
+               progress: bool = True) -> tuple[list[tuple[int, tuple]], list[dict[str, Any]], dict[str, Any]]:
+    """Run ``job`` on every chunk as a Ray task on the cluster at ``address``.
+
+    ``chunks(cpus)``: the chunks ``(task index, job arguments)`` for the cluster's CPUs
+    (:func:`gym_gridloc_agents.bench.chunk_work`); ``models``: task index -> (its model file, the
+    name rows give it).  Returns the chunks, their results (the same order) and where they ran:
+    ``{"address", "nodes", "cpus", "chunk_episodes", "tasks": [per task: {"chunks_per_node":
+    {node: n}, "reruns": n}]}``."""
+    import ray
+    from ray.exceptions import RayTaskError
+    from tqdm.auto import tqdm
+
+    started = connect(address)
+    try:
+        nodes = [n for n in ray.nodes() if n.get("Alive")]
+        cpus = int(ray.cluster_resources().get("CPU", 0))
+        if cpus < 1:
+            raise ClusterError(f"the Ray cluster at {address} has no CPU to run the benchmark's chunks")
+        work = chunks(cpus)
+        # task index -> (the model's bytes, once in the object store, and its name in the rows)
+        blobs = {i: (ray.put(model_blob(path)), name) for i, (path, name) in models.items()}
+        # Retries are the driver's (not Ray's max_retries), so that each rerun is counted in the row.
+        remote = ray.remote(run_chunk).options(num_cpus=1, max_retries=0, scheduling_strategy="SPREAD")
+
+        def submit(k: int):
+            i, args = work[k]
+            blob, name = blobs.get(i, (None, None))
+            return remote.remote(job, args, blob, name)
+
+        pending = {submit(k): k for k in range(len(work))}
+        done: list[dict[str, Any] | None] = [None] * len(work)
+        reruns = [0] * len(work)
+        with tqdm(total=len(work), desc=f"benchmark chunks on {len(nodes)} node(s), {cpus} CPU(s)", disable=not progress) as bar:
+            while pending:
+                ready, _ = ray.wait(list(pending), num_returns=1)
+                k = pending.pop(ready[0])
+                try:
+                    done[k] = ray.get(ready[0])
+                except RayTaskError as exc:  # the chunk's own error: as a local run would raise it
+                    raise (exc.cause if isinstance(exc.cause, Exception) else exc.as_instanceof_cause()) from None
+                except ray.exceptions.RayError as exc:  # its worker or node was lost: run it again
+                    if reruns[k] >= RERUNS:
+                        raise ClusterError(f"a chunk of {work[k][1][0].env_id} {work[k][1][0].policy} was lost "
+                                           f"{reruns[k] + 1} times ({type(exc).__name__}); last: {' '.join(str(exc).split())[:300]}") from None
+                    reruns[k] += 1
+                    print(f"gridloc bench: a chunk of {work[k][1][0].env_id} {work[k][1][0].policy} was lost with its worker "
+                          f"or node ({type(exc).__name__}): running it again", file=sys.stderr)
+                    pending[submit(k)] = k
+                    continue
+                bar.update(1)
+        per_task = [{"chunks_per_node": Counter(), "reruns": 0} for _ in range(n_tasks)]
+        for k, ((i, _), part) in enumerate(zip(work, done)):
+            per_task[i]["chunks_per_node"][part.pop("node")] += 1
+            per_task[i]["reruns"] += reruns[k]
+        address_used = ray.get_runtime_context().gcs_address
+    finally:
+        if started:
+            ray.shutdown()
+    where = {"address": address_used, "nodes": len(nodes), "cpus": cpus, "chunk_episodes": len(work[0][1][1]),
+             "tasks": [{"chunks_per_node": dict(sorted(t["chunks_per_node"].items())), "reruns": t["reruns"]} for t in per_task]}
+    return work, done, where
+
+
+def row_cluster(where: dict[str, Any], tasks: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """A row's ``cluster`` entry: the cluster, and where the chunks of its tasks (several with
+    one model per seed) ran."""
+    per_node: Counter = Counter()
+    for t in tasks:
+        per_node.update(t["chunks_per_node"])
+    return {"address": where["address"], "nodes": where["nodes"], "cpus": where["cpus"],
+            "chunk_episodes": where["chunk_episodes"], "chunks": sum(per_node.values()),
+            "chunks_per_node": dict(sorted(per_node.items())), "reruns": sum(t["reruns"] for t in tasks)}
+
+
+__all__ = ["RERUNS", "ClusterError", "connect", "materialise", "model_blob", "row_cluster", "run_chunk", "run_chunks"]
