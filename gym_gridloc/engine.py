@@ -61,6 +61,9 @@ class _Derived:
         self._lik_bytes = 0
         self.layered = int(model.sensor.layered)
         self._steppers: dict[bool, Any] = {}
+        #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
+        #: ``(cumulative probabilities, last possible outcome)`` (:func:`_next_one`).
+        self.outcomes: dict[tuple[int, int, int, int], tuple[list[float], int]] = {}
 
     def lik(self, reading: int) -> np.ndarray:
         """The flat likelihood of one reading (cached while the cache is small)."""
@@ -407,12 +410,13 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     state, which picks the next state by the cumulative probabilities of the action's terms in
     their order.
     """
-    transitions = _derived(model).transitions  # checks the model
+    d = _derived(model)  # checks the model
+    transitions = d.transitions
     st = np.asarray(states, dtype=np.int64).reshape(-1, 3)
     n = st.shape[0]
     if n == 1 and model.kidnap_prob == 0.0 and type(actions) is int and 0 <= actions < model.n_actions:
         # one state: the same draw, without array overheads
-        return np.array([_next_one(transitions[actions], st[0], rng)], dtype=np.int64)
+        return np.array([_next_one(transitions[actions], st[0], rng, d.outcomes, actions)], dtype=np.int64)
     acts = action_indices(model, actions, n)
     out = st.copy()
     moving = np.arange(n)
@@ -423,12 +427,13 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
             moving = np.flatnonzero(~kidnapped)
     if moving.size == 1:
         i = int(moving[0])
-        out[i] = _next_one(transitions[int(acts[i])], st[i], rng)
+        a = int(acts[i])
+        out[i] = _next_one(transitions[a], st[i], rng, d.outcomes, a)
         return out
     if moving.size == 0:
         return out
     u = rng.random(moving.size)
-    weights, keys = _derived(model).moves
+    weights, keys = d.moves
     acts, st_m = acts[moving], st[moving]
     p = weights[acts, :, st_m[:, 1] * model.shape[1] + st_m[:, 2]]  # (n, K): each state's action's terms
     key = keys[acts]  # (n, 4, K)
@@ -444,15 +449,28 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     return out
 
 
-def _next_one(ts: tuple[Term, ...], state: np.ndarray, rng: np.random.Generator) -> tuple[int, int, int]:
-    """:func:`sample_next` for one moving state ``(3,)`` (the same uniform and arithmetic, on scalars)."""
+#: At most this many single states' outcomes are kept per model (:func:`_next_one`).
+OUTCOMES_CACHED = 1 << 16
+
+
+def _next_one(ts: tuple[Term, ...], state: np.ndarray, rng: np.random.Generator,
+              cache: dict | None = None, action: int = -1) -> tuple[int, int, int]:
+    """:func:`sample_next` for one moving state ``(3,)`` (the same uniform and arithmetic, on
+    scalars).  ``cache`` (keyed by ``action`` and the state) keeps each state's cumulative sums."""
     layer, r, c = state.tolist()
     x = rng.random()
-    p = [float(t.weight[r, c]) if t.src == layer else 0.0 for t in ts]
-    cum = list(itertools.accumulate(p))  # summed left to right, as np.cumsum does
+    key = (action, layer, r, c)
+    found = None if cache is None else cache.get(key)
+    if found is None:
+        p = [float(t.weight[r, c]) if t.src == layer else 0.0 for t in ts]
+        cum = list(itertools.accumulate(p))  # summed left to right, as np.cumsum does
+        found = cum, max(j for j, q in enumerate(p) if q > 0.0)
+        if cache is not None and len(cache) < OUTCOMES_CACHED:
+            cache[key] = found
+    cum, last = found
     k = bisect.bisect_right(cum, x * cum[-1])  # the first term whose cumulative sum exceeds x * total
-    if k == len(p):  # x rounded up to the total: the last possible outcome
-        k = max(j for j, q in enumerate(p) if q > 0.0)
+    if k == len(cum):  # x rounded up to the total: the last possible outcome
+        k = last
     t = ts[k]
     return t.dst, r + t.dr, c + t.dc
 

@@ -16,8 +16,9 @@ import numpy as np
 REWARDS = ("step", "belief")
 
 
-def _entropy(p: np.ndarray) -> np.ndarray:
-    """Entropy in bits along the last axis (``0 log 0 = 0``); the same sums for one row or N."""
+def entropy(p: np.ndarray) -> np.ndarray:
+    """Entropy in bits along the last axis of probabilities ``p`` (``0 log 0 = 0``); the same
+    sums for one row or N: a float64 array of ``p.shape[:-1]`` (a 0-d array for one row)."""
     return -(p * np.log2(p + (p <= 0.0))).sum(axis=-1) + 0.0  # + 0.0: no -0.0 for a sure belief
 
 
@@ -47,7 +48,6 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     if pose:
         layer = k // (h * w)
         right &= layer == states[:, 0]
-    entropy = _entropy(pflat)
     info = {
         "position": truth.copy(),
         "estimate": estimate,
@@ -55,7 +55,7 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
         "error": error,
         "localised": localised,
         "success": localised & right,
-        "entropy": entropy,
+        "entropy": entropy(pflat),
     }
     if L > 1:
         info["heading"] = states[:, 0].copy()
@@ -77,7 +77,7 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
     confidence = float(tested[k])
     layer, cell = divmod(k, h * w)
     estimate = divmod(cell, w)
-    truth_layer, row, col = (int(v) for v in state)
+    truth_layer, row, col = state.tolist() if isinstance(state, np.ndarray) else (int(v) for v in state)
     error = abs(estimate[0] - row) + abs(estimate[1] - col)
     localised = confidence >= threshold
     right = error == 0 and (not pose or layer == truth_layer)
@@ -88,7 +88,7 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
         "error": error,
         "localised": localised,
         "success": localised and right,
-        "entropy": float(_entropy(pos)),
+        "entropy": float(entropy(pos)),
     }
     if L > 1:
         info["heading"] = truth_layer

@@ -83,7 +83,7 @@ class GridLocEnv(gym.Env):
         self._last_action = None
         self._elapsed = 0
         obs = self._read()
-        self._referee.reset(obs)
+        self._referee.reset(reading=self._last_reading)
         return obs, self._info()
 
     def step(self, action):
@@ -99,7 +99,7 @@ class GridLocEnv(gym.Env):
         self._last_action = a
         self._elapsed += 1
         obs = self._read()
-        self._referee.step(a, obs)
+        self._referee.step(a, reading=self._last_reading)  # the reading drawn: no round trip through obs
         info = self._info()
         if self.episode_length is None:
             terminated, truncated = bool(info["localised"]), False
