@@ -42,7 +42,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from gym_gridloc_agents.envs import make_env
+from gym_gridloc_agents.envs import make_env, served_env
 from gym_gridloc_agents.files import metadata_path, model_method, read_metadata
 from gym_gridloc_agents.policies import POLICY_DIR, POLICY_NAMES, default_model_path, make_policy
 from gym_gridloc_agents.rollout import rollout
@@ -94,9 +94,13 @@ class _Timed:
     def reset(self, seed=None, model=None) -> None:
         self.policy.reset(seed=seed, model=model)
 
-    def act(self, observation, belief) -> int:
+    @property
+    def observation_options(self):
+        return getattr(self.policy, "observation_options", None)
+
+    def act(self, observation, belief, **encoded) -> int:
         t = time.perf_counter()
-        action = self.policy.act(observation, belief)
+        action = self.policy.act(observation, belief, **encoded)
         self.seconds += time.perf_counter() - t
         self.decisions += 1
         return action
@@ -140,6 +144,7 @@ def simulate(task: Task, specs: Sequence[tuple[int, Any]], *, budgets: Sequence[
     length = env.unwrapped.episode_length
     limit = min(max_steps, length) if length else max_steps
     policy = _Timed(make_task_policy(task, env))
+    env = served_env(env, policy)  # a learned policy's own observation, built by the wrapper
     n = len(specs)
     steps = np.zeros(n, dtype=np.int64)
     localised, success, truncated, collapsed_end = (np.zeros(n, dtype=bool) for _ in range(4))

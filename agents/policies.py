@@ -30,6 +30,7 @@ import numpy as np
 from gymnasium import spaces
 
 from gym_gridloc.core.model import GridModel
+from gym_gridloc.observation import BeliefObservation
 from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.files import METHODS, load_model, model_kwargs, model_method, read_metadata
 from gym_gridloc.lookahead import Lookahead
@@ -149,17 +150,32 @@ class PPOPolicy(Policy):
         self.sb3, self.meta = load_model(self.path, algo=self.algo, env_id=env_id, env_kwargs=env_kwargs,
                                          observation_space=expected)
 
-    def expected_space(self, model: GridModel) -> spaces.Space:
-        from gym_gridloc.wrappers import belief_observation_space
+    @property
+    def builder(self) -> BeliefObservation:
+        """The observation the model was trained on (:class:`gym_gridloc.observation.BeliefObservation`)."""
+        if getattr(self, "_builder", None) is None:
+            self._builder = BeliefObservation(self.model, **self.wrapper)
+        return self._builder
 
-        return belief_observation_space(model, model.sensor.observation_space, **self.wrapper)
+    @property
+    def observation_options(self) -> dict[str, Any]:
+        """The options of that observation: an environment whose ``builder`` has the same ones
+        emits it, and :func:`~gym_gridloc_agents.rollout.rollout` passes it on (``encoded``)."""
+        return self.builder.options
+
+    def expected_space(self, model: GridModel) -> spaces.Space:
+        return BeliefObservation(model, **self.wrapper).space
 
     def encode(self, observation: Any, belief: np.ndarray) -> Any:
         """The observation the model's ``HMMBeliefWrapper`` would give."""
-        return wrapped_observation(self.model, observation, self._full_belief(belief), **self.wrapper)
+        return self.builder.one(self.model, observation, self._full_belief(belief))
 
-    def act(self, observation: Any, belief: np.ndarray) -> int:
-        return int(self.sb3.predict(self.encode(observation, belief), deterministic=self.deterministic)[0])
+    def act(self, observation: Any, belief: np.ndarray, encoded: Any = None) -> int:
+        """The model's action; ``encoded``: the observation it was trained on, when the caller
+        holds it (an environment with the same wrapper options), else built here."""
+        if encoded is None:
+            encoded = self.encode(observation, belief)
+        return int(self.sb3.predict(encoded, deterministic=self.deterministic)[0])
 
 
 def _wrapper_options(wrapper: dict[str, Any] | None) -> dict[str, Any]:
@@ -172,17 +188,8 @@ def wrapped_observation(model: GridModel, observation: Any, belief: np.ndarray, 
                         full_state: bool = False, map: bool = False, lookahead: int = 0) -> Any:
     """The observation ``HMMBeliefWrapper(flatten=..., full_state=..., map=..., lookahead=...)``
     gives for a sensor observation and the hidden-state belief ``(L, H, W)``."""
-    from gym_gridloc.lookahead import lookahead_features
-    from gym_gridloc.wrappers import batch_observation, map_channels
-
-    b = np.asarray(belief)
-    b = (b if full_state else b[0] if b.shape[0] == 1 else b.sum(axis=0)).astype(np.float32)
-    np.clip(b, 0.0, 1.0, out=b)
-    reading = np.array([model.sensor.to_reading(observation)])
-    maps = map_channels(model)[None] if map else None
-    la = lookahead_features(model, belief, lookahead, pose=full_state)[None] if lookahead else None
-    out = batch_observation(model, [observation], reading, b[None], flatten=flatten, maps=maps, lookahead=la)
-    return out[0] if flatten else {k: np.asarray(v[0]) for k, v in out.items()}
+    builder = BeliefObservation(model, flatten=flatten, full_state=full_state, map=map, lookahead=lookahead)
+    return builder.one(model, observation, np.asarray(belief, dtype=np.float64))
 
 
 class RecurrentPolicy(PPOPolicy):
@@ -201,6 +208,8 @@ class RecurrentPolicy(PPOPolicy):
         self._state = None  # the LSTM's memory, fresh at each episode's start
         self._start = np.ones((1,), dtype=bool)
 
+    observation_options = None  # the raw readings: nothing to pass on
+
     def expected_space(self, model: GridModel) -> spaces.Space:
         return model.sensor.observation_space
 
@@ -209,7 +218,7 @@ class RecurrentPolicy(PPOPolicy):
         self._state = None
         self._start = np.ones((1,), dtype=bool)
 
-    def act(self, observation: Any, belief: np.ndarray | None = None) -> int:
+    def act(self, observation: Any, belief: np.ndarray | None = None, encoded: Any = None) -> int:
         action, self._state = self.sb3.predict(
             np.asarray(observation), state=self._state, episode_start=self._start, deterministic=self.deterministic
         )

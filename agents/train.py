@@ -157,6 +157,7 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
     cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy  # (RecurrentPolicy ignores the wrapper)
     policy = cls(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"])
+    env = served_env(env, policy)
     eps = [rollout(env, policy, seed, reset_options=opts) for seed, opts in evaluation_episodes(env, cfg, episodes)]
     env.close()
     n = len(eps)
