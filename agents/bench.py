@@ -44,19 +44,18 @@ import numpy as np
 
 from gym_gridloc_agents.envs import make_env, served_env
 from gym_gridloc_agents.files import metadata_path, model_method, read_metadata
-from gym_gridloc_agents.policies import POLICY_DIR, POLICY_NAMES, default_model_path, make_policy
+from gym_gridloc_agents.policies import (DEFAULT_POLICIES, LEARNED_NAMES, PLANNER_POLICIES, POLICY_DIR, POLICY_NAMES,
+                                         default_model_path, make_policy)
 from gym_gridloc_agents.rollout import rollout
 from gym_gridloc_agents.stats import wilson_ci95
 
 BUDGETS = (5, 10, 25, 50)
 #: The environments of ``gridloc bench --all`` (fixed maps, shipped policies).
 BENCH_ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0")
-#: The policies ``gridloc bench`` runs when ``--policies`` is not given.
-DEFAULT_POLICIES = ("random", "greedy", "greedy2", "ppo", "distilled", "recurrent")
-#: Policies that plan on the exact belief (the "best planner" of ``gap_to_best_planner``).
-PLANNERS = ("central", "expectimax", "mcts", "pomcp", "optimal")
-#: Policies that load a model file.
-LEARNED = ("ppo", "distilled", "recurrent")
+#: Policies that plan on the exact belief (the "best planner" of ``gap_to_best_planner``), and
+#: those that load a model file: :data:`gym_gridloc_agents.policies.POLICIES`' lists.
+PLANNERS = PLANNER_POLICIES
+LEARNED = LEARNED_NAMES
 
 
 @dataclass(frozen=True)

@@ -35,11 +35,33 @@ from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.files import METHODS, load_model, model_kwargs, model_method, read_metadata
 from gym_gridloc.lookahead import Lookahead
 
+#: The one table of policies, in the benchmark's order: name -> (kind, a warm start may imitate it,
+#: ``gridloc bench`` runs it by default).  Kinds: ``baseline`` (random, the entropy lookaheads),
+#: ``planner`` (plans on the exact belief: the "best planner" of the benchmark's gaps), ``learned``
+#: (loads a model file).  :func:`make_policy` builds them; the benchmark, the configs, the warm
+#: start, the viewer and the CLI read their lists from here.
+POLICIES: dict[str, tuple[str, bool, bool]] = {
+    "random": ("baseline", False, True),
+    "greedy": ("baseline", True, True),
+    "greedy2": ("baseline", True, True),
+    "central": ("planner", True, False),
+    "expectimax": ("planner", True, False),
+    "mcts": ("planner", True, False),
+    "optimal": ("planner", True, False),
+    "pomcp": ("planner", False, False),
+    "ppo": ("learned", False, True),
+    "distilled": ("learned", False, True),
+    "recurrent": ("learned", False, True),
+}
 #: Names accepted by :func:`make_policy`.
-POLICY_NAMES = ("random", "greedy", "greedy2", "central", "expectimax", "mcts", "optimal", "pomcp", "ppo", "distilled",
-                "recurrent")
+POLICY_NAMES = tuple(POLICIES)
 #: Policies a warm start may imitate (no model file of their own).
-EXPERT_NAMES = ("greedy", "greedy2", "central", "expectimax", "mcts", "optimal")
+EXPERT_NAMES = tuple(name for name, (_, expert, _) in POLICIES.items() if expert)
+#: Policies that plan on the exact belief, and those that load a model file.
+PLANNER_POLICIES = tuple(name for name, (kind, _, _) in POLICIES.items() if kind == "planner")
+LEARNED_NAMES = tuple(name for name, (kind, _, _) in POLICIES.items() if kind == "learned")
+#: The policies ``gridloc bench`` runs when none are named.
+DEFAULT_POLICIES = tuple(name for name, (_, _, default) in POLICIES.items() if default)
 
 #: Where the shipped models live: ``<env_id>[-size<N>]-<method>.zip``, method ``ppo``, ``distilled``
 #: or ``recurrent`` (:data:`gym_gridloc_agents.files.METHODS`).
@@ -296,10 +318,10 @@ def make_policy(
         return RandomPolicy(model, seed=seed)
     if name in ("greedy", "greedy2"):
         return {"greedy": GreedyPolicy, "greedy2": Greedy2Policy}[name](model, seed=seed, pose=pose)
-    if name in ("central", "expectimax", "mcts"):
-        from gym_gridloc_agents.planners import make_planner
+    from gym_gridloc_agents.planners import PLANNER_NAMES, make_planner
 
-        return make_planner(name, model, env_id=env_id, seed=seed, **options)
+    if name in PLANNER_NAMES:
+        return make_planner(name, model, env_id=env_id, seed=seed, pose=pose, **options)
     if name == "optimal":
         from gym_gridloc_agents.optimal import OptimalPolicy
 

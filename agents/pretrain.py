@@ -187,7 +187,9 @@ def _env(cfg: dict[str, Any]):
 def _expert(cfg: dict[str, Any], env):
     pre = cfg["pretrain"]
     options = dict(pre.get("expert_kwargs", {}))
-    if pre["expert"] in ("central", "expectimax", "mcts"):  # the planners plan for the referee's own test
+    from gym_gridloc_agents.planners import PLANNER_NAMES
+
+    if pre["expert"] in PLANNER_NAMES:  # the planners plan for the referee's own test
         options.setdefault("threshold", env.unwrapped.localise_threshold)
     return make_policy(pre["expert"], env.unwrapped.model, env_id=cfg["env_id"], pose=env.unwrapped.referee_pose,
                        env_kwargs=cfg["env_kwargs"], **options)

@@ -59,7 +59,7 @@ class ForwardFilter:
     """
 
     def __init__(self, model: GridModel, *, kidnap_prob: float | None = None) -> None:
-        model = engine._checked_model(model, "ForwardFilter needs a GridModel")
+        model = engine.checked_model(model, "ForwardFilter needs a GridModel")
         if kidnap_prob is not None:
             # The kidnapped robot: mix a teleport to a uniform free state with this probability
             # into every prediction (0.0 switches off any kidnapping the model has).
@@ -192,7 +192,7 @@ class BatchFilter:
     """
 
     def __init__(self, model: GridModel, n: int) -> None:
-        self.model = engine._checked_model(model, "BatchFilter needs a GridModel")
+        self.model = engine.checked_model(model, "BatchFilter needs a GridModel")
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"n (the number of beliefs) must be a positive integer, got {n!r}")
         self.n = int(n)

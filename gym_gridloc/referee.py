@@ -22,6 +22,21 @@ def entropy(p: np.ndarray) -> np.ndarray:
     return -(p * np.log2(p + (p <= 0.0))).sum(axis=-1) + 0.0  # + 0.0: no -0.0 for a sure belief
 
 
+def confidences(beliefs: np.ndarray, *, pose: bool = False) -> np.ndarray:
+    """What the referee tests in N hidden-state beliefs ``(N, L, H, W)``: the largest position
+    probability (``pose=True``: the largest hidden-state probability), ``(N,)``."""
+    n, L = beliefs.shape[:2]
+    flat = beliefs.reshape(n, -1) if pose or L == 1 else beliefs.sum(axis=1).reshape(n, -1)
+    return flat.max(axis=1)
+
+
+def localised(beliefs: np.ndarray, threshold: float, *, pose: bool = False, slack: float = 0.0) -> np.ndarray:
+    """The referee's test on N hidden-state beliefs ``(N, L, H, W)``: the confidence
+    (:func:`confidences`) reaches ``threshold - slack``, ``(N,)`` booleans.  The environments end
+    an episode on it; the planners stop planning on it."""
+    return confidences(beliefs, pose=pose) >= threshold - slack
+
+
 def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose: bool = False) -> dict[str, np.ndarray]:
     """The referee's view of N exact hidden-state beliefs ``(N, L, H, W)`` and the true states
     ``(N, 3)`` (layer, row, col), as arrays with N rows.
