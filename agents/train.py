@@ -32,7 +32,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 import gym_gridloc
 from gym_gridloc import maps
 from gym_gridloc_agents.config import ConfigError, activation, load_config, validate_config
-from gym_gridloc_agents.envs import make_env, make_training_env
+from gym_gridloc_agents.envs import make_env, make_training_env, served_env
 from gym_gridloc_agents.features import EXTRACTORS
 from gym_gridloc_agents.files import (
     OutputError,

@@ -67,7 +67,7 @@ def key_values(items: Sequence[str] | None, what: str, error: Callable[[str], Ex
         key, sep, value = item.partition("=")
         key = key.strip()
         if not sep or not key or (identifiers and not key.isidentifier()):
-            raise error(f"{what} takes KEY=VALUE, got {item!r}")
+            raise error(f"{what} {item!r}: expected KEY=VALUE")
         try:
             out[key] = parse_value(value)
         except ValueError as exc:

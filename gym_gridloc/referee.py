@@ -19,7 +19,7 @@ REWARDS = ("step", "belief")
 def entropy(p: np.ndarray) -> np.ndarray:
     """Entropy in bits along the last axis of probabilities ``p`` (``0 log 0 = 0``); the same
     sums for one row or N: a float64 array of ``p.shape[:-1]`` (a 0-d array for one row)."""
-    return -(p * np.log2(p + (p <= 0.0))).sum(axis=-1) + 0.0  # + 0.0: no -0.0 for a sure belief
+    return -np.add.reduce(p * np.log2(p + (p <= 0.0)), axis=-1) + 0.0  # + 0.0: no -0.0 for a sure belief
 
 
 def confidences(beliefs: np.ndarray, *, pose: bool = False) -> np.ndarray:
