@@ -64,7 +64,7 @@ class _Derived:
         self.layered = int(model.sensor.layered)
         self._steppers: dict[bool, Any] = {}
         #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
-        #: ``(cumulative probabilities, last possible outcome)`` (:func:`_next_one`).
+        #: ``(cumulative probabilities, last possible outcome)`` (one-state draws).
         self.outcomes: dict[tuple[int, int, int, int], tuple[list[float], int]] = {}
 
     def lik(self, reading: int) -> np.ndarray:
@@ -459,7 +459,7 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     return out
 
 
-#: At most this many single states' outcomes are kept per model (:func:`_next_one`).
+#: At most this many single states' outcomes are kept per model (for one-state draws).
 OUTCOMES_CACHED = 1 << 16
 
 

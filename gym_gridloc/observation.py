@@ -113,7 +113,7 @@ def observed_belief(full: np.ndarray, full_state: bool) -> np.ndarray:
 class BeliefObservation:
     """The belief observation of a sensor space ``inner`` on ``model``'s family of maps, with
     :class:`~gym_gridloc.HMMBeliefWrapper`'s options (``flatten``, ``full_state``, ``key``,
-    ``map``, ``lookahead``; checked here).  :attr:`space` is the observation space;
+    ``map``, ``lookahead``; checked here).  ``space`` is the observation space;
     :meth:`encode` builds N observations from N hidden-state beliefs, :meth:`one` one.
 
     Two builders with equal :attr:`options` build the same observation from the same belief."""

@@ -35,7 +35,7 @@ class Sensor(ABC):
     #: True when a reading's probability depends on the layer (e.g. the heading) as well as the cell.
     layered: bool = False
 
-    #: At most this many states' reading distributions are kept for single draws (:meth:`_draw_one`).
+    #: At most this many states' reading distributions are kept for single draws.
     ROWS_CACHED = 1 << 16
 
     def __init__(self, grid: GridMap) -> None:
