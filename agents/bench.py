@@ -42,9 +42,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from gym_gridloc_agents.envs import make_env
+from gym_gridloc_agents.envs import make_env, served_env
 from gym_gridloc_agents.files import metadata_path, model_method, read_metadata
-from gym_gridloc_agents.policies import POLICY_DIR, POLICY_NAMES, default_model_path, make_policy
+from gym_gridloc_agents.policies import (DEFAULT_POLICIES, LEARNED_NAMES, PLANNER_POLICIES, POLICY_DIR, POLICY_NAMES,
+                                         default_model_path, make_policy)
 from gym_gridloc_agents.rollout import rollout
 from gym_gridloc_agents.stats import wilson_ci95
 
@@ -53,12 +54,10 @@ BUDGETS = (5, 10, 25, 50)
 WARMUP_DECISIONS = 10
 #: The environments of ``gridloc bench --all`` (fixed maps, shipped policies).
 BENCH_ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0")
-#: The policies ``gridloc bench`` runs when ``--policies`` is not given.
-DEFAULT_POLICIES = ("random", "greedy", "greedy2", "ppo", "distilled", "recurrent")
-#: Policies that plan on the exact belief (the "best planner" of ``gap_to_best_planner``).
-PLANNERS = ("central", "expectimax", "mcts", "pomcp", "optimal")
-#: Policies that load a model file.
-LEARNED = ("ppo", "distilled", "recurrent")
+#: Policies that plan on the exact belief (the "best planner" of ``gap_to_best_planner``), and
+#: those that load a model file: :data:`gym_gridloc_agents.policies.POLICIES`' lists.
+PLANNERS = PLANNER_POLICIES
+LEARNED = LEARNED_NAMES
 
 
 class BenchmarkInterrupted(KeyboardInterrupt):
@@ -107,9 +106,13 @@ class _Timed:
     def reset(self, seed=None, model=None) -> None:
         self.policy.reset(seed=seed, model=model)
 
-    def act(self, observation, belief) -> int:
+    @property
+    def observation_options(self):
+        return getattr(self.policy, "observation_options", None)
+
+    def act(self, observation, belief, **encoded) -> int:
         t = time.perf_counter()
-        action = self.policy.act(observation, belief)
+        action = self.policy.act(observation, belief, **encoded)
         self.seconds += time.perf_counter() - t
         self.decisions += 1
         return action
@@ -157,6 +160,7 @@ def simulate(task: Task, specs: Sequence[tuple[int, Any]], *, budgets: Sequence[
     length = env.unwrapped.episode_length
     limit = min(max_steps, length) if length else max_steps
     policy = _Timed(make_task_policy(task, env))
+    env = served_env(env, policy)  # a learned policy's own observation, built by the wrapper
     n = len(specs)
     steps = np.zeros(n, dtype=np.int64)
     localised, success, truncated, collapsed_end = (np.zeros(n, dtype=bool) for _ in range(4))

@@ -23,19 +23,10 @@ def _fail(command: str, message: str) -> int:
 
 
 def _key_values(items: list[str], what: str) -> dict:
-    """``KEY=VALUE`` strings as a dict, each value a YAML scalar (``ValueError`` naming a bad one)."""
-    import yaml
+    """``KEY=VALUE`` strings as a dict (:func:`gym_gridloc_agents.values.key_values`)."""
+    from gym_gridloc_agents.values import key_values
 
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise ValueError(f"{what} {item!r}: expected KEY=VALUE")
-        try:
-            out[key.strip()] = yaml.safe_load(value) if value.strip() else None
-        except yaml.YAMLError as exc:
-            raise ValueError(f"{what} {item!r}: the value is not a YAML scalar ({exc.__class__.__name__})") from None
-    return out
+    return key_values(items, what)
 
 
 def _bench_env_kwargs(args) -> dict:

@@ -27,6 +27,7 @@ from pathlib import Path
 
 from gym_gridloc_agents.bench_command import RESULTS, _fail, bench_main, bound_main
 from gym_gridloc_agents.files import OutputError
+from gym_gridloc_agents.policies import DEFAULT_POLICIES
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -47,7 +48,7 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--env", metavar="ENV_ID", help="environment id, e.g. WindyMaze-v0")
     b.add_argument("--all", action="store_true",
                    help="all three environments, every policy, 1000 episodes; writes results/bench.json and results/bench_<env>.png")
-    b.add_argument("--policies", default=None, help="comma-separated policy names (default: random,greedy,greedy2,ppo,distilled,recurrent)")
+    b.add_argument("--policies", default=None, help=f"comma-separated policy names (default: {','.join(DEFAULT_POLICIES)})")
     b.add_argument("--episodes", type=int, default=None, help="episodes per policy (default 200; 1000 with --all)")
     b.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode i uses seed+i)")
     b.add_argument("--json", metavar="PATH", help="write the rows as JSON (every number)")

@@ -354,7 +354,9 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         if not isinstance(pre.setdefault("episode_batches", False), bool):
             raise ConfigError(f"{source}: pretrain.episode_batches must be true or false, got {pre['episode_batches']!r}")
         pre["temperature"] = _num(source, "pretrain.temperature", pre.get("temperature", 0.0), integer=False, minimum=0)
-        if pre["temperature"] > 0 and pre["expert"] not in ("central", "expectimax", "mcts"):
+        from gym_gridloc_agents.planners import PLANNER_NAMES
+
+        if pre["temperature"] > 0 and pre["expert"] not in PLANNER_NAMES:
             raise ConfigError(f"{source}: pretrain.temperature needs a planner's action values: expert central, expectimax or mcts, not {pre['expert']!r}")
         if pre.get("learning_rate_final") is not None:
             pre["learning_rate_final"] = _num(source, "pretrain.learning_rate_final", pre["learning_rate_final"], integer=False,

@@ -28,10 +28,11 @@ import numpy as np
 
 from gym_gridloc_agents import stats
 from gym_gridloc_agents.files import metadata_path, model_method, read_metadata
+from gym_gridloc_agents.policies import PLANNER_POLICIES
 
 #: The baselines drawn as horizontal lines, and the policies counted as planners ("best planner").
 BASELINES = ("random", "greedy2")
-PLANNERS = ("central", "expectimax", "mcts", "pomcp", "optimal")
+PLANNERS = PLANNER_POLICIES
 
 
 def run_files(path: str | Path) -> list[Path]:

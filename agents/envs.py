@@ -80,6 +80,17 @@ def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, wrapper: dic
     return env if opts.pop("belief", True) is False else gym_gridloc.HMMBeliefWrapper(env, **opts)
 
 
+def served_env(env: gym.Env, policy: Any) -> gym.Env:
+    """``env`` (a :func:`make_env` environment), behind the belief wrapper whose observation
+    ``policy`` was trained on when it has one (``policy.observation_options``) and ``env``
+    gives another: the rollout then hands the policy the wrapper's observation, built once."""
+    options = getattr(policy, "observation_options", None)
+    builder = getattr(env, "builder", None)
+    if options is None or builder is None or builder.options == options or not isinstance(env, gym_gridloc.HMMBeliefWrapper):
+        return env
+    return gym_gridloc.HMMBeliefWrapper(env.env, **options, belief=env.belief, on_impossible=env.on_impossible)
+
+
 def env_thunk(cfg: dict[str, Any]) -> Callable[[], gym.Env]:
     """A picklable thunk building one (wrapped) training environment from a validated config."""
     return functools.partial(make_env, cfg["env_id"], dict(cfg["env_kwargs"]), dict(cfg["wrapper"]))

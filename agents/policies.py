@@ -30,15 +30,38 @@ import numpy as np
 from gymnasium import spaces
 
 from gym_gridloc.core.model import GridModel
+from gym_gridloc.observation import BeliefObservation
 from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.files import METHODS, load_model, model_kwargs, model_method, read_metadata
 from gym_gridloc.lookahead import Lookahead
 
+#: The one table of policies, in the benchmark's order: name -> (kind, a warm start may imitate it,
+#: ``gridloc bench`` runs it by default).  Kinds: ``baseline`` (random, the entropy lookaheads),
+#: ``planner`` (plans on the exact belief: the "best planner" of the benchmark's gaps), ``learned``
+#: (loads a model file).  :func:`make_policy` builds them; the benchmark, the configs, the warm
+#: start, the viewer and the CLI read their lists from here.
+POLICIES: dict[str, tuple[str, bool, bool]] = {
+    "random": ("baseline", False, True),
+    "greedy": ("baseline", True, True),
+    "greedy2": ("baseline", True, True),
+    "central": ("planner", True, False),
+    "expectimax": ("planner", True, False),
+    "mcts": ("planner", True, False),
+    "optimal": ("planner", True, False),
+    "pomcp": ("planner", False, False),
+    "ppo": ("learned", False, True),
+    "distilled": ("learned", False, True),
+    "recurrent": ("learned", False, True),
+}
 #: Names accepted by :func:`make_policy`.
-POLICY_NAMES = ("random", "greedy", "greedy2", "central", "expectimax", "mcts", "optimal", "pomcp", "ppo", "distilled",
-                "recurrent")
+POLICY_NAMES = tuple(POLICIES)
 #: Policies a warm start may imitate (no model file of their own).
-EXPERT_NAMES = ("greedy", "greedy2", "central", "expectimax", "mcts", "optimal")
+EXPERT_NAMES = tuple(name for name, (_, expert, _) in POLICIES.items() if expert)
+#: Policies that plan on the exact belief, and those that load a model file.
+PLANNER_POLICIES = tuple(name for name, (kind, _, _) in POLICIES.items() if kind == "planner")
+LEARNED_NAMES = tuple(name for name, (kind, _, _) in POLICIES.items() if kind == "learned")
+#: The policies ``gridloc bench`` runs when none are named.
+DEFAULT_POLICIES = tuple(name for name, (_, _, default) in POLICIES.items() if default)
 
 #: Where the shipped models live: ``<env_id>[-size<N>]-<method>.zip``, method ``ppo``, ``distilled``
 #: or ``recurrent`` (:data:`gym_gridloc_agents.files.METHODS`).
@@ -163,17 +186,32 @@ class PPOPolicy(Policy):
 
             torch.manual_seed(int(self.rng.integers(2**63 - 1)))
 
-    def expected_space(self, model: GridModel) -> spaces.Space:
-        from gym_gridloc.wrappers import belief_observation_space
+    @property
+    def builder(self) -> BeliefObservation:
+        """The observation the model was trained on (:class:`gym_gridloc.observation.BeliefObservation`)."""
+        if getattr(self, "_builder", None) is None:
+            self._builder = BeliefObservation(self.model, **self.wrapper)
+        return self._builder
 
-        return belief_observation_space(model, model.sensor.observation_space, **self.wrapper)
+    @property
+    def observation_options(self) -> dict[str, Any]:
+        """The options of that observation: an environment whose ``builder`` has the same ones
+        emits it, and :func:`~gym_gridloc_agents.rollout.rollout` passes it on (``encoded``)."""
+        return self.builder.options
+
+    def expected_space(self, model: GridModel) -> spaces.Space:
+        return BeliefObservation(model, **self.wrapper).space
 
     def encode(self, observation: Any, belief: np.ndarray) -> Any:
         """The observation the model's ``HMMBeliefWrapper`` would give."""
-        return wrapped_observation(self.model, observation, self._full_belief(belief), **self.wrapper)
+        return self.builder.one(self.model, observation, self._full_belief(belief))
 
-    def act(self, observation: Any, belief: np.ndarray) -> int:
-        return int(self.sb3.predict(self.encode(observation, belief), deterministic=self.deterministic)[0])
+    def act(self, observation: Any, belief: np.ndarray, encoded: Any = None) -> int:
+        """The model's action; ``encoded``: the observation it was trained on, when the caller
+        holds it (an environment with the same wrapper options), else built here."""
+        if encoded is None:
+            encoded = self.encode(observation, belief)
+        return int(self.sb3.predict(encoded, deterministic=self.deterministic)[0])
 
 
 def _wrapper_options(wrapper: dict[str, Any] | None) -> dict[str, Any]:
@@ -186,17 +224,8 @@ def wrapped_observation(model: GridModel, observation: Any, belief: np.ndarray, 
                         full_state: bool = False, map: bool = False, lookahead: int = 0) -> Any:
     """The observation ``HMMBeliefWrapper(flatten=..., full_state=..., map=..., lookahead=...)``
     gives for a sensor observation and the hidden-state belief ``(L, H, W)``."""
-    from gym_gridloc.lookahead import lookahead_features
-    from gym_gridloc.wrappers import batch_observation, map_channels
-
-    b = np.asarray(belief)
-    b = (b if full_state else b[0] if b.shape[0] == 1 else b.sum(axis=0)).astype(np.float32)
-    np.clip(b, 0.0, 1.0, out=b)
-    reading = np.array([model.sensor.to_reading(observation)])
-    maps = map_channels(model)[None] if map else None
-    la = lookahead_features(model, belief, lookahead, pose=full_state)[None] if lookahead else None
-    out = batch_observation(model, [observation], reading, b[None], flatten=flatten, maps=maps, lookahead=la)
-    return out[0] if flatten else {k: np.asarray(v[0]) for k, v in out.items()}
+    builder = BeliefObservation(model, flatten=flatten, full_state=full_state, map=map, lookahead=lookahead)
+    return builder.one(model, observation, np.asarray(belief, dtype=np.float64))
 
 
 class RecurrentPolicy(PPOPolicy):
@@ -215,6 +244,8 @@ class RecurrentPolicy(PPOPolicy):
         self._state = None  # the LSTM's memory, fresh at each episode's start
         self._start = np.ones((1,), dtype=bool)
 
+    observation_options = None  # the raw readings: nothing to pass on
+
     def expected_space(self, model: GridModel) -> spaces.Space:
         return model.sensor.observation_space
 
@@ -223,7 +254,7 @@ class RecurrentPolicy(PPOPolicy):
         self._state = None
         self._start = np.ones((1,), dtype=bool)
 
-    def act(self, observation: Any, belief: np.ndarray | None = None) -> int:
+    def act(self, observation: Any, belief: np.ndarray | None = None, encoded: Any = None) -> int:
         action, self._state = self.sb3.predict(
             np.asarray(observation), state=self._state, episode_start=self._start, deterministic=self.deterministic
         )
@@ -305,10 +336,10 @@ def make_policy(
         return RandomPolicy(model, seed=seed)
     if name in ("greedy", "greedy2"):
         return {"greedy": GreedyPolicy, "greedy2": Greedy2Policy}[name](model, seed=seed, pose=pose)
-    if name in ("central", "expectimax", "mcts"):
-        from gym_gridloc_agents.planners import make_planner
+    from gym_gridloc_agents.planners import PLANNER_NAMES, make_planner
 
-        return make_planner(name, model, env_id=env_id, seed=seed, **options)
+    if name in PLANNER_NAMES:
+        return make_planner(name, model, env_id=env_id, seed=seed, pose=pose, **options)
     if name == "optimal":
         from gym_gridloc_agents.optimal import OptimalPolicy
 

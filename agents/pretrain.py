@@ -36,7 +36,7 @@ from tqdm.auto import tqdm
 
 from gym_gridloc_agents.envs import make_env
 from gym_gridloc_agents.files import atomic_path
-from gym_gridloc_agents.policies import PPOPolicy, _wrapper_options, make_policy, wrapped_observation
+from gym_gridloc_agents.policies import PPOPolicy, make_policy
 
 PRETRAIN_SEED_BASE = 1_000_000
 DAGGER_SEED_BASE = 1_500_000
@@ -85,8 +85,7 @@ def _episode_samples(ep, targets: list[np.ndarray], cfg: dict[str, Any],
     """One episode's samples: the observations PPO sees (the config's wrapper), the expert's action
     distributions to imitate (one-hot, or even over a planner's tied best actions), the returns
     (the config's gamma), and the planner's action values where they are asked for."""
-    obs = [wrapped_observation(ep.model, o, b, **_wrapper_options(cfg["wrapper"]))
-           for o, b in zip(ep.observations, ep.beliefs)]
+    obs = ep.encoded[: len(ep.beliefs)]  # the wrapper's observations: the config's (:func:`_env`)
     gamma = float(cfg["hyperparams"].get("gamma", 0.99))
     return {"obs": _stack(obs), "targets": np.asarray(targets, dtype=np.float32),
             "returns": _discounted(ep.rewards, gamma, ep.truncated and not ep.terminated), "length": ep.steps,
@@ -179,10 +178,18 @@ def _save_cache(cache: Path | None, key: str, episodes: list[dict[str, Any]]) ->
         np.savez(fh, key=np.array(key), bounds=bounds, **data, **arrays)
 
 
+def _env(cfg: dict[str, Any]):
+    """The environment behind the config's wrapper: its observations are what PPO trains on (the
+    samples keep them as they come; the expert reads the wrapper's exact belief)."""
+    return make_env(cfg["env_id"], cfg["env_kwargs"], cfg["wrapper"])
+
+
 def _expert(cfg: dict[str, Any], env):
     pre = cfg["pretrain"]
     options = dict(pre.get("expert_kwargs", {}))
-    if pre["expert"] in ("central", "expectimax", "mcts"):  # the planners plan for the referee's own test
+    from gym_gridloc_agents.planners import PLANNER_NAMES
+
+    if pre["expert"] in PLANNER_NAMES:  # the planners plan for the referee's own test
         options.setdefault("threshold", env.unwrapped.localise_threshold)
     return make_policy(pre["expert"], env.unwrapped.model, env_id=cfg["env_id"], pose=env.unwrapped.referee_pose,
                        env_kwargs=cfg["env_kwargs"], **options)
@@ -199,7 +206,7 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
         others = _sibling_caches(cache, key)  # (episodes held, path), most first
         if others and others[0][0] > len(episodes):
             episodes = _load_cache(others[0][1], key)[: pre["episodes"]]
-    env = make_env(cfg["env_id"], cfg["env_kwargs"])
+    env = _env(cfg)
     expert = _Recorded(_expert(cfg, env), values=_wants_values(cfg))
     try:
         for i in tqdm(range(len(episodes), pre["episodes"]), desc=f"expert {pre['expert']} episodes",
@@ -221,7 +228,7 @@ def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = 
     from gym_gridloc_agents.rollout import rollout
 
     pre = cfg["pretrain"]
-    env = make_env(cfg["env_id"], cfg["env_kwargs"])
+    env = _env(cfg)
     expert, values = _expert(cfg, env), _wants_values(cfg)
     student = PPOPolicy(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"], deterministic=False)
     out = []

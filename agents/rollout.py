@@ -1,10 +1,12 @@
 """One episode of a policy: the loop that training evaluation, the warm start, the benchmark and
 the tools (figures, filter comparisons) all run.
 
-The environment is usually an :class:`gym_gridloc.HMMBeliefWrapper` with Dict observations (what
-:func:`gym_gridloc_agents.envs.make_env` builds by default); the policy sees the sensor
-observation and the exact hidden-state belief, ``policy.act(observation, belief)``, and builds
-whatever input it needs from them.  On an environment without a belief filter the policy gets
+The environment is usually an :class:`gym_gridloc.HMMBeliefWrapper` (what
+:func:`gym_gridloc_agents.envs.make_env` builds); the policy sees the sensor observation and the
+exact hidden-state belief, ``policy.act(observation, belief)``, and builds whatever input it needs
+from them.  A learned policy whose ``observation_options`` are the wrapper's (``env.builder``) is
+handed the wrapper's observation as well (``encoded=``): the observation it was trained on, built
+once.  On an environment without a belief filter the policy gets
 ``belief=None`` (only policies that ignore the belief, such as ``random``, can run there).
 """
 
@@ -23,8 +25,9 @@ class Episode:
     ``steps`` counts actions; ``correct[k]`` says whether the most probable position (pose, where
     the referee tests poses) was the truth after ``k`` steps (``k = 0``: at reset),
     ``localised_at[k]`` whether the referee declared it localised then, ``collapsed[k]`` both.  With
-    ``keep=True``, ``observations[k]`` and ``beliefs[k]`` are what the policy saw before
-    ``actions[k]`` (``observations`` ends with the last one), ``infos[k]`` came with
+    ``keep=True``, ``observations[k]`` (the sensor's) and ``beliefs[k]`` are what the policy saw before
+    ``actions[k]`` (``observations`` ends with the last one), ``encoded[k]`` the environment's
+    observation then (the wrapper's, belief included), ``infos[k]`` came with
     ``observations[k]`` and ``states[k]`` is the true hidden state then; with ``frames=True``,
     ``frames[k]`` is ``env.render()`` then.
     """
@@ -40,6 +43,7 @@ class Episode:
     rewards: list[float] = field(default_factory=list)
     actions: list[int] = field(default_factory=list)
     observations: list[Any] = field(default_factory=list)
+    encoded: list[Any] = field(default_factory=list)
     beliefs: list[np.ndarray] = field(default_factory=list)
     infos: list[dict[str, Any]] = field(default_factory=list)
     states: list[tuple[int, int, int]] = field(default_factory=list)
@@ -67,6 +71,10 @@ def rollout(env, policy, seed: int, *, keep: bool = False, frames: bool = False,
     unwrapped = env.unwrapped
     policy.reset(seed=int(seed) if policy_seed is None else policy_seed, model=getattr(unwrapped, "model", None))
     filt = getattr(env, "filter", None)
+    builder = getattr(env, "builder", None)
+    wanted = getattr(policy, "observation_options", None)
+    served = wanted is not None and builder is not None and builder.options == wanted
+    flat = builder is not None and builder.flatten
     ep = Episode(seed=int(seed), model=getattr(unwrapped, "model", None))
 
     def record(obs, info) -> None:
@@ -74,17 +82,23 @@ def rollout(env, policy, seed: int, *, keep: bool = False, frames: bool = False,
         ep.localised_at.append(bool(info["localised"]))
         ep.collapsed.append(bool(info["localised"]) and _right(info))
         if keep:
-            ep.observations.append(obs["observation"] if isinstance(obs, dict) else obs)
+            ep.observations.append(sensor_observation(obs))
+            ep.encoded.append(obs)
             ep.infos.append(dict(info))
             ep.states.append(unwrapped.state)
         if frames:
             ep.frames.append(env.render())
 
+    def sensor_observation(obs):
+        if isinstance(obs, dict):
+            return obs["observation"]
+        return unwrapped.model.sensor.to_observation(unwrapped.last_reading) if flat else obs
+
     record(obs, info)
     while True:
-        reading = obs["observation"] if isinstance(obs, dict) else obs
+        reading = sensor_observation(obs)
         belief = None if filt is None else filt.full_belief
-        action = int(policy.act(reading, belief))
+        action = int(policy.act(reading, belief, encoded=obs) if served else policy.act(reading, belief))
         if keep:
             ep.beliefs.append(belief)
             ep.actions.append(action)

@@ -18,7 +18,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from gym_gridloc_agents import values
 from gym_gridloc_agents.config import ConfigError, load_config, read_yaml, validate_config
+from gym_gridloc_agents.values import split_values
 
 #: Config keys the sweep sets itself (seeds come from ``--seeds``, paths from ``--output``).
 OWNED_KEYS = ("seed", "output", "checkpoint_dir", "tensorboard_log")
@@ -34,42 +36,13 @@ class SweepError(ValueError):
 
 
 # -- --grid ---------------------------------------------------------------------------------------
-_NUMBER = re.compile(r"^[-+]?(\d[\d_]*\.?\d*|\.\d+)([eE][-+]?\d+)?$")
-
-
 def parse_value(text: str) -> Any:
-    """One value as YAML reads a scalar (``64`` int, ``0.5`` float, ``true``, ``null``, a word is
-    a string, ``[16, 16]`` a list), except that a number in exponent notation without a dot
-    (``1e-4``, a string in YAML 1.1) is a float."""
-    import yaml
-
-    text = text.strip()
+    """One ``--grid`` value (:func:`gym_gridloc_agents.values.parse_value`, without tuples: the
+    commas separate the values; ``[16, 16]`` is a list)."""
     try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise SweepError(f"{text!r} is not a YAML value ({' '.join(str(exc).split())})") from None
-    return float(text.replace("_", "")) if isinstance(value, str) and _NUMBER.match(text) else value
-
-
-def split_values(text: str) -> list[str]:
-    """``"1e-4,3e-4"`` -> ``["1e-4", "3e-4"]``; commas inside ``[...]``/``{...}`` or quotes do not split."""
-    parts, depth, quote, cur = [], 0, None, []
-    for ch in text:
-        if quote:
-            quote = None if ch == quote else quote
-        elif ch in "'\"":
-            quote = ch
-        elif ch in "[{":
-            depth += 1
-        elif ch in "]}":
-            depth -= 1
-        elif ch == "," and depth == 0:
-            parts.append("".join(cur))
-            cur = []
-            continue
-        cur.append(ch)
-    parts.append("".join(cur))
-    return parts
+        return values.parse_value(text, tuples=False)
+    except ValueError as exc:
+        raise SweepError(str(exc)) from None
 
 
 def parse_grid(items: Sequence[str] | None) -> dict[str, list[Any]]:

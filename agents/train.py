@@ -33,7 +33,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 import gym_gridloc
 from gym_gridloc import maps
 from gym_gridloc_agents.config import ConfigError, activation, load_config, validate_config
-from gym_gridloc_agents.envs import make_env, make_training_env
+from gym_gridloc_agents.envs import make_env, make_training_env, served_env
 from gym_gridloc_agents.features import EXTRACTORS
 from gym_gridloc_agents.files import (
     OutputError,
@@ -161,6 +161,7 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
     cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy  # (RecurrentPolicy ignores the wrapper)
     policy = cls(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"], deterministic=cfg.get("deterministic", True))
+    env = served_env(env, policy)
     with torch.random.fork_rng():
         eps = [rollout(env, policy, seed, reset_options=opts) for seed, opts in evaluation_episodes(env, cfg, episodes)]
     env.close()

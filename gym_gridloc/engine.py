@@ -16,7 +16,8 @@ the particle filter, smoothing and Viterbi, and the lookahead policies.
 
 Kidnapping (``model.kidnap_prob``: after a move, the robot is teleported to a uniformly chosen free
 state) is mixed in here and nowhere else: :func:`predict` and :func:`backward` mix it into the
-beliefs, :func:`sample_next` draws it.
+beliefs, :func:`kidnapped` into transition probabilities (Viterbi, pomdp_py's transition model),
+:func:`sample_next` draws it.
 
 What the engine derives from a model (the plan of its kernel, the average transition, the batched
 sampler's table of every action's terms) is cached here, per model object, never stored on the
@@ -43,8 +44,9 @@ from gym_gridloc.core.grid import read_only
 from gym_gridloc.core.model import GridModel, Term, mean_transition
 
 __all__ = [
-    "predict", "update", "step", "backward", "likelihood", "likelihoods", "impossible", "plan",
+    "predict", "update", "step", "backward", "kidnapped", "likelihood", "likelihoods", "impossible", "plan",
     "sample_initial", "sample_next", "sample_readings", "states_of", "simulate", "action_indices", "path", "terms",
+    "checked_model",
 ]
 
 
@@ -61,6 +63,9 @@ class _Derived:
         self._lik_bytes = 0
         self.layered = int(model.sensor.layered)
         self._steppers: dict[bool, Any] = {}
+        #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
+        #: ``(cumulative probabilities, last possible outcome)`` (one-state draws).
+        self.outcomes: dict[tuple[int, int, int, int], tuple[list[float], int]] = {}
 
     def lik(self, reading: int) -> np.ndarray:
         """The flat likelihood of one reading (cached while the cache is small)."""
@@ -97,7 +102,7 @@ _DERIVED: "weakref.WeakKeyDictionary[GridModel, _Derived]" = weakref.WeakKeyDict
 
 
 def _derived(model: GridModel) -> _Derived:
-    d = _DERIVED.get(_checked_model(model))  # checked before the lookup: a str cannot be a weak key
+    d = _DERIVED.get(checked_model(model))  # checked before the lookup: a str cannot be a weak key
     if d is None:
         d = _DERIVED[model] = _Derived(model)
     return d
@@ -124,7 +129,7 @@ def terms(model: GridModel, action: int | None) -> tuple[Term, ...]:
 def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
     """``actions`` as ``n`` plan indices (int64): each an action in ``0..A-1``, or ``A`` for an
     unknown action (``None``, alone or as an element).  A scalar applies to all ``n``."""
-    A = _checked_model(model).n_actions
+    A = checked_model(model).n_actions
     if actions is None:
         return np.full(n, A, dtype=np.int64)
     if np.ndim(actions) == 0:
@@ -145,7 +150,7 @@ def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
     return out
 
 
-def _checked_model(model: Any, expected: str = "expected a GridModel") -> GridModel:
+def checked_model(model: Any, expected: str = "expected a GridModel") -> GridModel:
     """``model``, or a TypeError ``"<expected>, got <its type>"`` (each caller's own wording)."""
     if not isinstance(model, GridModel):
         raise TypeError(f"{expected}, got {type(model).__name__}")
@@ -154,7 +159,7 @@ def _checked_model(model: Any, expected: str = "expected a GridModel") -> GridMo
 
 def _flat(model: GridModel, beliefs: np.ndarray, name: str = "belief") -> tuple[np.ndarray, bool]:
     """``(beliefs as (N, L*H*W) float64 C-contiguous, single)``."""
-    shape = _checked_model(model).belief_shape
+    shape = checked_model(model).belief_shape
     b = np.asarray(beliefs)
     if b.shape == shape:
         return np.ascontiguousarray(b, dtype=np.float64).reshape(1, -1), True
@@ -177,6 +182,14 @@ def _kidnap(model: GridModel, before: np.ndarray, after: np.ndarray) -> None:
     k = model.kidnap_prob
     after *= 1.0 - k
     after += (k / model.n_states) * before.sum(axis=1, keepdims=True) * model.state_mask.reshape(1, -1)
+
+
+def kidnapped(model: GridModel, p: Any) -> Any:
+    """Transition probabilities ``P(s' | s)`` (a number or an array, between free states) with
+    the kidnapped robot mixed in: ``(1 - k) p + k / S`` (``k = model.kidnap_prob``; ``p`` as it
+    is when ``k = 0``).  ``kidnapped(model, 0.0)`` is the probability of one teleport's target."""
+    k = model.kidnap_prob
+    return p if k == 0.0 else (1.0 - k) * p + k / model.n_states
 
 
 def predict(model: GridModel, beliefs: np.ndarray, actions: Any = None, out: np.ndarray | None = None) -> np.ndarray:
@@ -205,7 +218,7 @@ def backward(model: GridModel, messages: np.ndarray, action: int | None) -> np.n
     """The transpose of :func:`predict` for one ``(L, H, W)`` message:
     ``out[s] = sum_s' T[s, s'] * message[s']`` (the backward pass of smoothing; kidnapping
     included)."""
-    _checked_model(model)
+    checked_model(model)
     msg = np.asarray(messages, dtype=np.float64)
     out = np.zeros_like(msg)
     for t in terms(model, action):
@@ -228,7 +241,7 @@ def likelihood(model: GridModel, reading: int) -> np.ndarray:
 def likelihoods(model: GridModel, readings: Any, out: np.ndarray | None = None) -> np.ndarray:
     """P(reading_i | state) for N readings as ``(N, H*W)`` (position sensors) or ``(N, L*H*W)``
     (sensors whose reading depends on the layer), zero on obstacles."""
-    return _checked_model(model).sensor.likelihoods(np.asarray(readings, dtype=np.int64).reshape(-1), out=out)
+    return checked_model(model).sensor.likelihoods(np.asarray(readings, dtype=np.int64).reshape(-1), out=out)
 
 
 def impossible(model: GridModel, reading: int, *, label: str | None = None,
@@ -395,7 +408,7 @@ def states_of(model: GridModel, indices: np.ndarray) -> np.ndarray:
 
 def sample_initial(model: GridModel, n: int, rng: np.random.Generator) -> np.ndarray:
     """``n`` hidden states drawn uniformly over the free states, ``(n, 3)`` (layer, row, col)."""
-    return states_of(_checked_model(model), rng.integers(model.n_states, size=n))
+    return states_of(checked_model(model), rng.integers(model.n_states, size=n))
 
 
 def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.random.Generator) -> np.ndarray:
@@ -407,12 +420,13 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     state, which picks the next state by the cumulative probabilities of the action's terms in
     their order.
     """
-    transitions = _derived(model).transitions  # checks the model
+    d = _derived(model)  # checks the model
+    transitions = d.transitions
     st = np.asarray(states, dtype=np.int64).reshape(-1, 3)
     n = st.shape[0]
     if n == 1 and model.kidnap_prob == 0.0 and type(actions) is int and 0 <= actions < model.n_actions:
         # one state: the same draw, without array overheads
-        return np.array([_next_one(transitions[actions], st[0], rng)], dtype=np.int64)
+        return np.array([_next_one(transitions[actions], st[0], rng, d.outcomes, actions)], dtype=np.int64)
     acts = action_indices(model, actions, n)
     out = st.copy()
     moving = np.arange(n)
@@ -423,12 +437,13 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
             moving = np.flatnonzero(~kidnapped)
     if moving.size == 1:
         i = int(moving[0])
-        out[i] = _next_one(transitions[int(acts[i])], st[i], rng)
+        a = int(acts[i])
+        out[i] = _next_one(transitions[a], st[i], rng, d.outcomes, a)
         return out
     if moving.size == 0:
         return out
     u = rng.random(moving.size)
-    weights, keys = _derived(model).moves
+    weights, keys = d.moves
     acts, st_m = acts[moving], st[moving]
     p = weights[acts, :, st_m[:, 1] * model.shape[1] + st_m[:, 2]]  # (n, K): each state's action's terms
     key = keys[acts]  # (n, 4, K)
@@ -444,22 +459,35 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
     return out
 
 
-def _next_one(ts: tuple[Term, ...], state: np.ndarray, rng: np.random.Generator) -> tuple[int, int, int]:
-    """:func:`sample_next` for one moving state ``(3,)`` (the same uniform and arithmetic, on scalars)."""
+#: At most this many single states' outcomes are kept per model (for one-state draws).
+OUTCOMES_CACHED = 1 << 16
+
+
+def _next_one(ts: tuple[Term, ...], state: np.ndarray, rng: np.random.Generator,
+              cache: dict | None = None, action: int = -1) -> tuple[int, int, int]:
+    """:func:`sample_next` for one moving state ``(3,)`` (the same uniform and arithmetic, on
+    scalars).  ``cache`` (keyed by ``action`` and the state) keeps each state's cumulative sums."""
     layer, r, c = state.tolist()
     x = rng.random()
-    p = [float(t.weight[r, c]) if t.src == layer else 0.0 for t in ts]
-    cum = list(itertools.accumulate(p))  # summed left to right, as np.cumsum does
+    key = (action, layer, r, c)
+    found = None if cache is None else cache.get(key)
+    if found is None:
+        p = [float(t.weight[r, c]) if t.src == layer else 0.0 for t in ts]
+        cum = list(itertools.accumulate(p))  # summed left to right, as np.cumsum does
+        found = cum, max(j for j, q in enumerate(p) if q > 0.0)
+        if cache is not None and len(cache) < OUTCOMES_CACHED:
+            cache[key] = found
+    cum, last = found
     k = bisect.bisect_right(cum, x * cum[-1])  # the first term whose cumulative sum exceeds x * total
-    if k == len(p):  # x rounded up to the total: the last possible outcome
-        k = max(j for j, q in enumerate(p) if q > 0.0)
+    if k == len(cum):  # x rounded up to the total: the last possible outcome
+        k = last
     t = ts[k]
     return t.dst, r + t.dr, c + t.dc
 
 
 def sample_readings(model: GridModel, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """One reading per state ``(N, 3)``, drawn from the sensor (N,) int64."""
-    return _checked_model(model).sensor.sample(np.asarray(states, dtype=np.int64).reshape(-1, 3), rng)
+    return checked_model(model).sensor.sample(np.asarray(states, dtype=np.int64).reshape(-1, 3), rng)
 
 
 def simulate(model: GridModel, steps: int, rng: np.random.Generator, actions: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -467,7 +495,7 @@ def simulate(model: GridModel, steps: int, rng: np.random.Generator, actions: An
     ``T = steps``.  ``actions`` (T of them) are taken as given; by default each is drawn uniformly
     just before its move (the same generator draws, in this order: start, first reading, then per
     step: action, move, reading)."""
-    _checked_model(model)
+    checked_model(model)
     states = np.empty((steps + 1, 3), dtype=np.int64)
     readings = np.empty(steps + 1, dtype=np.int64)
     acts = np.empty(steps, dtype=np.int64)

@@ -59,7 +59,7 @@ class ForwardFilter:
     """
 
     def __init__(self, model: GridModel, *, kidnap_prob: float | None = None) -> None:
-        model = engine._checked_model(model, "ForwardFilter needs a GridModel")
+        model = engine.checked_model(model, "ForwardFilter needs a GridModel")
         if kidnap_prob is not None:
             # The kidnapped robot: mix a teleport to a uniform free state with this probability
             # into every prediction (0.0 switches off any kidnapping the model has).
@@ -73,12 +73,13 @@ class ForwardFilter:
         self.log_likelihood = 0.0
 
     # -- the API ---------------------------------------------------------------------------------
-    def reset(self, observation: Any = None) -> "ForwardFilter":
-        """Start from the prior (uniform over free states), updated with ``observation`` if given."""
+    def reset(self, observation: Any = None, *, reading: int | None = None) -> "ForwardFilter":
+        """Start from the prior (uniform over free states), updated with ``observation`` if given
+        (or with its reading index ``reading``, unchecked: for the environment, which drew it)."""
         self._f, self._spare, self._scale = self.model.prior(), None, 1.0
         self.log_likelihood = 0.0
-        if observation is not None:
-            self.update(observation)
+        if observation is not None or reading is not None:
+            self.update(observation, reading=reading)
         return self
 
     def predict(self, action: int | None = None) -> "ForwardFilter":
@@ -90,19 +91,22 @@ class ForwardFilter:
         self._f, self._spare = engine.predict(self.model, f, action, out=out), f
         return self
 
-    def update(self, observation: Any) -> "ForwardFilter":
+    def update(self, observation: Any = None, *, reading: int | None = None) -> "ForwardFilter":
         """Condition on a reading.  Raises :class:`ImpossibleObservationError` (and keeps the
         belief as it was) when the observation has probability zero under the model."""
-        reading = self.model.sensor.to_reading(observation)
+        if reading is None:
+            reading = self.model.sensor.to_reading(observation)
         post = self._belief().copy()
         self.log_likelihood += math.log(float(engine.update(self.model, post, reading)[0]))
         self._f = post
         return self
 
-    def step(self, action: int | None, observation: Any) -> "ForwardFilter":
-        """Predict with ``action``, then update with ``observation``.  On an impossible
+    def step(self, action: int | None, observation: Any = None, *, reading: int | None = None) -> "ForwardFilter":
+        """Predict with ``action``, then update with ``observation`` (or with its reading index
+        ``reading``, an int not checked: for the environment, which drew it).  On an impossible
         observation the belief is left as it was before the step."""
-        reading = self._to_reading(observation)
+        if reading is None:
+            reading = self._to_reading(observation)
         before = self._f
         if before is None:
             raise RuntimeError("call ForwardFilter.reset() before using the filter")
@@ -188,7 +192,7 @@ class BatchFilter:
     """
 
     def __init__(self, model: GridModel, n: int) -> None:
-        self.model = engine._checked_model(model, "BatchFilter needs a GridModel")
+        self.model = engine.checked_model(model, "BatchFilter needs a GridModel")
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"n (the number of beliefs) must be a positive integer, got {n!r}")
         self.n = int(n)

@@ -42,7 +42,7 @@ __all__ = [
 # -- reading an episode ----------------------------------------------------------------------------
 def _episode(model: GridModel, actions: Sequence[Any] | None, observations: Sequence[Any]) -> tuple[list[int | None], list[int]]:
     """Checked ``(actions, readings)`` of an episode."""
-    engine._checked_model(model, "model must be a GridModel")
+    engine.checked_model(model, "model must be a GridModel")
     obs = list(observations)
     if not obs:
         raise ValueError("observations must hold at least one observation (the reading at reset)")
@@ -164,7 +164,7 @@ class FixedLagSmoother:
     """
 
     def __init__(self, model: GridModel, lag: int, *, full_state: bool = False) -> None:
-        self.model = engine._checked_model(model, "FixedLagSmoother needs a GridModel")
+        self.model = engine.checked_model(model, "FixedLagSmoother needs a GridModel")
         self.lag = check_int("lag", lag, minimum=0)
         self.full_state = bool(full_state)
         self.t = -1
@@ -279,7 +279,7 @@ def viterbi(
         """``(term, source slices, destination slices, log weight)`` for each term of ``a``."""
         with np.errstate(divide="ignore"):
             return [
-                (t, *t.slices, np.log((1.0 - p_kid) * t.weight + (p_kid / n_states if p_kid > 0 else 0.0)))
+                (t, *t.slices, np.log(engine.kidnapped(model, t.weight)))
                 for t in engine.terms(model, a)
             ]
 
@@ -299,7 +299,7 @@ def viterbi(
         if p_kid > 0.0:
             j = int(np.argmax(delta))
             kidnap_from[k - 1] = j
-            cand = delta.flat[j] + np.log(p_kid / n_states)
+            cand = delta.flat[j] + np.log(engine.kidnapped(model, 0.0))
             better = mask & (cand > new)
             new[better] = cand
             bp[better] = -1

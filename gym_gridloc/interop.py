@@ -169,9 +169,7 @@ def _classes() -> dict[str, type]:
             for s2, q in m.outcomes(state.tuple, action.index):
                 if s2 == target:
                     p += q
-            if m.kidnap_prob > 0.0:
-                p = (1.0 - m.kidnap_prob) * p + m.kidnap_prob / m.n_states
-            return p
+            return engine.kidnapped(m, p)
 
         def sample(self, state, action):
             return self.pp.to_state(self.pp.sample_next(state.tuple, action.index))

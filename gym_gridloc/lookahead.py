@@ -37,7 +37,7 @@ class Lookahead:
     """
 
     def __init__(self, model: GridModel, *, pose: bool = False, weak: bool = False) -> None:
-        model = engine._checked_model(model, "a lookahead needs the environment's GridModel")
+        model = engine.checked_model(model, "a lookahead needs the environment's GridModel")
         self._model, self._model_ref = (None, weakref.ref(model)) if weak else (model, None)
         self.pose = bool(pose or model.sensor.layered)
         self.n_actions = model.n_actions

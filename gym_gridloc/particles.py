@@ -69,7 +69,7 @@ class ParticleFilter:
         kidnap_prob: float | None = None,
         on_depletion: str = "reinitialise",
     ) -> None:
-        model = engine._checked_model(model, "ParticleFilter needs a GridModel")
+        model = engine.checked_model(model, "ParticleFilter needs a GridModel")
         if kidnap_prob is not None:
             model = model.with_kidnapping(kidnap_prob)
         self.model = model

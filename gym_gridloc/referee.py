@@ -16,9 +16,25 @@ import numpy as np
 REWARDS = ("step", "belief")
 
 
-def _entropy(p: np.ndarray) -> np.ndarray:
-    """Entropy in bits along the last axis (``0 log 0 = 0``); the same sums for one row or N."""
-    return -(p * np.log2(p + (p <= 0.0))).sum(axis=-1) + 0.0  # + 0.0: no -0.0 for a sure belief
+def entropy(p: np.ndarray) -> np.ndarray:
+    """Entropy in bits along the last axis of probabilities ``p`` (``0 log 0 = 0``); the same
+    sums for one row or N: a float64 array of ``p.shape[:-1]`` (a 0-d array for one row)."""
+    return -np.add.reduce(p * np.log2(p + (p <= 0.0)), axis=-1) + 0.0  # + 0.0: no -0.0 for a sure belief
+
+
+def confidences(beliefs: np.ndarray, *, pose: bool = False) -> np.ndarray:
+    """What the referee tests in N hidden-state beliefs ``(N, L, H, W)``: the largest position
+    probability (``pose=True``: the largest hidden-state probability), ``(N,)``."""
+    n, L = beliefs.shape[:2]
+    flat = beliefs.reshape(n, -1) if pose or L == 1 else beliefs.sum(axis=1).reshape(n, -1)
+    return flat.max(axis=1)
+
+
+def localised(beliefs: np.ndarray, threshold: float, *, pose: bool = False, slack: float = 0.0) -> np.ndarray:
+    """The referee's test on N hidden-state beliefs ``(N, L, H, W)``: the confidence
+    (:func:`confidences`) reaches ``threshold - slack``, ``(N,)`` booleans.  The environments end
+    an episode on it; the planners stop planning on it."""
+    return confidences(beliefs, pose=pose) >= threshold - slack
 
 
 def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose: bool = False) -> dict[str, np.ndarray]:
@@ -47,7 +63,6 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     if pose:
         layer = k // (h * w)
         right &= layer == states[:, 0]
-    entropy = _entropy(pflat)
     info = {
         "position": truth.copy(),
         "estimate": estimate,
@@ -55,7 +70,7 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
         "error": error,
         "localised": localised,
         "success": localised & right,
-        "entropy": entropy,
+        "entropy": entropy(pflat),
     }
     if L > 1:
         info["heading"] = states[:, 0].copy()
@@ -77,7 +92,7 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
     confidence = float(tested[k])
     layer, cell = divmod(k, h * w)
     estimate = divmod(cell, w)
-    truth_layer, row, col = (int(v) for v in state)
+    truth_layer, row, col = state.tolist() if isinstance(state, np.ndarray) else (int(v) for v in state)
     error = abs(estimate[0] - row) + abs(estimate[1] - col)
     localised = confidence >= threshold
     right = error == 0 and (not pose or layer == truth_layer)
@@ -88,7 +103,7 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
         "error": error,
         "localised": localised,
         "success": localised and right,
-        "entropy": float(_entropy(pos)),
+        "entropy": float(entropy(pos)),
     }
     if L > 1:
         info["heading"] = truth_layer

@@ -31,9 +31,8 @@ from gymnasium.vector.utils import batch_space
 
 from gym_gridloc import engine, referee
 from gym_gridloc.envs.base import GridLocEnv
-from gym_gridloc.lookahead import lookahead_features
-from gym_gridloc.wrappers import (batch_observation, belief_observation_space, check_belief_option, check_lookahead,
-                                  map_channels)
+from gym_gridloc.observation import BeliefObservation, check_lookahead
+from gym_gridloc.wrappers import check_belief_option
 
 
 class GridLocVectorEnv(gym.vector.VectorEnv):
@@ -98,8 +97,10 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self.metadata = {"autoreset_mode": self.autoreset_mode, "render_modes": []}
         self.render_mode = None
         inner = template.observation_space
-        self.single_observation_space = inner if self.belief is None else belief_observation_space(
+        #: The observation's space and encoding, as :class:`HMMBeliefWrapper`'s (None: readings only).
+        self.builder = None if self.belief is None else BeliefObservation(
             model, inner, flatten=flatten, full_state=full_state, map=map, lookahead=self.lookahead)
+        self.single_observation_space = inner if self.builder is None else self.builder.space
         self.single_action_space = template.action_space
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
@@ -190,16 +191,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     def _observations(self):
         model = self.models[0]
         obs = model.sensor.observations(self._readings)
-        if self.belief is None:
+        if self.builder is None:
             return obs
-        b = (self._beliefs if self.full_state else self.position_beliefs).astype(np.float32)
-        np.clip(b, 0.0, 1.0, out=b)
-        channels = {id(m): map_channels(m) for m in self.models} if self.map else {}  # once per distinct map
-        maps = np.stack([channels[id(m)] for m in self.models]) if channels else None
-        # (N, lookahead, A) expected entropies per action
-        look = np.stack([lookahead_features(m, f, self.lookahead, pose=self.full_state)
-                         for m, f in zip(self.models, self._beliefs)]) if self.lookahead else None
-        return batch_observation(model, obs, self._readings, b, flatten=self.flatten, maps=maps, lookahead=look)
+        return self.builder.encode(model if len(self._groups) == 1 else self.models, obs, self._readings, self._beliefs)
 
     def _infos(self) -> dict[str, np.ndarray]:
         t = self.template

@@ -1,4 +1,8 @@
-"""Wrappers: :class:`HMMBeliefWrapper` appends the exact forward-filter belief to observations."""
+"""Wrappers: :class:`HMMBeliefWrapper` appends the exact forward-filter belief to observations.
+
+The observation's space and encoding are :mod:`gym_gridloc.observation`'s (``map_channels``,
+``belief_observation_space``, ``batch_observation`` and ``check_lookahead`` are importable from
+here too)."""
 
 from __future__ import annotations
 
@@ -14,6 +18,8 @@ from gym_gridloc.core.model import GridModel
 from gym_gridloc.core.validation import check_choice
 from gym_gridloc.filter import ForwardFilter
 from gym_gridloc.lookahead import lookahead_features
+from gym_gridloc.observation import (BeliefObservation, batch_observation, belief_observation_space,  # noqa: F401
+                                     check_lookahead, map_channels, observed_belief)
 from gym_gridloc.particles import ParticleFilter
 
 
@@ -31,83 +37,16 @@ def check_belief_option(belief: Any, allowed: Sequence[Any]) -> Any:
     return check_choice("belief", belief, allowed)
 
 
-def map_channels(model: GridModel) -> np.ndarray:
-    """The map as image channels ``(C, H, W)`` float32 in {0, 1}: the free cells, then (for maps
-    whose cells carry labels, such as colours) one channel per label."""
-    grid = model.grid
-    k = len(grid.symbols)
-    return np.stack([grid.free, *(grid.labels == i for i in range(k if k > 1 else 0))]).astype(np.float32)
-
-
-def check_lookahead(lookahead: Any) -> int:
-    """The ``lookahead=`` keyword: 0 (none), 1 or 2 (rows of :func:`lookahead_features`)."""
-    if isinstance(lookahead, (bool, np.bool_)) or not isinstance(lookahead, (int, np.integer)) or lookahead not in (0, 1, 2):
-        raise ValueError(f"lookahead must be 0, 1 or 2 (the rows of expected entropies per action), got {lookahead!r}")
-    return int(lookahead)
-
-
-def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: bool = False,
-                             full_state: bool = False, key: str = "belief", map: bool = False,
-                             lookahead: int = 0) -> spaces.Space:
-    """The observation space of ``inner`` with the belief of ``model`` appended (and the map, with
-    ``map``; the expected entropies per action, with ``lookahead``), as :class:`HMMBeliefWrapper`
-    and the native vector env give it."""
-    shape = model.belief_shape if full_state else model.shape
-    map_shape = map_channels(model).shape
-    look_shape = (lookahead, model.n_actions)
-    if flatten:
-        if isinstance(inner, spaces.Dict):
-            raise ValueError("flatten=True needs a non-Dict observation space")
-        if inner != model.sensor.observation_space:
-            raise ValueError(f"flatten=True encodes the sensor's {model.sensor.observation_space}, but the observations are {inner}")
-        n = (model.sensor.encoded_size + int(np.prod(shape)) + (int(np.prod(map_shape)) if map else 0)
-             + int(np.prod(look_shape)))
-        return spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float32)
-    parts = ((key, shape, True), ("map", map_shape, map), ("lookahead", look_shape, lookahead))
-    if not isinstance(key, str) or not key:
-        raise TypeError(f"key must be a non-empty string, got {key!r}")
-    if (key == "map" and map) or (key == "lookahead" and lookahead):  # one of them would be dropped
-        raise ValueError(f"key={key!r} is also the key of the {key} observation ({key}=...): choose another key for the belief")
-    extra = {name: spaces.Box(0.0, 1.0, shape=s, dtype=np.float32) for name, s, wanted in parts if wanted}
-    if isinstance(inner, spaces.Dict):
-        clash = sorted(set(extra) & set(inner.spaces))
-        if clash:
-            raise ValueError(f"the observation space already has the key(s) {clash}; pass key=... to choose another")
-        return spaces.Dict({**inner.spaces, **extra})
-    if "observation" in extra:
-        raise ValueError("key='observation' would replace the sensor reading (the Dict keeps it under 'observation'); choose another key")
-    return spaces.Dict({"observation": inner, **extra})
-
-
-def batch_observation(model: GridModel, observations: Any, readings: np.ndarray, beliefs: np.ndarray, *,
-                      flatten: bool, key: str = "belief", maps: np.ndarray | None = None,
-                      lookahead: np.ndarray | None = None):
-    """N observations with their beliefs appended, as :func:`belief_observation_space` lays
-    them out: ``observations`` are the N sensor observations (a batch, or a dict of batches),
-    ``readings`` their reading indices, ``beliefs`` float32 ``(N, ...)``, ``maps`` ``(N, C, H, W)``
-    map channels or None, ``lookahead`` ``(N, depth, A)`` expected entropies or None.  Without
-    ``flatten`` the layout does not depend on N: one observation, its belief, its map and its
-    expected entropies (no batch axis) give the single observation (``readings`` unused)."""
-    if flatten:
-        n = readings.shape[0]
-        parts = [model.sensor.encode(readings), beliefs.reshape(n, -1)]
-        parts += [x.reshape(n, -1) for x in (maps, lookahead) if x is not None]
-        return np.concatenate(parts, axis=1)
-    extra = {key: beliefs}
-    if maps is not None:
-        extra["map"] = maps
-    if lookahead is not None:
-        extra["lookahead"] = lookahead
-    if isinstance(observations, dict):
-        return {**observations, **extra}
-    return {"observation": observations, **extra}
-
-
 class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """Append the exact forward-filter (HMM) belief over positions to each observation.
 
     The belief is computed from the actions this wrapper passes on and the observations it
-    receives, nothing else: the wrapped environment's hidden state is never read.
+    receives, nothing else: the wrapped environment's hidden state is never read.  When the
+    wrapper's model is the environment's (the default) and the belief is exact, that belief is
+    the environment's own posterior (its referee, :attr:`GridLocEnv.exact_filter
+    <gym_gridloc.GridLocEnv.exact_filter>`), served as it is: the filter steps once per step.  The
+    wrapper keeps a filter of its own only for another model (mismatch studies), for particles,
+    or for an environment without one; :attr:`filter` is the one in use.
 
     Parameters
     ----------
@@ -172,8 +111,9 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         #: No model given: follow the environment's, also when it redraws its map at reset.
         self._follows_env = model is None
         self._filter_args = {"n_particles": n_particles, "resample_threshold": resample_threshold}
+        self._inner = env.unwrapped
         if model is None:
-            model = getattr(env.unwrapped, "model", None)
+            model = getattr(self._inner, "model", None)
             if not isinstance(model, GridModel):
                 raise TypeError(
                     "HMMBeliefWrapper needs a model: the environment has no GridModel at "
@@ -184,7 +124,6 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.on_impossible = check_choice("on_impossible", on_impossible, ("raise", "reset"))
         self.model = model
         self.belief = check_belief_option(belief, ("exact", "particles"))
-        self.filter = self._make_filter(model)
         for name, value in (("flatten", flatten), ("full_state", full_state), ("map", map)):
             if not isinstance(value, (bool, np.bool_)):
                 raise TypeError(f"{name} must be True or False, got {value!r}")
@@ -203,11 +142,28 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             )
         if not isinstance(key, str) or not key:
             raise TypeError(f"key must be a non-empty string, got {key!r}")
-        self.observation_space = belief_observation_space(model, inner, flatten=self.flatten, full_state=self.full_state,
-                                                          key=key, map=self.map, lookahead=self.lookahead)
+        #: The observation's space and encoding (:class:`gym_gridloc.observation.BeliefObservation`).
+        self.builder = BeliefObservation(model, inner, flatten=self.flatten, full_state=self.full_state, key=key,
+                                         map=self.map, lookahead=self.lookahead)
+        self.observation_space = self.builder.space
+        self._shared = self._shares()
+        self._filter = None if self._shared else self._make_filter(model)
         self._reset_flag = False
 
     # -- filtering -------------------------------------------------------------------------------
+    def _shares(self) -> bool:
+        """True when the belief is the environment's exact posterior: an exact belief on the
+        environment's own model, and an environment that keeps one."""
+        return (self.belief == "exact" and self.model is getattr(self._inner, "model", None)
+                and isinstance(getattr(self._inner, "exact_filter", None), ForwardFilter))
+
+    @property
+    def filter(self) -> ForwardFilter | ParticleFilter:
+        """The filter whose belief the observations carry: the environment's exact posterior
+        (read it; stepping it is the environment's business) when the wrapper's model is the
+        environment's, else the wrapper's own (another model, particles)."""
+        return self._inner.exact_filter if self._shared else self._filter
+
     def _make_filter(self, model: GridModel, rng: np.random.Generator | None = None):
         return (ParticleFilter(model, **self._filter_args, rng=rng) if self.belief == "particles"
                 else ForwardFilter(model))
@@ -217,20 +173,29 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
-        env_model = getattr(self.env.unwrapped, "model", None) if self._follows_env else None
+        env_model = getattr(self._inner, "model", None) if self._follows_env else None
         if env_model is not None and env_model is not self.model:  # the map was redrawn at reset
             self.model = env_model
+        self._shared = self._shares()
+        if not self._shared and (self._filter is None or self._filter.model is not self.model):
             # The particles' stream (with particles) goes on, seeded or not, across maps.
-            self.filter = self._make_filter(env_model, rng=getattr(self.filter, "rng", None))
+            self._filter = self._make_filter(self.model, rng=getattr(self._filter, "rng", None))
+        if self._shared:
+            self._reset_flag = False
+            return self._served(obs), (info if self.on_impossible == "raise" else {**info, "belief_reset": False})
         if seed is not None and self.belief == "particles":  # a stream of its own, fixed by the seed
-            self.filter.seed(np.random.SeedSequence(seed, spawn_key=(1,)))
-        info = self._filtered(lambda: self.filter.reset(self._sensor_obs(obs)), info)
+            self._filter.seed(np.random.SeedSequence(seed, spawn_key=(1,)))
+        info = self._filtered(lambda: self._filter.reset(self._sensor_obs(obs)), info)
         return self.observation(obs), info
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
+        if self._shared:  # the environment's posterior has taken this step already
+            if self.on_impossible == "reset":
+                info = {**info, "belief_reset": False}
+            return self._served(obs), reward, terminated, truncated, info
         reading = self._sensor_obs(obs)
-        info = self._filtered(lambda: self.filter.step(action, reading), info, reading)
+        info = self._filtered(lambda: self._filter.step(action, reading), info, reading)
         return self.observation(obs), reward, terminated, truncated, info
 
     def _filtered(self, update: Callable[[], Any], info: dict[str, Any], retry: Any = None) -> dict[str, Any]:
@@ -244,17 +209,22 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             if self.on_impossible == "raise":
                 raise ImpossibleObservationError(f"{exc}; {_RESET_HINT}") from exc
             try:
-                self.filter.reset(retry)
+                self._filter.reset(retry)
             except ImpossibleObservationError:
-                self.filter.reset()
+                self._filter.reset()
             self._reset_flag = True
         return {**info, "belief_reset": self._reset_flag} if self.on_impossible == "reset" else info
 
     # -- the observation -------------------------------------------------------------------------
+    def _served(self, observation: Any):
+        """The observation with the environment's posterior (its reading index known: no round trip)."""
+        inner = self._inner
+        return self.builder.one(self.model, observation, inner.exact_filter.full_belief, reading=inner.last_reading)
+
     def belief_array(self) -> np.ndarray:
         """The current belief as float32, (H, W) or (L, H, W) with ``full_state``."""
-        b = (self.filter.full_belief if self.full_state else self.filter.position_belief).astype(np.float32)
-        return np.clip(b, 0.0, 1.0, out=b)
+        f = self.filter
+        return observed_belief(f.full_belief if self.full_state else f.position_belief[None], self.full_state)
 
     def lookahead_array(self) -> np.ndarray | None:
         """The expected entropies per action of the current belief ``(lookahead, A)`` (None
@@ -264,12 +234,6 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         return lookahead_features(self.model, self.filter.full_belief, self.lookahead, pose=self.full_state)
 
     def observation(self, observation: Any) -> dict[str, Any] | np.ndarray:
-        maps = map_channels(self.model) if self.map else None
-        look = self.lookahead_array()
-        if not self.flatten:
-            return batch_observation(self.model, observation, None, self.belief_array(), flatten=False, key=self.key,
-                                     maps=maps, lookahead=look)
-        reading = np.array([self.model.sensor.to_reading(self._sensor_obs(observation))])
-        return batch_observation(self.model, None, reading, self.belief_array()[None], flatten=True,
-                                 maps=None if maps is None else maps[None],
-                                 lookahead=None if look is None else look[None])[0]
+        f = self.filter
+        position = None if self._shared or self.full_state else f.position_belief
+        return self.builder.one(self.model, observation, f.full_belief, position=position)

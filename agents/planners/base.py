@@ -19,16 +19,18 @@ class PlannerPolicy(Policy):
 
     name = "planner"
 
-    def __init__(self, model: GridModel, *, threshold: float = 0.9, seed: int | None = None, **_: Any) -> None:
+    def __init__(self, model: GridModel, *, threshold: float = 0.9, seed: int | None = None, pose: bool = False,
+                 **_: Any) -> None:
         super().__init__(model, seed=seed)
         self.threshold = float(threshold)
-        self.ops = BeliefOps(model, self.threshold)
+        self.pose = bool(pose)  # stop where the referee does: on the pose (DepthMaze) or the position
+        self.ops = BeliefOps(model, self.threshold, pose=self.pose)
         self.decisions = 0
         self.seconds = 0.0
 
     def set_model(self, model: GridModel) -> None:
         super().set_model(model)
-        self.ops = BeliefOps(model, self.threshold)
+        self.ops = BeliefOps(model, self.threshold, pose=self.pose)
 
     def values(self, b: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         """Each action's cost (lower is better) at the normalised belief ``b``."""

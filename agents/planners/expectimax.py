@@ -62,8 +62,7 @@ def _q_values(ops, nodes, depth, leaf, prune, renormalise, memo, slack, stats, m
         sl = slice(s, min(m, s + chunk))
         post = flat_preds[ii[sl]] * flat_lik[zz[sl]]
         post /= p[sl, None]
-        pos = post.reshape(-1, L, H * W).sum(axis=1) if L > 1 else post
-        op = np.flatnonzero(pos.max(axis=1) < ops.threshold - slack)
+        op = np.flatnonzero(~ops.localised(post.reshape(-1, L, H, W), slack))
         if len(op) == 0:
             continue
         beliefs = post[op].reshape(-1, L, H, W)

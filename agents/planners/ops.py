@@ -7,7 +7,7 @@ import functools
 
 import numpy as np
 
-from gym_gridloc import engine
+from gym_gridloc import engine, referee
 from gym_gridloc.core.model import GridModel
 
 
@@ -20,9 +20,11 @@ def predict_batch(model: GridModel, beliefs: np.ndarray, actions: np.ndarray) ->
 class BeliefOps:
     """What the planners need of a model, built once from the public interface."""
 
-    def __init__(self, model, threshold: float = 0.9) -> None:
+    def __init__(self, model, threshold: float = 0.9, *, pose: bool = False) -> None:
         self.model = model
         self.threshold = float(threshold)
+        #: The referee tests poses (the most probable hidden state), not positions (DepthMaze).
+        self.pose = bool(pose)
         self.A = int(model.n_actions)
         self.Z = int(model.sensor.n_readings)
         self.shape = tuple(model.belief_shape)  # (L, H, W)
@@ -53,10 +55,13 @@ class BeliefOps:
         return beliefs.sum(axis=1)
 
     def max_position(self, beliefs: np.ndarray) -> np.ndarray:
-        return self.position(beliefs).reshape(beliefs.shape[0], -1).max(axis=1)
+        """What the referee tests: the largest position probability, or hidden-state probability
+        with ``pose`` (:func:`gym_gridloc.referee.confidences`), ``(N,)``."""
+        return referee.confidences(beliefs, pose=self.pose)
 
     def localised(self, beliefs: np.ndarray, slack: float = 0.0) -> np.ndarray:
-        return self.max_position(beliefs) >= self.threshold - slack
+        """The referee's test (:func:`gym_gridloc.referee.localised`), ``(N,)`` booleans."""
+        return referee.localised(beliefs, self.threshold, pose=self.pose, slack=slack)
 
     def predict_all(self, beliefs: np.ndarray) -> np.ndarray:
         """Every action for every belief: (N, L, H, W) -> (N * A, L, H, W), node-major."""

@@ -25,34 +25,21 @@ class _Parser(argparse.ArgumentParser):
 
 
 def parse_value(text: str) -> Any:
-    """An environment keyword's value: ``true``/``false`` (bool), ``none``, an int, a float, a
-    comma-separated tuple of those (``16,16``), or else the string itself."""
-    if "," in text:
-        return tuple(parse_value(part) for part in text.split(",") if part.strip())
-    t = text.strip()
-    low = t.lower()
-    if low in ("true", "false"):
-        return low == "true"
-    if low == "none":
-        return None
-    for kind in (int, float):
-        try:
-            return kind(t)
-        except ValueError:
-            pass
-    return t
+    """An environment keyword's value (:func:`gym_gridloc_agents.values.parse_value`: ``true``,
+    ``none``, ints, floats with ``1e-4``, ``16,16`` a tuple, else the string itself)."""
+    from gym_gridloc_agents import values
+
+    try:
+        return values.parse_value(text)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def parse_kw(items: Sequence[str] | None) -> dict[str, Any]:
     """``["slip=0.2", "size=16,16"]`` -> ``{"slip": 0.2, "size": (16, 16)}``."""
-    out: dict[str, Any] = {}
-    for item in items or ():
-        key, sep, value = item.partition("=")
-        key = key.strip()
-        if not sep or not key.isidentifier():
-            raise UsageError(f"--kw takes KEY=VALUE (e.g. --kw slip=0.2 --kw size=16,16), got {item!r}")
-        out[key] = parse_value(value)
-    return out
+    from gym_gridloc_agents.values import key_values
+
+    return key_values(items, "--kw (e.g. --kw slip=0.2 --kw size=16,16)", UsageError, identifiers=True)
 
 
 def _cell(text: str, what: str) -> tuple[int, int]:

@@ -129,6 +129,18 @@ class RingSensor(Sensor):
     def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The 25 window cells in row-major order (zero off the grid), then nothing."""
         h, w = self.grid.shape
+        if states.shape[0] == 1:  # the same draw, its probabilities kept per cell
+            r, c = states[0, 1:].tolist()
+            k = self._draw_one((r, c), lambda: self._window(states)[0][0], rng)
+            return np.array([self.nothing if k == 25 else (r + k // 5 - 2) * w + c + k % 5 - 2])
+        probs, rr, cc = self._window(states)
+        k = self._categorical(probs, rng)
+        cell = np.take_along_axis(rr * w + cc, np.minimum(k, 24)[:, None], axis=1)[:, 0]
+        return np.where(k == 25, self.nothing, cell)
+
+    def _window(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(probabilities (N, 26), rows (N, 25), columns (N, 25))`` of each state's readings."""
+        h, w = self.grid.shape
         r, c = states[:, 1], states[:, 2]
         di, dj = np.divmod(np.arange(25), 5)
         rr = r[:, None] + di[None, :] - 2
@@ -137,9 +149,7 @@ class RingSensor(Sensor):
         probs = np.empty((states.shape[0], 26))
         probs[:, :25] = np.where(inside, self.kernel.reshape(-1)[None, :], 0.0)
         probs[:, 25] = self._nothing[r, c]
-        k = self._categorical(probs, rng)
-        cell = np.take_along_axis(rr * w + cc, np.minimum(k, 24)[:, None], axis=1)[:, 0]
-        return np.where(k == 25, self.nothing, cell)
+        return probs, rr, cc
 
     def describe(self, reading: int) -> str:
         if reading == self.nothing:

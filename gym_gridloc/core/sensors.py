@@ -35,6 +35,9 @@ class Sensor(ABC):
     #: True when a reading's probability depends on the layer (e.g. the heading) as well as the cell.
     layered: bool = False
 
+    #: At most this many states' reading distributions are kept for single draws.
+    ROWS_CACHED = 1 << 16
+
     def __init__(self, grid: GridMap) -> None:
         self.grid = grid
 
@@ -79,6 +82,22 @@ class Sensor(ABC):
     @abstractmethod
     def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One reading per state ``(N, 3)``, (N,) int64, drawn with ``rng``."""
+
+    def _draw_one(self, key: Any, row_of, rng: np.random.Generator) -> int:
+        """:meth:`_categorical` for one state (the same uniform and arithmetic), its row of
+        probabilities ``row_of()`` summed once per state ``key`` and kept while few are kept."""
+        rows = self.__dict__.setdefault("_rows", {})
+        found = rows.get(key)
+        if found is None:
+            row = row_of()
+            found = (np.cumsum(row).tolist(), row.sum(), row.size - 1)
+            if len(rows) < self.ROWS_CACHED:
+                rows[key] = found
+        cum, total, last = found
+        return min(bisect.bisect_right(cum, rng.random() * total), last)
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "_rows"}  # (a cache: rebuilt on use)
 
     @staticmethod
     def _categorical(probs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -186,6 +205,9 @@ class TableSensor(Sensor):
         return np.ascontiguousarray(self.table[(slice(None), *idx)].T)
 
     def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        if states.shape[0] == 1:
+            key = tuple(states[0].tolist()) if self.layered else tuple(states[0, 1:].tolist())
+            return np.array([self._draw_one(key, lambda: self._columns(states)[0], rng)])
         return self._categorical(self._columns(states), rng)
 
     def likelihoods(self, readings: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
@@ -252,9 +274,16 @@ class WallSensor(TableSensor):
         self._set_table(table)
 
     def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        if states.shape[0] == 1:
-            p = self.p_bits[:, int(states[0, 1]), int(states[0, 2])]
-            return np.array([int((rng.random(4) < p) @ self._BITS)])
+        if states.shape[0] == 1:  # the same draws and comparisons, on scalars
+            r, c = states[0, 1:].tolist()
+            rows = self.__dict__.setdefault("_rows", {})
+            p = rows.get((r, c))
+            if p is None:
+                p = self.p_bits[:, r, c].tolist()
+                if len(rows) < self.ROWS_CACHED:
+                    rows[(r, c)] = p
+            u = rng.random(4).tolist()
+            return np.array([(u[0] < p[0]) * 8 + (u[1] < p[1]) * 4 + (u[2] < p[2]) * 2 + (u[3] < p[3])])
         bits = rng.random((states.shape[0], 4)) < self.p_bits[:, states[:, 1], states[:, 2]].T
         return bits.astype(np.int64) @ self._BITS
 

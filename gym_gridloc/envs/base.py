@@ -55,6 +55,7 @@ class GridLocEnv(gym.Env):
         self.render_mode = render_mode
         self.observation_space = model.sensor.observation_space
         self.action_space = spaces.Discrete(model.n_actions)
+        self._n_actions = model.n_actions
         self._referee = ForwardFilter(model)
         self._fixed_model = model
         self._builder = builder
@@ -90,20 +91,23 @@ class GridLocEnv(gym.Env):
         self._last_action = None
         self._elapsed = 0
         obs = self._read()
-        self._referee.reset(obs)
+        self._referee.reset(reading=self._last_reading)
         return obs, self._info()
 
     def step(self, action):
         if self._states is None:
             raise RuntimeError("call reset() before step()")
-        if not self.action_space.contains(action):
+        if type(action) is int and 0 <= action < self._n_actions:  # the common case, without the space's checks
+            a = action
+        elif self.action_space.contains(action):
+            a = int(action)
+        else:
             raise ValueError(f"action {action!r} is not in the action space {self.action_space} ({self.model.action_legend})")
-        a = int(action)
         self._states = engine.sample_next(self.model, self._states, a, self.np_random)
         self._last_action = a
         self._elapsed += 1
         obs = self._read()
-        self._referee.step(a, obs)
+        self._referee.step(a, reading=self._last_reading)  # the reading drawn: no round trip through obs
         info = self._info()
         if self.episode_length is None:
             terminated, truncated = bool(info["localised"]), False
@@ -198,6 +202,14 @@ class GridLocEnv(gym.Env):
     def state(self) -> tuple[int, int, int] | None:
         """The true hidden state ``(layer, row, col)`` (not part of the observation)."""
         return None if self._states is None else tuple(int(v) for v in self._states[0])
+
+    @property
+    def exact_filter(self) -> ForwardFilter:
+        """The referee: the exact forward filter of the episode's model, stepped once per step
+        with the action and the reading (not part of the observation).  Read its belief
+        (``full_belief``, ``position_belief``); :class:`~gym_gridloc.HMMBeliefWrapper` serves it
+        as the observation's belief.  Stepping or setting it changes the referee."""
+        return self._referee
 
     @property
     def posterior(self) -> np.ndarray:

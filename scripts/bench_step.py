@@ -1,0 +1,113 @@
+"""What one environment step costs: the wrapped single step against Gymnasium's ``FrozenLake-v1``,
+and the native vector env against ``SyncVectorEnv`` over the wrapper.
+
+* ``wrapped``: ``HMMBeliefWrapper(gym.make(ENV))`` (the Dict belief observation), random actions,
+  the mean time of one ``step`` over ``--steps`` steps (resets between episodes not timed);
+  ``FrozenLake-v1`` (``gym.make``, the same wrappers Gymnasium adds) timed the same way, in
+  the same run, interleaved in rounds so that background load hits both alike.
+* ``vector``: ``gym.make_vec(ENV, num_envs=N, vectorization_mode="vector_entry_point")`` against
+  ``gym.make_vec(ENV, num_envs=N, vectorization_mode="sync", wrappers=[HMMBeliefWrapper])``,
+  environment steps per second, random actions.
+
+Targets (issue 22): a wrapped step at most 2.5 x FrozenLake for WindyMaze-v0 and ColourGrid-v0,
+at most 4 x for RingSensor8x8-v0 and DepthMaze-v0 (7x7); the native vector env at least 30 x
+SyncVectorEnv at 64 envs.
+
+    .venv/bin/python scripts/bench_step.py
+    .venv/bin/python scripts/bench_step.py --steps 20000 --num-envs 64
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import gymnasium as gym
+import numpy as np
+
+import gym_gridloc
+
+TARGETS = {"WindyMaze-v0": 2.5, "ColourGrid-v0": 2.5, "RingSensor8x8-v0": 4.0, "DepthMaze-v0": 4.0}
+
+
+def step_seconds(env, steps: int, rng: np.random.Generator, seed: int) -> float:
+    """Seconds spent in ``env.step`` over ``steps`` random actions (resets not counted)."""
+    n_actions = env.action_space.n
+    actions = rng.integers(0, n_actions, size=steps).tolist()
+    env.reset(seed=seed)
+    clock = time.perf_counter
+    spent = 0.0
+    for a in actions:
+        t0 = clock()
+        _, _, terminated, truncated, _ = env.step(a)
+        spent += clock() - t0
+        if terminated or truncated:
+            seed += 1
+            env.reset(seed=seed)
+    return spent
+
+
+def wrapped_ratios(env_ids, steps: int, rounds: int) -> list[tuple[str, float, float]]:
+    """``(env id, mean µs per wrapped step, mean µs per FrozenLake step)`` per environment."""
+    lake = gym.make("FrozenLake-v1")
+    rng = np.random.default_rng(0)
+    out = []
+    for env_id in env_ids:
+        env = gym_gridloc.HMMBeliefWrapper(gym.make(env_id))
+        step_seconds(env, 200, rng, 10**6)  # warm up (compilation, caches)
+        step_seconds(lake, 200, rng, 10**6)
+        ours = theirs = 0.0
+        per = max(1, steps // rounds)
+        for r in range(rounds):
+            ours += step_seconds(env, per, rng, 1000 * r)
+            theirs += step_seconds(lake, per, rng, 1000 * r)
+        out.append((env_id, 1e6 * ours / (per * rounds), 1e6 * theirs / (per * rounds)))
+        env.close()
+    return out
+
+
+def vector_rate(env, n: int, steps: int, seed: int = 0) -> float:
+    rng = np.random.default_rng(seed)
+    actions = rng.integers(0, env.single_action_space.n, size=(256, n))
+    env.reset(seed=seed)
+    for t in range(5):
+        env.step(actions[t])
+    t0 = time.perf_counter()
+    for t in range(steps):
+        env.step(actions[t % len(actions)])
+    return steps * n / (time.perf_counter() - t0)
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--envs", nargs="+", default=list(TARGETS), choices=gym_gridloc.ENV_IDS, help="environment ids")
+    p.add_argument("--steps", type=int, default=10000, help="wrapped steps timed per environment (and FrozenLake)")
+    p.add_argument("--rounds", type=int, default=5, help="alternations between ours and FrozenLake")
+    p.add_argument("--num-envs", type=int, default=64, help="N of the vector comparison (0: skip)")
+    p.add_argument("--vector-steps", type=int, default=200, help="vector steps timed (x N environment steps)")
+    args = p.parse_args(argv)
+
+    print(f"Mean time of one step over {args.steps} steps, random actions (resets not timed)")
+    print(f"{'env':<18} | {'wrapped':>10} {'FrozenLake':>11} | {'ratio':>6} {'target':>7}")
+    for env_id, ours, lake in wrapped_ratios(args.envs, args.steps, args.rounds):
+        ratio, target = ours / lake, TARGETS.get(env_id)
+        verdict = "" if target is None else f"<= {target:g}x: {'met' if ratio <= target else 'NOT met'}"
+        print(f"{env_id:<18} | {ours:>8.1f}us {lake:>9.1f}us | {ratio:>5.1f}x {verdict}")
+
+    if args.num_envs > 0:
+        n = args.num_envs
+        print(f"\nVector env, N = {n}, environment steps per second ({args.vector_steps} vector steps)")
+        print(f"{'env':<18} | {'native':>10} {'sync':>10} | {'native / sync':>13}")
+        for env_id in args.envs:
+            native = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point")
+            sync = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", wrappers=[gym_gridloc.HMMBeliefWrapper])
+            a = vector_rate(native, n, args.vector_steps)
+            b = vector_rate(sync, n, max(10, args.vector_steps // 10))
+            ratio = a / b
+            print(f"{env_id:<18} | {a:>8.0f}/s {b:>8.0f}/s | {ratio:>12.1f}x {'>= 30x: met' if ratio >= 30 else '>= 30x: NOT met'}")
+            native.close()
+            sync.close()
+
+
+if __name__ == "__main__":
+    main()
