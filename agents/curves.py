@@ -137,6 +137,12 @@ def plot_curves(curves: Sequence[dict[str, Any]], lines: dict[str, float], out: 
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    # the y range: the curves' bands and the lines near them (a line far off is named, not drawn)
+    band = [v for c in curves for pair in c["ci95"] for v in pair] + [v for c in curves for v in c["iqm"]]
+    near = [v for v in lines.values() if band and min(band) - (max(band) - min(band)) <= v <= max(band) + (max(band) - min(band))]
+    lo_y, hi_y = min(band + near, default=0.0), max(band + near, default=1.0)
+    pad = 0.08 * (hi_y - lo_y or abs(hi_y) or 1.0)
+    lo_y, hi_y = lo_y - pad, hi_y + pad
     styles = {"random": ("0.5", ":"), "greedy2": ("tab:green", "--"), "best planner": ("tab:red", "-.")}
     for ax, xkey, xlabel in ((axes[0], "steps", "environment steps"), (axes[1], "wall_time_seconds", "training wall time (s)")):
         for c in curves:
@@ -151,7 +157,12 @@ def plot_curves(curves: Sequence[dict[str, Any]], lines: dict[str, float], out: 
             ax.fill_between(xs, lo, hi, color=line.get_color(), alpha=0.2)
         for name, value in lines.items():
             colour, style = styles.get(name, ("black", ":"))
-            ax.axhline(value, color=colour, linestyle=style, linewidth=1.2, label=f"{name} {value:.3g}")
+            if lo_y <= value <= hi_y:
+                ax.axhline(value, color=colour, linestyle=style, linewidth=1.2, label=f"{name} {value:.4g}")
+            else:  # far off the curves (the random walk, usually): named at the edge, not drawn
+                ax.annotate(f"{name} {value:.4g} ({'above' if value > hi_y else 'below'})", xy=(0.99, 0.98 if value > hi_y else 0.02),
+                            xycoords="axes fraction", ha="right", va="top" if value > hi_y else "bottom", color=colour, fontsize=8)
+        ax.set_ylim(lo_y, hi_y)
         ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)
     metric = curves[0]["metric"] if curves else "mean_steps"
