@@ -68,7 +68,7 @@ for module in (gym_gridloc, gym_gridloc_agents):
     assert (where.parent / "py.typed").is_file(), f"{module.__name__} has no py.typed"
 installed = importlib.metadata.version("gym_gridloc")
 assert gym_gridloc.__version__ == installed, (gym_gridloc.__version__, installed)
-policies = pathlib.Path(gym_gridloc_agents.__file__).parent / "policies"
+policies = pathlib.Path(gym_gridloc_agents.__file__).parent / "models"
 assert sorted(p.name for p in policies.glob("*.zip")), "no shipped policies in the wheel"
 for env_id in gym_gridloc.ENV_IDS:
     env = gym.make(env_id)

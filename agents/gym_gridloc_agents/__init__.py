@@ -1,15 +1,21 @@
 """gym_gridloc's agents: policies, planners, training and evaluation (installed as
-``gym_gridloc_agents``; needs the ``rl`` extra).
+``gym_gridloc_agents``; needs the ``rl`` extra). Grouped as they are used; at the top, what every
+group shares:
 
-- :mod:`~gym_gridloc_agents.policies`: ``random``, ``greedy``, ``greedy2``, ``ppo``, ``recurrent``
-  behind one interface, ``policy.reset(seed, model)`` then ``policy.act(observation, belief)``;
-- :mod:`~gym_gridloc_agents.rollout`: one episode of a policy (used by everything below);
-- :mod:`~gym_gridloc_agents.envs`: environment factories and the SB3 adapter of the vector env;
-- :mod:`~gym_gridloc_agents.files`: atomic writes, model metadata, safe model loading (model zips
-  are pickles: trusted sources only);
-- :mod:`~gym_gridloc_agents.config`, :mod:`~gym_gridloc_agents.train`,
-  :mod:`~gym_gridloc_agents.pretrain`: YAML configs and training that never loses work;
-- :mod:`~gym_gridloc_agents.bench`: the localisation-speed benchmark;
+- :mod:`~gym_gridloc_agents.policies`: the one table of policies (``random``, ``greedy``,
+  ``greedy2``, the planners, ``ppo``, ``distilled``, ``recurrent``) behind one interface,
+  ``policy.reset(seed, model)`` then ``policy.act(observation, belief)``; the shipped models are in
+  ``models/`` beside it;
+- :mod:`~gym_gridloc_agents.base`, :mod:`~gym_gridloc_agents.values`,
+  :mod:`~gym_gridloc_agents.features`, :mod:`~gym_gridloc_agents.files`: the ``Policy`` base, the
+  ``KEY=VALUE`` reader, the SB3 features extractors (saved models name them), atomic writes, model
+  metadata and safe model loading (model zips are pickles: trusted sources only);
+- :mod:`~gym_gridloc_agents.planners`: the planners (with ``optimal`` and ``pomcp``);
+- :mod:`~gym_gridloc_agents.training`: configs, environments, training, the warm start;
+- :mod:`~gym_gridloc_agents.evaluation`: one episode (``rollout``), the benchmark, statistics,
+  tables and plots;
+- :mod:`~gym_gridloc_agents.sweeps`: ``gridloc sweep`` on Ray Tune;
+- :mod:`~gym_gridloc_agents.viewer`: ``gridloc play``/``view``;
 - :mod:`~gym_gridloc_agents.cli`: the ``gridloc`` command.
 """
 
