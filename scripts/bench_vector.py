@@ -7,7 +7,7 @@ For N = 1, 16, 64, 256 environments, random actions, beliefs in the observations
   (Gymnasium's SyncVectorEnv over single wrapped environments).
 
 Then PPO (stable-baselines3, ``MultiInputPolicy``) training throughput in timesteps per second
-with each: the native env through :class:`gym_gridloc_agents.training.envs.SB3VecEnv`, and SB3's own
+with each: the native env through :class:`gym_gridloc_agents.envs.SB3VecEnv`, and SB3's own
 ``DummyVecEnv`` over ``HMMBeliefWrapper`` environments.  All ratios come from this one run.
 
     .venv/bin/python scripts/bench_vector.py
@@ -94,7 +94,7 @@ def main(argv=None) -> None:
         from stable_baselines3.common.env_util import make_vec_env
         from stable_baselines3.common.vec_env import DummyVecEnv
 
-        from gym_gridloc_agents.training.envs import SB3VecEnv
+        from gym_gridloc_agents.envs import SB3VecEnv
 
         torch.set_num_threads(1)
         results = []

@@ -138,7 +138,7 @@ def _render(args) -> int:
     from gym_gridloc_agents.evaluation.figures import episode_frames, episode_strips, write_gif
 
     from gym_gridloc_agents import files
-    from gym_gridloc_agents.training.envs import check_environment
+    from gym_gridloc_agents.envs import check_environment
 
     envs = args.env or list(gym_gridloc.ENV_IDS)
     try:

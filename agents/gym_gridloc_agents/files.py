@@ -421,7 +421,7 @@ def model_kwargs(env_id: str | None, kwargs: dict) -> str:
     import gymnasium as gym
 
     import gym_gridloc  # noqa: F401 - registers the environments
-    from gym_gridloc_agents.training.envs import default_kwargs
+    from gym_gridloc_agents.envs import default_kwargs
 
     defaults = default_kwargs(env_id) if env_id in gym.registry else {}
     kwargs = {**defaults, **dict(kwargs)}

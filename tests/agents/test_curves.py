@@ -208,7 +208,7 @@ def test_sampled_acting_is_seeded_per_episode_and_read_from_the_metadata(tmp_pat
     the same every time (torch's generator seeded at reset), so benchmark rows stay reproducible."""
     import shutil
 
-    from gym_gridloc_agents.training.envs import make_env
+    from gym_gridloc_agents.envs import make_env
     from gym_gridloc_agents.policies import POLICY_DIR, make_policy
     from gym_gridloc_agents.evaluation.rollout import rollout
 

@@ -6,7 +6,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from gym_gridloc_agents.training.envs import SB3VecEnv, check_environment, make_env
+from gym_gridloc_agents.envs import SB3VecEnv, check_environment, make_env
 
 
 def test_stable_baselines3_trains_on_the_adapter():

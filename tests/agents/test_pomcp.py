@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from gym_gridloc_agents.training.envs import make_env
+from gym_gridloc_agents.envs import make_env
 from gym_gridloc_agents.policies import POLICY_NAMES, make_policy
 from gym_gridloc_agents.evaluation.rollout import rollout
 

@@ -65,7 +65,7 @@ def test_warm_start_at_a_temperature_caches_the_planner_values(tmp_path):
 def test_learning_rate_decays_to_its_final_value(tmp_path, monkeypatch):
     from stable_baselines3 import PPO
 
-    from gym_gridloc_agents.training.envs import make_training_env
+    from gym_gridloc_agents.envs import make_training_env
 
     cfg = validate_config(_cfg(tmp_path, learning_rate=1e-3, learning_rate_final=1e-5))
     model = PPO("MlpPolicy", make_training_env(cfg), policy_kwargs={"net_arch": [8]}, n_steps=16, batch_size=16, device="cpu")

@@ -82,7 +82,7 @@ def bench_main(args) -> int:
     """``gridloc bench``: every argument checked before the first episode, then the run and its outputs."""
     from gym_gridloc_agents.evaluation.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, BenchmarkInterrupted, add_gaps, run_benchmark
     from gym_gridloc_agents.evaluation.bench_cluster import ClusterError  # (Ray itself only once a run on a cluster starts)
-    from gym_gridloc_agents.training.envs import check_environment
+    from gym_gridloc_agents.envs import check_environment
     from gym_gridloc_agents import files
     from gym_gridloc_agents.files import OutputError, expand_models
     from gym_gridloc_agents.policies import POLICY_NAMES
@@ -233,7 +233,7 @@ def bound_main(args) -> int:
     """``gridloc bound``: the depth-K lower bound of one environment."""
     import json
 
-    from gym_gridloc_agents.training.envs import check_environment, make_env
+    from gym_gridloc_agents.envs import check_environment, make_env
     from gym_gridloc_agents import files
     from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write
     from gym_gridloc_agents.planners import lower_bound

@@ -2,7 +2,7 @@
 the tools (figures, filter comparisons) all run.
 
 The environment is usually an :class:`gym_gridloc.HMMBeliefWrapper` (what
-:func:`gym_gridloc_agents.training.envs.make_env` builds); the policy sees the sensor observation and the
+:func:`gym_gridloc_agents.envs.make_env` builds); the policy sees the sensor observation and the
 exact hidden-state belief, ``policy.act(observation, belief)``, and builds whatever input it needs
 from them.  A learned policy whose ``observation_options`` are the wrapper's (``env.builder``) is
 handed the wrapper's observation as well (``encoded=``): the observation it was trained on, built

@@ -233,7 +233,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     cfg.setdefault("env_kwargs", {})
     if not isinstance(cfg["env_kwargs"], dict):
         raise ConfigError(f"{source}: env_kwargs must be a mapping, got {cfg['env_kwargs']!r}")
-    from gym_gridloc_agents.training.envs import check_environment
+    from gym_gridloc_agents.envs import check_environment
 
     check_environment(cfg["env_id"], cfg["env_kwargs"], what=f"{source}: env_id/env_kwargs", error=ConfigError)
 

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from gym_gridloc_agents.training.envs import make_env
+from gym_gridloc_agents.envs import make_env
 from gym_gridloc_agents.files import atomic_path
 from gym_gridloc_agents.policies import PPOPolicy, make_policy
 

@@ -33,7 +33,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 import gym_gridloc
 from gym_gridloc import maps
 from gym_gridloc_agents.training.config import ConfigError, activation, load_config, validate_config
-from gym_gridloc_agents.training.envs import make_env, make_training_env, served_env
+from gym_gridloc_agents.envs import make_env, make_training_env, served_env
 from gym_gridloc_agents.features import EXTRACTORS
 from gym_gridloc_agents.files import (
     OutputError,
@@ -406,7 +406,7 @@ def check_resumed_config(resume: Path, prev: dict[str, Any], cfg: dict[str, Any]
     the environment's keywords (defaults filled in) or :data:`RESUME_KEYS`."""
     import json
 
-    from gym_gridloc_agents.training.envs import default_kwargs
+    from gym_gridloc_agents.envs import default_kwargs
 
     def canon(value: Any) -> str:
         return json.dumps(value, sort_keys=True, default=str)
