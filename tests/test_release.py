@@ -100,7 +100,7 @@ def test_wheel_installs_and_runs_outside_the_checkout(tmp_path):
     with zipfile.ZipFile(wheel) as z:
         names = set(z.namelist())
     assert {"gym_gridloc/py.typed", "gym_gridloc_agents/py.typed"} <= names
-    assert any(n.startswith("gym_gridloc_agents/policies/") and n.endswith(".zip") for n in names)
+    assert any(n.startswith("gym_gridloc_agents/models/") and n.endswith(".zip") for n in names)
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
     metadata = next(n for n in names if n.endswith(".dist-info/METADATA"))
     with zipfile.ZipFile(wheel) as z:
