@@ -28,7 +28,7 @@ from gym_gridloc_agents.evaluation import stats
 from gym_gridloc_agents.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
-SHIPPED = ROOT / "agents" / "gym_gridloc_agents" / "models" / "ColourGrid-v0.zip"
+SHIPPED = ROOT / "agents" / "gym_gridloc_agents" / "models" / "ColourGrid-v0-ppo.zip"
 needs_ray = pytest.mark.skipif(
     importlib.util.find_spec("ray") is None or importlib.util.find_spec("optuna") is None,
     reason="needs the sweep extra (ray[tune], optuna)",
