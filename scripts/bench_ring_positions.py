@@ -13,7 +13,7 @@ import gymnasium as gym
 
 import gym_gridloc
 from gym_gridloc_agents.policies import make_policy
-from gym_gridloc_agents.rollout import rollout
+from gym_gridloc_agents.evaluation.rollout import rollout
 
 
 def main() -> None:

@@ -45,7 +45,7 @@ import gym_gridloc
 from gym_gridloc import FixedLagSmoother, ForwardFilter, ImpossibleObservationError, ParticleFilter, smooth
 from gym_gridloc.recording import kidnap_steps, steps_to_recover
 from gym_gridloc_agents.policies import RandomPolicy
-from gym_gridloc_agents.rollout import rollout
+from gym_gridloc_agents.evaluation.rollout import rollout
 
 LAGS = (1, 3, 5)
 PARTICLES = (50, 200, 1000)

@@ -5,7 +5,7 @@ into the policy's float32 parameters, so the model acts in float32 on weights ro
 The rounding can change a decision, so benchmark the copy, not the original, before quoting it.
 The metadata beside the model is copied with ``"weights": "float16"`` added.
 
-    .venv/bin/python scripts/half_precision.py runs/model.zip agents/policies/WindyMaze-v0-size9.zip
+    .venv/bin/python scripts/half_precision.py runs/model.zip agents/gym_gridloc_agents/models/WindyMaze-v0-size9.zip
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Retrain every shipped policy from its config (overwrites agents/policies/*.zip).
+"""Retrain every shipped policy from its config (overwrites agents/gym_gridloc_agents/models/*.zip).
 
     .venv/bin/python scripts/train_all.py            # all configs in configs/
     .venv/bin/python scripts/train_all.py ppo_windymaze recurrent_windymaze

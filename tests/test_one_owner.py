@@ -140,8 +140,8 @@ def test_kidnapping_mixed_in_one_place():
 
 
 def test_one_key_value_reader_for_bench_view_and_sweep():
-    from gym_gridloc_agents.bench_command import _key_values
-    from gym_gridloc_agents.sweep_spec import parse_grid
+    from gym_gridloc_agents.evaluation.bench_command import _key_values
+    from gym_gridloc_agents.sweeps.sweep_spec import parse_grid
     from gym_gridloc_agents.values import key_values, parse_value
     from gym_gridloc_agents.viewer.args import parse_kw
 
@@ -157,7 +157,8 @@ def test_one_key_value_reader_for_bench_view_and_sweep():
 
 
 def test_one_policy_table():
-    from gym_gridloc_agents import bench, policies
+    from gym_gridloc_agents.evaluation import bench
+    from gym_gridloc_agents import policies
 
     assert policies.POLICY_NAMES == tuple(policies.POLICIES)
     assert set(policies.LEARNED_POLICIES) == set(policies.LEARNED_NAMES) == set(bench.LEARNED)

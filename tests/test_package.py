@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = {"gym_gridloc": ROOT / "gym_gridloc", "gym_gridloc_agents": ROOT / "agents"}
+#: Each package's folder: a file's path below its root (the repository, or agents/) is its import name.
+PACKAGES = {"gym_gridloc": ROOT / "gym_gridloc", "gym_gridloc_agents": ROOT / "agents" / "gym_gridloc_agents"}
 MAX_LINES = 400
 
 
@@ -140,9 +141,9 @@ def test_import_agents_from_outside_the_repository_finds_nothing_of_ours(tmp_pat
 
 def test_setuptools_builds_the_packages_without_warnings(tmp_path):
     """``build_py`` (what ``pip install``, ``pip wheel`` and ``python -m build`` run) on a copy of the
-    sources: no "Package would be ignored" (the data folders ``agents/policies`` and
-    ``agents/leaves`` are declared packages) and no other setuptools warning; the data lands where
-    the code looks for it."""
+    sources: no "Package would be ignored" (the data folders ``models/`` and
+    ``planners/fitted_leaves/`` are found as packages of their own) and no other setuptools warning;
+    the data lands where the code looks for it, every module where its import name says."""
     src = tmp_path / "src"
     src.mkdir()
     for name in ("pyproject.toml", "README.md", "LICENSE"):
@@ -160,12 +161,25 @@ def test_setuptools_builds_the_packages_without_warnings(tmp_path):
                 and "byte-compiling is disabled" not in line]  # (PYTHONDONTWRITEBYTECODE, not the config)
     assert warnings == [], "\n".join(warnings)
     agents = out / "gym_gridloc_agents"
-    assert sorted(p.name for p in (agents / "policies").glob("*.zip")) == sorted(
-        p.name for p in (ROOT / "agents" / "policies").glob("*.zip")) != []
-    assert sorted(p.name for p in (agents / "leaves").glob("*.json")) == sorted(
-        p.name for p in (ROOT / "agents" / "leaves").glob("*.json")) != []
+    source = PACKAGES["gym_gridloc_agents"]
+    assert sorted(p.name for p in (agents / "models").glob("*.zip")) == sorted(
+        p.name for p in (source / "models").glob("*.zip")) != []
+    assert sorted(p.name for p in (agents / "planners" / "fitted_leaves").glob("*.json")) == sorted(
+        p.name for p in (source / "planners" / "fitted_leaves").glob("*.json")) != []
     assert (agents / "py.typed").is_file() and (out / "gym_gridloc" / "py.typed").is_file()
     assert (agents / "planners" / "leaves.py").is_file() and (agents / "viewer" / "app.py").is_file()
+    built = {".".join(p.relative_to(out).with_suffix("").parts).removesuffix(".__init__") for p in out.rglob("*.py")}
+    assert built == set(MODULES)
+
+
+def test_agents_folder_holds_the_package_and_nothing_else():
+    """The repository's ``agents/`` folder is a source root, like the repository itself: it holds
+    ``gym_gridloc_agents/`` only (no ``agents/__init__.py``), so ``agents/<dotted path>.py`` is a
+    module's import name."""
+    assert sorted(p.name for p in (ROOT / "agents").iterdir() if p.name != "__pycache__") == ["gym_gridloc_agents"]
+    for module, path in MODULES.items():
+        root = ROOT / "agents" if module.startswith("gym_gridloc_agents") else ROOT
+        assert ".".join(path.relative_to(root).with_suffix("").parts).removesuffix(".__init__") == module
 
 
 def test_setup_script_says_what_it_is_doing():

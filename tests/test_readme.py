@@ -75,8 +75,8 @@ def test_the_first_example_runs_its_loop_and_resets_after_termination(capsys):
 
 
 def test_the_benchmark_columns_are_explained_beside_the_first_command():
-    pytest.importorskip("gym_gridloc_agents.report")
-    from gym_gridloc_agents.report import terminal_table
+    pytest.importorskip("gym_gridloc_agents.evaluation.report")
+    from gym_gridloc_agents.evaluation.report import terminal_table
 
     row = {"env": "WindyMaze-v0", "policy": "greedy", "mean_steps": 5.0, "mean_steps_ci95": [4.0, 6.0],
            "success_rate": 0.9, "accuracy_at": {"10": 0.9}, "ms_per_decision": 0.1, "gap_to_best_planner": 1.1,

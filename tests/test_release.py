@@ -68,7 +68,7 @@ for module in (gym_gridloc, gym_gridloc_agents):
     assert (where.parent / "py.typed").is_file(), f"{module.__name__} has no py.typed"
 installed = importlib.metadata.version("gym_gridloc")
 assert gym_gridloc.__version__ == installed, (gym_gridloc.__version__, installed)
-policies = pathlib.Path(gym_gridloc_agents.__file__).parent / "policies"
+policies = pathlib.Path(gym_gridloc_agents.__file__).parent / "models"
 assert sorted(p.name for p in policies.glob("*.zip")), "no shipped policies in the wheel"
 for env_id in gym_gridloc.ENV_IDS:
     env = gym.make(env_id)
@@ -100,7 +100,7 @@ def test_wheel_installs_and_runs_outside_the_checkout(tmp_path):
     with zipfile.ZipFile(wheel) as z:
         names = set(z.namelist())
     assert {"gym_gridloc/py.typed", "gym_gridloc_agents/py.typed"} <= names
-    assert any(n.startswith("gym_gridloc_agents/policies/") and n.endswith(".zip") for n in names)
+    assert any(n.startswith("gym_gridloc_agents/models/") and n.endswith(".zip") for n in names)
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
     metadata = next(n for n in names if n.endswith(".dist-info/METADATA"))
     with zipfile.ZipFile(wheel) as z:

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gym_gridloc_agents.bench import run_benchmark, run_episodes
-from gym_gridloc_agents.report import markdown_table
+from gym_gridloc_agents.evaluation.bench import run_benchmark, run_episodes
+from gym_gridloc_agents.evaluation.report import markdown_table
 from gym_gridloc_agents.cli import main
 
 KEYS = {"env", "policy", "episodes", "success_rate", "truncated_rate", "mean_steps", "median_steps",
@@ -165,7 +165,7 @@ def test_cli_update_recomputes_the_gap_to_a_planner_of_an_earlier_run(tmp_path):
 
 
 def test_wilson_interval_matches_known_values():
-    from gym_gridloc_agents.stats import wilson_ci95
+    from gym_gridloc_agents.evaluation.stats import wilson_ci95
 
     # 0 of 10 and 10 of 10: the interval still has width (the normal approximation's would not).
     assert wilson_ci95(0, 10)[0] == 0.0 and abs(wilson_ci95(0, 10)[1] - 0.27753) < 1e-4
@@ -204,7 +204,7 @@ def test_bad_bench_arguments_get_one_line_and_exit_status_2(argv, message, capsy
 
 
 def test_unwritable_outputs_are_refused_before_the_first_episode(tmp_path, capsys, monkeypatch):
-    import gym_gridloc_agents.bench as b
+    import gym_gridloc_agents.evaluation.bench as b
 
     monkeypatch.setattr(b, "run_benchmark", lambda *a, **k: pytest.fail("ran although an output is unwritable"))
     blocker = tmp_path / "file"
@@ -269,7 +269,7 @@ def test_test_set_protocol_rows_report_accuracy_at_L(tmp_path, capsys):
 
     from gym_gridloc import HMMBeliefWrapper
     from gym_gridloc_agents.policies import make_policy
-    from gym_gridloc_agents.rollout import rollout
+    from gym_gridloc_agents.evaluation.rollout import rollout
 
     m = maps.test_set("DepthMaze-v0", 7, 5)[2]
     env = HMMBeliefWrapper(gym.make("DepthMaze-v0", size=7, episode_length=6), full_state=True)
@@ -289,7 +289,7 @@ def test_markdown_table_columns_follow_the_rows():
 
 
 def test_merge_keeps_rows_with_other_options_or_maps():
-    from gym_gridloc_agents.report import merge_rows
+    from gym_gridloc_agents.evaluation.report import merge_rows
 
     base = {"env": "WindyMaze-v0", "policy": "expectimax", "episodes": 1, "mean_steps": 4.0, "success_rate": 1.0}
     rows = merge_rows([base, {**base, "options": {"depth": 3}}], [{**base, "mean_steps": 3.9}, {**base, "env_kwargs": {"size": 9}}])
@@ -364,7 +364,7 @@ def _row(policy="greedy", env="WindyMaze-v0", **extra):
 
 
 def test_terminal_table_fits_100_columns_and_keeps_the_key_numbers():
-    from gym_gridloc_agents.report import terminal_table
+    from gym_gridloc_agents.evaluation.report import terminal_table
 
     plain = terminal_table([_row(), _row("greedy2", mean_steps=4.83)])
     assert max(map(len, plain.splitlines())) <= 100
@@ -417,7 +417,7 @@ class _SlowFirstCall:
 
 
 def test_warm_up_keeps_first_call_costs_out_of_the_timed_decisions(monkeypatch):
-    from gym_gridloc_agents import bench
+    from gym_gridloc_agents.evaluation import bench
 
     real = bench.make_task_policy
     monkeypatch.setattr(bench, "make_task_policy", lambda task, env: _SlowFirstCall(real(task, env)))
@@ -434,7 +434,7 @@ def test_warm_up_keeps_first_call_costs_out_of_the_timed_decisions(monkeypatch):
                                             ("ColourGrid-v0", "greedy2"), ("ColourGrid-v0", "ppo"),
                                             ("WindyMaze-v0", "recurrent"), ("ColourGrid-v0", "mcts")])
 def test_warm_up_changes_nothing_but_the_timings(env_id, policy):
-    from gym_gridloc_agents import bench
+    from gym_gridloc_agents.evaluation import bench
 
     options = {"simulations": 30} if policy == "mcts" else {}
     task = bench.Task(env_id, policy, {}, None, options)  # learned: the shipped model

@@ -166,7 +166,7 @@ def test_address_errors_are_one_line(capsys, args, says):
 def test_chunks_in_any_number_give_the_serial_parts():
     """The chunking that --jobs and --address share: whatever the number of workers, the parts put
     back together are the serial run's episodes in order."""
-    from gym_gridloc_agents.bench import Task, chunk_work, episode_specs, gather_chunks
+    from gym_gridloc_agents.evaluation.bench import Task, chunk_work, episode_specs, gather_chunks
 
     tasks = [Task("ColourGrid-v0", "random"), Task("ColourGrid-v0", "greedy")]
     specs = {"ColourGrid-v0": episode_specs("ColourGrid-v0", {}, 10, 5, False)}
@@ -207,7 +207,7 @@ def bench_on_two_nodes_gives_the_local_rows(cluster, windy_local, tmp_path):
     cluster_s = time.monotonic() - start
     remote = json.loads((tmp_path / "cluster.json").read_text())
     assert [_timeless(r) for r in remote] == [_timeless(r) for r in local]
-    assert remote[1]["model"] == local[1]["model"] == "agents/policies/WindyMaze-v0.zip"  # the name, not a worker's copy
+    assert remote[1]["model"] == local[1]["model"] == "agents/gym_gridloc_agents/models/WindyMaze-v0.zip"  # the name, not a worker's copy
     nodes = set()
     for row in remote:
         c = row["cluster"]

@@ -10,7 +10,7 @@ import pytest
 import yaml
 from scipy import stats as sps
 
-from gym_gridloc_agents import curves, stats
+from gym_gridloc_agents.evaluation import curves, stats
 from gym_gridloc_agents.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -106,7 +106,7 @@ PURE = sorted((ROOT / "configs").glob("ppo_*.yml"))
 
 
 def test_pure_configs_have_no_planner():
-    from gym_gridloc_agents.config import load_config
+    from gym_gridloc_agents.training.config import load_config
 
     assert {p.stem for p in PURE} >= {"ppo_windymaze", "ppo_colourgrid", "ppo_ringsensor"}
     for path in PURE:
@@ -120,9 +120,9 @@ def test_pure_configs_have_no_planner():
 
 
 def test_a_pure_config_never_calls_the_pretraining_code(tmp_path, monkeypatch):
-    import gym_gridloc_agents.pretrain as pretrain
-    import gym_gridloc_agents.train as train_module
-    from gym_gridloc_agents.config import load_config
+    import gym_gridloc_agents.training.pretrain as pretrain
+    import gym_gridloc_agents.training.train as train_module
+    from gym_gridloc_agents.training.config import load_config
 
     def forbidden(*args, **kwargs):
         raise AssertionError("the pretraining code ran")
@@ -142,8 +142,8 @@ def test_a_pure_config_never_calls_the_pretraining_code(tmp_path, monkeypatch):
 def test_linear_schedules(tmp_path):
     from stable_baselines3 import PPO
 
-    from gym_gridloc_agents.config import ConfigError, validate_config
-    from gym_gridloc_agents.train import train
+    from gym_gridloc_agents.training.config import ConfigError, validate_config
+    from gym_gridloc_agents.training.train import train
 
     base = {"algo": "ppo", "env_id": "ColourGrid-v0", "n_envs": 2, "seed": 0, "total_timesteps": 1024,
             "policy_kwargs": {"net_arch": [8]}, "output": str(tmp_path / "s.zip"), "checkpoint_dir": str(tmp_path / "ck"),
@@ -187,7 +187,7 @@ def test_another_sb3_algorithm_trains_from_the_same_config_format(tmp_path, algo
     """A2C and DQN: the same YAML keys as PPO, the same held-out evaluations (learning curves),
     metadata that names the algorithm as the method (from the reward alone, no planner)."""
     from gym_gridloc_agents.files import algo_class
-    from gym_gridloc_agents.train import train
+    from gym_gridloc_agents.training.train import train
 
     path = tmp_path / f"{algo}.yml"
     path.write_text(yaml.safe_dump({
@@ -210,7 +210,7 @@ def test_sampled_acting_is_seeded_per_episode_and_read_from_the_metadata(tmp_pat
 
     from gym_gridloc_agents.envs import make_env
     from gym_gridloc_agents.policies import POLICY_DIR, make_policy
-    from gym_gridloc_agents.rollout import rollout
+    from gym_gridloc_agents.evaluation.rollout import rollout
 
     env = make_env("RingSensor8x8-v0")
     shipped = POLICY_DIR / "RingSensor8x8-v0-recurrent.zip"

@@ -14,11 +14,11 @@ from gymnasium import spaces
 
 import gym_gridloc
 from gym_gridloc import engine
-from gym_gridloc_agents.config import ConfigError, validate_config
+from gym_gridloc_agents.training.config import ConfigError, validate_config
 from gym_gridloc_agents.features import EXTRACTORS, BeliefLogFeatures, BeliefMapCNN, CellPoolCNN, PosePoolCNN, depth_channels
 from gym_gridloc_agents.files import load_model
 from gym_gridloc_agents.policies import PPOPolicy
-from gym_gridloc_agents.train import train
+from gym_gridloc_agents.training.train import train
 
 from .test_train import tiny
 
@@ -188,7 +188,7 @@ def test_configs_name_the_extractors():
 
 
 def test_episode_batches_shuffle_whole_episodes():
-    from gym_gridloc_agents.pretrain import _epoch_order
+    from gym_gridloc_agents.training.pretrain import _epoch_order
 
     sizes = np.array([3, 1, 4, 2])
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])

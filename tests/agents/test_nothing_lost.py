@@ -11,7 +11,7 @@ import pytest
 
 from gym_gridloc_agents.cli import main
 
-MODEL = Path(__file__).resolve().parents[2] / "agents" / "policies" / "ColourGrid-v0-distilled.zip"
+MODEL = Path(__file__).resolve().parents[2] / "agents" / "gym_gridloc_agents" / "models" / "ColourGrid-v0-distilled.zip"
 BENCH = ["bench", "--env", "ColourGrid-v0", "--episodes", "2", "--no-progress"]
 
 
@@ -45,10 +45,10 @@ def test_outputs_that_would_replace_other_work_are_refused_before_any_work(tmp_p
     assert main([*BENCH, "--policies", "random", "--json", str(rows), "--force"]) == 0
     (tmp_path / "results").mkdir()
     (tmp_path / "results" / "bench_table.json").write_text("precious")
-    from gym_gridloc_agents import bench_command
+    from gym_gridloc_agents.evaluation import bench_command
 
     monkeypatch.setattr(bench_command, "RESULTS", tmp_path / "results")
-    import gym_gridloc_agents.bench as b
+    import gym_gridloc_agents.evaluation.bench as b
     monkeypatch.setattr(b, "BENCH_ENV_IDS", ("ColourGrid-v0",))
     assert main(["bench", "--all", "--policies", "random", "--episodes", "2", "--no-progress",
                  "--json", str(tmp_path / "else" / "e.json")]) == 0
@@ -58,7 +58,7 @@ def test_outputs_that_would_replace_other_work_are_refused_before_any_work(tmp_p
 
 
 def test_sweep_output_with_unrelated_files_is_refused(tmp_path):
-    from gym_gridloc_agents.sweep import SweepError, run
+    from gym_gridloc_agents.sweeps.sweep import SweepError, run
 
     for name in ("best.zip", "summary.md", "results", "models"):
         out = tmp_path / name.replace(".", "_")
@@ -71,7 +71,7 @@ def test_sweep_output_with_unrelated_files_is_refused(tmp_path):
 
 # -- 2. interruptions and late checks lose no finished row -----------------------------------------------
 def test_ctrl_c_in_a_later_policy_writes_the_finished_rows(tmp_path, capsys, monkeypatch):
-    import gym_gridloc_agents.bench as b
+    import gym_gridloc_agents.evaluation.bench as b
 
     real = b.simulate
 
@@ -94,7 +94,7 @@ def test_ctrl_c_in_a_later_policy_writes_the_finished_rows(tmp_path, capsys, mon
     (["--env", "ColourGrid-v0", "--policies", "random,greedy", "--option", "greedy.depth=3"], "takes no option"),
 ])
 def test_every_policy_and_option_is_built_before_the_first_episode(capsys, monkeypatch, argv, says):
-    import gym_gridloc_agents.bench as b
+    import gym_gridloc_agents.evaluation.bench as b
 
     monkeypatch.setattr(b, "simulate", lambda *a, **k: pytest.fail("an episode ran before every policy was checked"))
     fails(capsys, ["bench", *argv, "--episodes", "2", "--no-progress"], says)
@@ -102,7 +102,7 @@ def test_every_policy_and_option_is_built_before_the_first_episode(capsys, monke
 
 def test_concurrent_updates_merge_under_a_lock(tmp_path, capsys, monkeypatch):
     """The second --update finishes while the first runs: the first re-reads the file under the lock."""
-    import gym_gridloc_agents.bench as b
+    import gym_gridloc_agents.evaluation.bench as b
 
     out = tmp_path / "r.json"
     real = b.run_benchmark
@@ -155,10 +155,10 @@ def test_bound_refuses_a_map_redrawn_at_every_reset(capsys):
 
 
 def test_resume_refuses_another_model_and_evaluates_at_its_own_step(tmp_path, monkeypatch):
-    import gym_gridloc_agents.train as t
+    import gym_gridloc_agents.training.train as t
     from tests.agents.test_train import tiny
 
-    from gym_gridloc_agents.train import TrainingInterrupted, train
+    from gym_gridloc_agents.training.train import TrainingInterrupted, train
     from stable_baselines3.common.callbacks import BaseCallback
 
     monkeypatch.setattr(t, "evaluate", lambda model, cfg, episodes: {"mean_steps": 5.0, "accuracy": 0.0, "argmax_accuracy": 0.0})
@@ -183,7 +183,7 @@ def test_resume_refuses_another_model_and_evaluates_at_its_own_step(tmp_path, mo
 
 
 def test_grid_values_that_print_the_same_get_two_names():
-    from gym_gridloc_agents.sweep_spec import config_label
+    from gym_gridloc_agents.sweeps.sweep_spec import config_label
 
     for a, b in ((1, "1"), (True, "true"), (None, "null"), (0.5, "0.5")):
         assert config_label({"k": a}, ["k"]) != config_label({"k": b}, ["k"])
@@ -195,7 +195,7 @@ def test_two_trainings_into_one_output_never_share_files(tmp_path):
     from gym_gridloc_agents.files import OutputError, atomic_path, clean_stale_temporaries, locked, rescue_write
     from tests.agents.test_train import tiny
 
-    from gym_gridloc_agents.train import train
+    from gym_gridloc_agents.training.train import train
 
     cfg = tiny(tmp_path)
     with locked(tmp_path / "ckpt", what="x", directory=True):  # another training holds the checkpoint directory
@@ -221,7 +221,7 @@ def test_sizes_are_capped_before_any_work(tmp_path, capsys):
 
     import gym_gridloc  # noqa: F401
     from gym_gridloc_agents.planners import lower_bound
-    from gym_gridloc_agents.sweep import SweepError, prepare
+    from gym_gridloc_agents.sweeps.sweep import SweepError, prepare
 
     for size in (203, 401, 4095):
         with pytest.raises(ValueError, match="size must be .* at most 201"):
@@ -267,8 +267,8 @@ def test_no_tracebacks(tmp_path, capsys, monkeypatch):
 
 
 def test_configs_that_do_not_read_are_named(tmp_path):
-    from gym_gridloc_agents.config import ConfigError, load_config
-    from gym_gridloc_agents.sweep import SweepError, prepare
+    from gym_gridloc_agents.training.config import ConfigError, load_config
+    from gym_gridloc_agents.sweeps.sweep import SweepError, prepare
 
     bad = tmp_path / "latin1.yml"
     bad.write_bytes("env_id: Colour\xe9\n".encode("latin-1"))
@@ -284,7 +284,7 @@ def test_configs_that_do_not_read_are_named(tmp_path):
 
 
 def test_sweep_resume_over_a_record_that_is_not_an_object(tmp_path):
-    from gym_gridloc_agents.sweep import SweepError, run
+    from gym_gridloc_agents.sweeps.sweep import SweepError, run
 
     (tmp_path / "sweep.json").write_text("[1, 2]")
     with pytest.raises(SweepError, match="not a sweep's record"):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import gym_gridloc  # noqa: F401 - registers the environments
-from gym_gridloc_agents.optimal import BeliefSetSearch
+from gym_gridloc_agents.planners.optimal import BeliefSetSearch
 
 
 def _brute_value(search: BeliefSetSearch, B: tuple[int, ...], r: int) -> int:

@@ -13,7 +13,7 @@ import pytest
 import gym_gridloc
 import gym_gridloc_agents.planners as P
 from gym_gridloc_agents.policies import GreedyPolicy, make_policy
-from gym_gridloc_agents.rollout import rollout
+from gym_gridloc_agents.evaluation.rollout import rollout
 
 
 def models():

@@ -20,7 +20,7 @@ from gym_gridloc_agents.policies import (
     make_policy,
 )
 from gym_gridloc.filter import ForwardFilter
-from gym_gridloc_agents.bench import BENCH_ENV_IDS
+from gym_gridloc_agents.evaluation.bench import BENCH_ENV_IDS
 
 
 def _entropy_bits(p: np.ndarray) -> float:
@@ -137,7 +137,7 @@ def test_random_policy_is_seeded_and_uniform():
 def test_every_policy_returns_valid_actions(env_id, name):
     env = gym_gridloc.HMMBeliefWrapper(gym.make(env_id))
     if name == "optimal":  # the exact search needs a noiseless model
-        from gym_gridloc_agents.optimal import NotDeterministic
+        from gym_gridloc_agents.planners.optimal import NotDeterministic
 
         with pytest.raises(NotDeterministic, match="is not deterministic|has a noisy sensor"):
             make_policy(name, env.unwrapped.model, env_id=env_id)

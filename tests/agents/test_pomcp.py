@@ -1,4 +1,4 @@
-"""agents/pomcp.py: pomdp_py's POMCP as a policy (valid actions, reproducible for a seed, follows the
+"""agents/gym_gridloc_agents/planners/pomcp.py: pomdp_py's POMCP as a policy (valid actions, reproducible for a seed, follows the
 episode's model, registered as ``pomcp``)."""
 
 from __future__ import annotations
@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from gym_gridloc_agents.envs import make_env
 from gym_gridloc_agents.policies import POLICY_NAMES, make_policy
-from gym_gridloc_agents.rollout import rollout
+from gym_gridloc_agents.evaluation.rollout import rollout
 
 import gym_gridloc
 
 pytest.importorskip("pomdp_py", reason="pomdp_py is not installed (pip install 'gym_gridloc[planning]')")
 
-from gym_gridloc_agents.pomcp import PomcpPolicy
+from gym_gridloc_agents.planners.pomcp import PomcpPolicy
 
 SIMS = 60
 

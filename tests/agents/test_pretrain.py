@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from gym_gridloc_agents import pretrain
-from gym_gridloc_agents.config import ConfigError, validate_config
-from gym_gridloc_agents.train import train
+from gym_gridloc_agents.training import pretrain
+from gym_gridloc_agents.training.config import ConfigError, validate_config
+from gym_gridloc_agents.training.train import train
 
 from .test_train import tiny
 

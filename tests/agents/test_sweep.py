@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gym_gridloc_agents import stats
+from gym_gridloc_agents.evaluation import stats
 from gym_gridloc_agents.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
-SHIPPED = ROOT / "agents" / "policies" / "ColourGrid-v0.zip"
+SHIPPED = ROOT / "agents" / "gym_gridloc_agents" / "models" / "ColourGrid-v0-ppo.zip"
 needs_ray = pytest.mark.skipif(
     importlib.util.find_spec("ray") is None or importlib.util.find_spec("optuna") is None,
     reason="needs the sweep extra (ray[tune], optuna)",
@@ -124,7 +124,7 @@ def test_bad_arguments_one_line_exit_2(tmp_path, capsys, args, says):
 
 
 def test_grid_values_parse_like_yaml_scalars():
-    from gym_gridloc_agents.sweep import config_label, parse_grid
+    from gym_gridloc_agents.sweeps.sweep import config_label, parse_grid
 
     grid = parse_grid(["hyperparams.learning_rate=1e-4,3.0e-4,0.001", "hyperparams.n_steps=64,128",
                        "policy_kwargs.net_arch=[16,16],[32]", "wrapper.flatten=true,false", "policy_kwargs.activation_fn=tanh,relu"])
@@ -152,8 +152,8 @@ def test_sweep_needs_its_extra(monkeypatch, capsys, tmp_path):
 
 
 def test_ray_is_imported_only_by_the_sweep():
-    code = ("import sys, gym_gridloc, gym_gridloc_agents.cli, gym_gridloc_agents.train, gym_gridloc_agents.bench, "
-            "gym_gridloc_agents.sweep, gym_gridloc_agents.stats, gym_gridloc_agents.bench_command, gym_gridloc_agents.bench_cluster; "
+    code = ("import sys, gym_gridloc, gym_gridloc_agents.cli, gym_gridloc_agents.training.train, gym_gridloc_agents.evaluation.bench, "
+            "gym_gridloc_agents.sweeps.sweep, gym_gridloc_agents.evaluation.stats, gym_gridloc_agents.evaluation.bench_command, gym_gridloc_agents.evaluation.bench_cluster; "
             "bad = [m for m in ('ray', 'optuna') if m in sys.modules]; assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
     tomllib = pytest.importorskip("tomllib")  # Python 3.11+
@@ -170,7 +170,7 @@ def test_optuna_search_is_a_repeater_over_optuna_with_asha(tmp_path):
     from ray.tune.search import Repeater
     from ray.tune.search.optuna import OptunaSearch
 
-    from gym_gridloc_agents.sweep import param_space, prepare, tune_config
+    from gym_gridloc_agents.sweeps.sweep import param_space, prepare, tune_config
 
     spec = prepare(tiny_config(tmp_path), seeds=3, grid=["hyperparams.learning_rate=1e-3,3e-4"], search="optuna", trials=4,
                    output=tmp_path / "out")
@@ -263,7 +263,7 @@ def test_sweep_two_configurations_two_seeds(tmp_path, monkeypatch, capsys, embed
     # A sweep killed while Tune copied its state to --output leaves a truncated file there, which
     # Tune's restore cannot load: --resume keeps that directory aside and runs Tune again, and
     # every finished model is reused, not trained again.
-    from gym_gridloc_agents.sweep import unreadable_state
+    from gym_gridloc_agents.sweeps.sweep import unreadable_state
 
     assert unreadable_state(out / "tune") == []
     state = max((out / "tune").glob("basic-variant-state-*.json"))
@@ -294,7 +294,7 @@ def _finished_trials(exp: Path) -> dict[str, Path]:
 
 @needs_ray
 def test_killed_sweep_resumes_without_rerunning_finished_trials(tmp_path, embedded_ray):
-    from gym_gridloc_agents.sweep import latest_checkpoint
+    from gym_gridloc_agents.sweeps.sweep import latest_checkpoint
 
     cfg = tiny_config(tmp_path, total_timesteps=1536, eval_freq=768, checkpoint_freq=256)
     out = tmp_path / "out"
@@ -411,9 +411,9 @@ def test_sweep_on_a_running_ray_cluster(tmp_path):
 
 # -- bench over several models ---------------------------------------------------------------------
 def test_bench_aggregates_models_across_seeds(tmp_path, capsys):
-    from gym_gridloc_agents.bench import run_benchmark
+    from gym_gridloc_agents.evaluation.bench import run_benchmark
     from gym_gridloc_agents.files import expand_models
-    from gym_gridloc_agents.train import train
+    from gym_gridloc_agents.training.train import train
 
     seeds = tmp_path / "seeds"
     seeds.mkdir()
@@ -463,7 +463,7 @@ def test_bench_aggregates_models_across_seeds(tmp_path, capsys):
 
 
 def test_optuna_with_several_grid_keys_is_checked_key_by_key(tmp_path):
-    from gym_gridloc_agents.sweep_spec import config_label, prepare
+    from gym_gridloc_agents.sweeps.sweep_spec import config_label, prepare
 
     spec = prepare(tiny_config(tmp_path), search="optuna", trials=2, output=tmp_path / "out",
                    grid=["hyperparams.learning_rate=1e-4,1e-3", "hyperparams.n_steps=64,128"])

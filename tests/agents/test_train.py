@@ -10,9 +10,9 @@ import pytest
 
 import gym_gridloc
 from gym_gridloc_agents.cli import main
-from gym_gridloc_agents.config import ConfigError, load_config, validate_config
+from gym_gridloc_agents.training.config import ConfigError, load_config, validate_config
 from gym_gridloc_agents.policies import PPOPolicy, RecurrentPolicy
-from gym_gridloc_agents.train import TrainingInterrupted, atomic_save_model, atomic_write_json, train
+from gym_gridloc_agents.training.train import TrainingInterrupted, atomic_save_model, atomic_write_json, train
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -112,7 +112,7 @@ def test_resume_refuses_a_checkpoint_of_another_environment(tmp_path):
 
 
 def test_cli_ctrl_c_exit_code(tmp_path, monkeypatch, capsys):
-    import gym_gridloc_agents.train as t
+    import gym_gridloc_agents.training.train as t
 
     def interrupted(*a, **k):
         raise TrainingInterrupted(tmp_path / "ckpt" / "interrupted_step_5.zip", 5)
@@ -212,7 +212,7 @@ def test_held_out_evaluation_keeps_the_best_model(tmp_path):
     best = min(ev, key=lambda h: h["mean_steps"])
     assert info["selected_timesteps"] == best["num_timesteps"]
     assert info["eval_seeds"].startswith("2000000..")
-    from gym_gridloc_agents.train import evaluate, load_model
+    from gym_gridloc_agents.training.train import evaluate, load_model
 
     model, _ = load_model(tmp_path / "model.zip", env_id="ColourGrid-v0")
     cfg = validate_config(tiny(tmp_path))
@@ -229,7 +229,7 @@ def test_an_output_that_cannot_be_written_fails_before_any_training(tmp_path, ca
     blocker = tmp_path / "plain-file"
     blocker.write_text("I am a file")
     cfg = tiny(tmp_path, output=str(blocker / "sub" / "model.zip"))
-    from gym_gridloc_agents.train import OutputError
+    from gym_gridloc_agents.training.train import OutputError
 
     with pytest.raises(OutputError, match=r"plain-file is a file, not a directory"):
         train(cfg, progress_bar=False)
@@ -252,7 +252,7 @@ def test_a_metadata_file_in_the_way_is_kept_without_force(tmp_path):
 
 
 def test_outputs_of_the_same_name_in_different_directories_never_share_checkpoints(tmp_path):
-    from gym_gridloc_agents.train import default_checkpoint_dir
+    from gym_gridloc_agents.training.train import default_checkpoint_dir
 
     a = default_checkpoint_dir({"output": str(tmp_path / "a" / "bench.zip")})
     b = default_checkpoint_dir({"output": str(tmp_path / "b" / "bench.zip")})
@@ -261,8 +261,8 @@ def test_outputs_of_the_same_name_in_different_directories_never_share_checkpoin
 
 
 def test_a_failed_final_write_saves_the_model_elsewhere_and_says_where(tmp_path, monkeypatch):
-    import gym_gridloc_agents.train as t
-    from gym_gridloc_agents.train import OutputError
+    import gym_gridloc_agents.training.train as t
+    from gym_gridloc_agents.training.train import OutputError
 
     real = t.atomic_save_model
     out = tmp_path / "model.zip"
@@ -287,7 +287,7 @@ def _pretrain_cfg(tmp_path, **over):
 
 
 def test_ctrl_c_while_the_expert_plays_keeps_its_episodes_and_resume_goes_on(tmp_path, monkeypatch):
-    import gym_gridloc_agents.rollout as r
+    import gym_gridloc_agents.evaluation.rollout as r
 
     real, calls = r.rollout, []
 
@@ -335,7 +335,7 @@ def test_ctrl_c_during_cloning_epochs_resumes_at_the_next_epoch(tmp_path, monkey
 
 
 def test_resume_keeps_the_evaluations_and_the_best_model_of_the_interrupted_run(tmp_path, monkeypatch):
-    import gym_gridloc_agents.train as t
+    import gym_gridloc_agents.training.train as t
     from stable_baselines3.common.callbacks import BaseCallback
 
     scores = iter([3.0, 9.0, 9.0, 9.0, 9.0, 9.0])
@@ -405,7 +405,7 @@ def test_bad_config_values_get_one_line_and_exit_status_2(tmp_path, capsys, line
 
 
 def test_dagger_rounds_label_the_students_beliefs_with_the_experts_actions(tmp_path, monkeypatch):
-    import gym_gridloc_agents.pretrain as p
+    import gym_gridloc_agents.training.pretrain as p
 
     seen = []
     real = p.dagger_round
@@ -436,7 +436,7 @@ def test_dagger_rounds_label_the_students_beliefs_with_the_experts_actions(tmp_p
 
 
 def test_ctrl_c_in_a_dagger_round_resumes_at_that_round(tmp_path, monkeypatch):
-    import gym_gridloc_agents.pretrain as p
+    import gym_gridloc_agents.training.pretrain as p
 
     real, calls = p.dagger_round, []
 
@@ -458,7 +458,7 @@ def test_ctrl_c_in_a_dagger_round_resumes_at_that_round(tmp_path, monkeypatch):
 
 
 def test_a_best_model_newer_than_the_resumed_checkpoint_stays_the_selection(tmp_path, monkeypatch):
-    import gym_gridloc_agents.train as t
+    import gym_gridloc_agents.training.train as t
     from stable_baselines3.common.callbacks import BaseCallback
 
     # Evaluations at 128, 256, 384 score 5, 2, 9; the run dies after 384 but resumes from the
@@ -496,7 +496,7 @@ def test_a_fresh_run_sets_an_old_best_model_aside(tmp_path):
 def test_warm_start_cache_roundtrip_reads_each_array_once(tmp_path, monkeypatch):
     """The expert cache comes back as written, and loading it reads every stored array once (an
     access per episode decompressed a whole array each time: 2000 DepthMaze episodes took 23 GB)."""
-    from gym_gridloc_agents import pretrain
+    from gym_gridloc_agents.training import pretrain
 
     rng = np.random.default_rng(0)
     episodes = [{"obs": {"belief": rng.random((n, 4, 5, 5), dtype=np.float32), "observation": rng.integers(0, 5, n)},
@@ -518,9 +518,9 @@ def test_warm_start_cache_roundtrip_reads_each_array_once(tmp_path, monkeypatch)
 def test_expert_episodes_are_shared_with_sibling_trainings(tmp_path, monkeypatch):
     """The expert's episodes do not depend on the training seed: a training whose checkpoint
     directory is new reuses a sibling's cache of the same data and plays none again."""
-    import gym_gridloc_agents.rollout as rollout_module
-    from gym_gridloc_agents import pretrain
-    from gym_gridloc_agents.config import load_config
+    import gym_gridloc_agents.evaluation.rollout as rollout_module
+    from gym_gridloc_agents.training import pretrain
+    from gym_gridloc_agents.training.config import load_config
 
     cfg = load_config("configs/distill_colourgrid.yml")
     cfg["pretrain"].update(expert="greedy", episodes=6, expert_kwargs={})

@@ -1,4 +1,4 @@
-"""``gridloc play`` / ``gridloc view`` (agents/viewer/), without a display (SDL's dummy video
+"""``gridloc play`` / ``gridloc view`` (agents/gym_gridloc_agents/viewer/), without a display (SDL's dummy video
 driver): scripted key and mouse events drive the apps and the tests read the drawn surface."""
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ import numpy as np
 from gym_gridloc_agents.planners.ops import BeliefOps, initial_beliefs, predict_batch
 
 #: Where the fitted leaves shipped with the package live (``<env_id>-entropy.json``).
-LEAF_DIR = Path(__file__).resolve().parent.parent / "leaves"
+LEAF_DIR = Path(__file__).resolve().parent / "fitted_leaves"
 
 
 class Leaf:

@@ -192,7 +192,7 @@ def rescue_write(write, path: Path, what: str, *, places: tuple[Path, ...] = (),
 #: The algorithms a model file may hold: their modules and classes.
 #: The algorithms a config may name: ``algo`` -> (module, class).  Another stable-baselines3
 #: algorithm that acts on the belief observation trains from the same config format once it has a
-#: line here and its policy classes in :data:`gym_gridloc_agents.config.POLICIES`.
+#: line here and its policy classes in :data:`gym_gridloc_agents.training.config.POLICIES`.
 _ALGO_CLASSES = {"ppo": ("stable_baselines3", "PPO"), "recurrent_ppo": ("sb3_contrib", "RecurrentPPO"),
                  "a2c": ("stable_baselines3", "A2C"), "dqn": ("stable_baselines3", "DQN")}
 ALGOS = tuple(_ALGO_CLASSES)
@@ -320,7 +320,7 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
     path = Path(path)
     if not path.is_file():
         hint = (" (train it with `gridloc train configs/...`, or pass --ppo-model PATH)"
-                if path.parent.name == "policies" else "")
+                if path.parent.name == "models" else "")
         raise FileNotFoundError(f"model file {str(path)!r} does not exist{hint}")
     meta = read_metadata(path)
     if meta.get("algo") not in (None, algo):

@@ -1,4 +1,4 @@
-"""Tables and figures of benchmark rows (:mod:`gym_gridloc_agents.bench`): the markdown table,
+"""Tables and figures of benchmark rows (:mod:`gym_gridloc_agents.evaluation.bench`): the markdown table,
 the localisation curves per environment, the speed/quality frontier, reading and merging the
 rows of a results JSON."""
 
@@ -181,7 +181,7 @@ def terminal_table(rows: Sequence[dict[str, Any]], width: int = TERMINAL_WIDTH) 
     return "\n".join(lines)
 
 
-def _save(fig, path: str | Path, title: str | None = None, **savefig: Any) -> None:
+def save_figure(fig, path: str | Path, title: str | None = None, **savefig: Any) -> None:
     """Give ``fig`` its ``title``, lay it out and write it atomically as a PNG; then close it."""
     import matplotlib.pyplot as plt
 
@@ -197,7 +197,8 @@ def _save(fig, path: str | Path, title: str | None = None, **savefig: Any) -> No
         plt.close(fig)
 
 
-def _pyplot():
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend (files only, no window)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -209,7 +210,7 @@ def _pyplot():
 def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None = None) -> None:
     """Fraction localised against steps (left) and accuracy against the step budget (right),
     one curve per policy, for the rows of ONE environment.  Written atomically."""
-    plt = _pyplot()
+    plt = pyplot()
     envs = {env_label(r) for r in rows}
     if len(envs) != 1:
         raise ValueError(f"plot() takes the rows of one environment, got {sorted(envs)}")
@@ -233,14 +234,14 @@ def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None 
     for ax in (ax1, ax2):
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
-    _save(fig, path, title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy")
+    save_figure(fig, path, title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy")
 
 
 def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None = None) -> None:
     """Mean steps to localise against milliseconds per decision (log scale), one panel per
     environment, one point per row with its 95% interval: what a step of planning buys.
     Written atomically."""
-    plt = _pyplot()
+    plt = pyplot()
     rows = [r for r in rows if r.get("ms_per_decision")]
     if not rows:
         raise ValueError("plot_frontier() needs rows with ms_per_decision (a current gridloc bench)")
@@ -264,7 +265,7 @@ def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path, *, title: st
         ax.set_ylabel("mean steps to localise")
         ax.set_title(env, fontsize=9)
         ax.grid(alpha=0.3, which="both")
-    _save(fig, path, title or "speed against quality: lower left is better")
+    save_figure(fig, path, title or "speed against quality: lower left is better")
 
 
 __all__ = ["ROW_KEYS", "env_label", "markdown_table", "merge_rows", "plot", "plot_frontier", "plot_training",
@@ -278,7 +279,7 @@ def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str 
     evaluation the training kept circled.  Written atomically."""
     from gym_gridloc_agents.files import read_metadata
 
-    plt = _pyplot()
+    plt = pyplot()
     metas = []
     for m in models:
         meta = read_metadata(Path(m))
@@ -301,4 +302,4 @@ def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str 
         ax.set_ylabel("accuracy at L (validation maps)" if proto else "mean steps (held-out episodes)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    _save(fig, path, title or "training curves: held-out evaluations (circled: the model kept)")
+    save_figure(fig, path, title or "training curves: held-out evaluations (circled: the model kept)")

@@ -15,7 +15,7 @@ def episode_frames(env_id: str, seed: int, max_frames: int, env_kwargs: dict | N
     import gymnasium as gym
 
     from gym_gridloc_agents.policies import RandomPolicy
-    from gym_gridloc_agents.rollout import rollout
+    from gym_gridloc_agents.evaluation.rollout import rollout
 
     env = gym.make(env_id, render_mode="rgb_array", **(env_kwargs or {}))
     ep = rollout(env, RandomPolicy(env.unwrapped.model), seed, keep=True, frames=True)
@@ -32,9 +32,9 @@ def episode_frames(env_id: str, seed: int, max_frames: int, env_kwargs: dict | N
 
 def episode_strips(env_ids: Sequence[str], seed: int, n_frames: int, out: str | Path) -> None:
     """One row of ``n_frames`` frames per environment, written to the PNG ``out`` (atomically)."""
-    from gym_gridloc_agents.report import _pyplot, _save
+    from gym_gridloc_agents.evaluation.report import pyplot, save_figure
 
-    plt = _pyplot()
+    plt = pyplot()
     rows = [episode_frames(env_id, seed, n_frames) for env_id in env_ids]
     ncol = max(len(r) for r in rows)
     fig, axes = plt.subplots(len(rows), ncol, figsize=(2.1 * ncol, 2.4 * len(rows)), squeeze=False)
@@ -47,7 +47,7 @@ def episode_strips(env_ids: Sequence[str], seed: int, n_frames: int, out: str | 
                 ax.set_title(frames[j][1], fontsize=8)
         axes[i, 0].text(-0.08, 0.5, env_id, transform=axes[i, 0].transAxes, rotation=90,
                         ha="right", va="center", fontsize=9)
-    _save(fig, out, dpi=80)
+    save_figure(fig, out, dpi=80)
 
 
 def write_gif(frames: Sequence[np.ndarray], out: str | Path, *, duration_ms: int = 500) -> None:

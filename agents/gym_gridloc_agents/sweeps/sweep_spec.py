@@ -2,7 +2,7 @@
 configurations (and their names), the checked arguments (:func:`prepare`, what ``sweep.json``
 holds), each trial's validated training config, and the ``--resume`` check.
 
-No Ray here: :mod:`gym_gridloc_agents.sweep` runs the sweep; :mod:`gym_gridloc_agents.sweep_results`
+No Ray here: :mod:`gym_gridloc_agents.sweeps.sweep` runs the sweep; :mod:`gym_gridloc_agents.sweeps.sweep_results`
 reads and reports what its trials produced.
 """
 
@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from gym_gridloc_agents import values
-from gym_gridloc_agents.config import ConfigError, load_config, read_yaml, validate_config
+from gym_gridloc_agents.training.config import ConfigError, load_config, read_yaml, validate_config
 from gym_gridloc_agents.values import split_values
 
 #: Config keys the sweep sets itself (seeds come from ``--seeds``, paths from ``--output``).

@@ -25,7 +25,7 @@ import re
 import sys
 from pathlib import Path
 
-from gym_gridloc_agents.bench_command import RESULTS, _fail, bench_main, bound_main
+from gym_gridloc_agents.evaluation.bench_command import RESULTS, bench_main, bound_main, fail
 from gym_gridloc_agents.files import OutputError
 from gym_gridloc_agents.policies import DEFAULT_POLICIES
 
@@ -135,7 +135,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _render(args) -> int:
     import gym_gridloc
-    from gym_gridloc_agents.figures import episode_frames, episode_strips, write_gif
+    from gym_gridloc_agents.evaluation.figures import episode_frames, episode_strips, write_gif
 
     from gym_gridloc_agents import files
     from gym_gridloc_agents.envs import check_environment
@@ -150,7 +150,7 @@ def _render(args) -> int:
             check_environment(e, {}, what=f"--env {e}", error=ValueError)
         files.check_outputs([(args.out, files.FIGURE, "picture"), (args.gif, files.FIGURE, "GIF")])
     except (ValueError, OutputError) as exc:
-        return _fail("render", str(exc))
+        return fail("render", str(exc))
     episode_strips(envs, args.seed, args.frames, args.out)
     print(f"wrote {args.out}")
     if args.gif:
@@ -162,10 +162,10 @@ def _render(args) -> int:
 
 def _plot(args) -> int:
     from gym_gridloc_agents import files
-    from gym_gridloc_agents.report import env_label, plot, plot_frontier, plot_training, read_rows
+    from gym_gridloc_agents.evaluation.report import env_label, plot, plot_frontier, plot_training, read_rows
 
     if args.curves and args.training:
-        return _fail("plot", "give --curves or --training, not both")
+        return fail("plot", "give --curves or --training, not both")
     if args.curves:
         return _plot_curves(args)
     args.out = args.out or str(RESULTS / "training.png")
@@ -177,12 +177,12 @@ def _plot(args) -> int:
             files.check_outputs([(args.out, files.FIGURE, "plot")], inputs=args.training)
             plot_training(args.training, args.out)
         except (ValueError, OutputError) as exc:
-            return _fail("plot", str(exc))
+            return fail("plot", str(exc))
         print(f"wrote {args.out}")
         return 0
     src = Path(args.json)
     if not src.is_file():
-        return _fail("plot", f"{src} does not exist; run `gridloc bench --all` first")
+        return fail("plot", f"{src} does not exist; run `gridloc bench --all` first")
     try:
         rows = read_rows(src)
         if not all("localised_curve" in r and "accuracy_curve" in r for r in rows):
@@ -195,7 +195,7 @@ def _plot(args) -> int:
         frontier = src.parent / f"{src.stem}_frontier.png" if any(r.get("ms_per_decision") for r in rows) else None
         files.check_outputs([*outs, (frontier, files.FIGURE, "frontier plot")], inputs=[src])
     except (ValueError, OutputError) as exc:
-        return _fail("plot", str(exc))
+        return fail("plot", str(exc))
     for (out, _, _), group in zip(outs, groups.values()):
         plot(group, out)
         print(f"wrote {out}")
@@ -206,8 +206,9 @@ def _plot(args) -> int:
 
 
 def _plot_curves(args) -> int:
-    from gym_gridloc_agents import curves, files
-    from gym_gridloc_agents.report import read_rows
+    from gym_gridloc_agents.evaluation import curves
+    from gym_gridloc_agents import files
+    from gym_gridloc_agents.evaluation.report import read_rows
 
     out = args.out or str(RESULTS / "curves.png")
     try:
@@ -223,7 +224,7 @@ def _plot_curves(args) -> int:
         files.check_outputs([(out, files.FIGURE, "plot"), (args.curves_json, files.CURVES, "curves JSON")],
                             inputs=[*args.curves, args.baselines], replace=True)
     except (ValueError, OutputError) as exc:
-        return _fail("plot", str(exc))
+        return fail("plot", str(exc))
     curves.plot_curves(made, lines, out)
     print(curves.curves_table(made, lines))
     print(f"wrote {out}")
@@ -238,13 +239,13 @@ def _plot_curves(args) -> int:
 
 
 def _train(args) -> int:
-    from gym_gridloc_agents.config import ConfigError
-    from gym_gridloc_agents.train import OutputError, TrainingInterrupted, train
+    from gym_gridloc_agents.training.config import ConfigError
+    from gym_gridloc_agents.training.train import OutputError, TrainingInterrupted, train
 
     if args.timesteps is not None and args.timesteps < 1:
-        return _fail("train", f"--timesteps must be at least 1, got {args.timesteps}")
+        return fail("train", f"--timesteps must be at least 1, got {args.timesteps}")
     if args.torch_threads < 1:
-        return _fail("train", f"--torch-threads must be at least 1, got {args.torch_threads}")
+        return fail("train", f"--torch-threads must be at least 1, got {args.torch_threads}")
     try:
         info = train(
             args.config,
@@ -261,22 +262,22 @@ def _train(args) -> int:
         print(f"gridloc train: {exc}; resume with: gridloc train {args.config} --resume {exc.checkpoint}", file=sys.stderr)
         return 130
     except (ConfigError, OutputError, FileExistsError, FileNotFoundError, ValueError) as exc:
-        return _fail("train", str(exc))
+        return fail("train", str(exc))
     out = info["config"]["output"]
     print(f"saved {out} ({info['num_timesteps']} steps, {info['wall_time_seconds']:.0f} s) and {Path(out).with_suffix('.json')}")
     return 0
 
 
 def _sweep(args) -> int:
-    from gym_gridloc_agents.config import ConfigError
-    from gym_gridloc_agents.sweep import SweepError, prepare, run, summary_table
+    from gym_gridloc_agents.training.config import ConfigError
+    from gym_gridloc_agents.sweeps.sweep import SweepError, prepare, run, summary_table
 
     try:
         spec = prepare(args.config, seeds=args.seeds, grid=args.grid, search=args.search, trials=args.trials,
                        output=args.output, address=args.address, cpus=args.cpus)
         summary = run(spec, address=args.address, cpus=args.cpus, resume=args.resume)
     except (SweepError, ConfigError) as exc:
-        return _fail("sweep", " ".join(str(exc).split()))
+        return fail("sweep", " ".join(str(exc).split()))
     print(summary_table(summary))
     print(f"\nwrote {summary['output']}/summary.md, summary.json and results/", file=sys.stderr)
     failed = summary["statuses"].get("error", 0)

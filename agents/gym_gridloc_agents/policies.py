@@ -65,7 +65,7 @@ DEFAULT_POLICIES = tuple(name for name, (_, _, default) in POLICIES.items() if d
 
 #: Where the shipped models live: ``<env_id>[-size<N>]-<method>.zip``, method ``ppo``, ``distilled``
 #: or ``recurrent`` (:data:`gym_gridloc_agents.files.METHODS`).
-POLICY_DIR = Path(__file__).resolve().parent / "policies"
+POLICY_DIR = Path(__file__).resolve().parent / "models"
 
 
 class RandomPolicy(Policy):
@@ -135,7 +135,7 @@ class PPOPolicy(Policy):
     is the same every time); ``None`` (default): as the model's metadata says (``deterministic``,
     true when absent).
 
-    ``path`` defaults to the shipped model for ``env_id`` (``agents/policies/<env_id>-ppo.zip``).  The
+    ``path`` defaults to the shipped model for ``env_id`` (``agents/gym_gridloc_agents/models/<env_id>-ppo.zip``).  The
     observation is built as the wrapper the model was trained behind built it: its options
     (``flatten``, ``full_state``, ``map``) come from the metadata beside the model (or
     ``wrapper=``; default ``flatten=True``).  Model zip files are pickles: load only files from a
@@ -196,7 +196,7 @@ class PPOPolicy(Policy):
     @property
     def observation_options(self) -> dict[str, Any]:
         """The options of that observation: an environment whose ``builder`` has the same ones
-        emits it, and :func:`~gym_gridloc_agents.rollout.rollout` passes it on (``encoded``)."""
+        emits it, and :func:`~gym_gridloc_agents.evaluation.rollout.rollout` passes it on (``encoded``)."""
         return self.builder.options
 
     def expected_space(self, model: GridModel) -> spaces.Space:
@@ -231,7 +231,7 @@ def wrapped_observation(model: GridModel, observation: Any, belief: np.ndarray, 
 class RecurrentPolicy(PPOPolicy):
     """An sb3-contrib RecurrentPPO model on the raw observations (no belief), with LSTM memory.
 
-    ``path`` defaults to ``agents/policies/<env_id>-recurrent.zip``.  The belief argument of
+    ``path`` defaults to ``agents/gym_gridloc_agents/models/<env_id>-recurrent.zip``.  The belief argument of
     ``act`` is ignored.
     """
 
@@ -265,7 +265,7 @@ class RecurrentPolicy(PPOPolicy):
 class DistilledPolicy(PPOPolicy):
     """A PPO network that imitated a planner (behaviour cloning of its action distribution and
     DAgger rounds, then a short PPO phase): ``configs/distill_*.yml``.  ``path`` defaults to the
-    shipped ``agents/policies/<env_id>-distilled.zip``."""
+    shipped ``agents/gym_gridloc_agents/models/<env_id>-distilled.zip``."""
 
     name = "distilled"
     method = "distilled"
@@ -325,7 +325,7 @@ def make_policy(
     ``path`` gives the model file for ``ppo`` / ``distilled`` / ``recurrent`` (default: the shipped one for
     ``env_id``; a model trained with other ``env_kwargs`` is refused).  ``pose``: the referee
     tests poses (the entropy policies then minimise the entropy of the full hidden state).
-    ``optimal`` (noiseless models only, :mod:`gym_gridloc_agents.optimal`) plans for the
+    ``optimal`` (noiseless models only, :mod:`gym_gridloc_agents.planners.optimal`) plans for the
     environment's ``episode_length`` (or ``horizon=``, default 30).
     """
     takes = {"optimal": ("horizon",), "random": (), "greedy": (), "greedy2": (), "ppo": (), "recurrent": ()}.get(name)
@@ -341,12 +341,12 @@ def make_policy(
     if name in PLANNER_NAMES:
         return make_planner(name, model, env_id=env_id, seed=seed, pose=pose, **options)
     if name == "optimal":
-        from gym_gridloc_agents.optimal import OptimalPolicy
+        from gym_gridloc_agents.planners.optimal import OptimalPolicy
 
         horizon = options.get("horizon") or (env_kwargs or {}).get("episode_length") or 30
         return OptimalPolicy(model, seed=seed, horizon=horizon)
     if name == "pomcp":
-        from gym_gridloc_agents.pomcp import PomcpPolicy
+        from gym_gridloc_agents.planners.pomcp import PomcpPolicy
 
         threshold = options.pop("threshold", None) or (env_kwargs or {}).get("localise_threshold", 0.9)
         return PomcpPolicy(model, seed=seed, threshold=threshold, pose=pose, **options)

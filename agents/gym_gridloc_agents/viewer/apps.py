@@ -127,7 +127,7 @@ class ViewApp(App):
         self.run_episode(seed)
 
     def run_episode(self, seed: int) -> None:
-        from gym_gridloc_agents.rollout import rollout
+        from gym_gridloc_agents.evaluation.rollout import rollout
 
         from gym_gridloc.inference import forward_backward, viterbi
 

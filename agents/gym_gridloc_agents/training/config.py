@@ -14,7 +14,7 @@ A config (rl-baselines3-zoo style, one experiment per file)::
     policy: MlpPolicy
     policy_kwargs: {net_arch: [64, 64], activation_fn: tanh}
     hyperparams: {learning_rate: 3.0e-4, n_steps: 256, gamma: 0.995}
-    output: agents/policies/WindyMaze-v0.zip
+    output: agents/gym_gridloc_agents/models/WindyMaze-v0.zip
     checkpoint_freq: 100000         # environment steps between checkpoints (0: none)
     checkpoint_dir: null            # default runs/checkpoints/<output stem>
     tensorboard_log: null           # a directory, or null

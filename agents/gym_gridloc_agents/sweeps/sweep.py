@@ -1,4 +1,4 @@
-"""``gridloc sweep``: seeds and hyperparameter sweeps of :func:`gym_gridloc_agents.train.train` on Ray Tune.
+"""``gridloc sweep``: seeds and hyperparameter sweeps of :func:`gym_gridloc_agents.training.train.train` on Ray Tune.
 
     gridloc sweep configs/ppo_colourgrid.yml --seeds 5 \\
         --grid hyperparams.learning_rate=1e-4,3e-4 hyperparams.n_steps=128,256
@@ -15,8 +15,8 @@ trials whose held-out evaluations fall behind.
 
 The score of a trial is lower-is-better: the mean steps to localise on the held-out evaluation
 episodes, or minus the accuracy when ``env_kwargs.episode_length`` is set (fixed-length episodes),
-as :func:`train._score`; a seed's number is the evaluation of the model ``train`` kept (its best
-evaluation).  These are validation numbers (the same episodes chose the model): compare the
+as :func:`~gym_gridloc_agents.training.train.score`; a seed's number is the evaluation of the model
+``train`` kept (its best evaluation).  These are validation numbers (the same episodes chose the model): compare the
 winners on the benchmark's episodes with ``gridloc bench --ppo-model <output>/models/<configuration>``.
 
 Everything goes under ``--output`` (default ``runs/sweeps/<config stem>``)::
@@ -31,7 +31,7 @@ Everything goes under ``--output`` (default ``runs/sweeps/<config stem>``)::
 
 Rules:
 
-* the aggregate across seeds (:mod:`gym_gridloc_agents.stats`): mean, interquartile mean and a
+* the aggregate across seeds (:mod:`gym_gridloc_agents.evaluation.stats`): mean, interquartile mean and a
   bootstrap 95% interval of the mean (fixed bootstrap seed);
 * the best configuration is the one with the best (lowest) mean score across its seeds, among the
   configurations whose seeds all finished training (a seed stopped by the pruner or failed
@@ -65,20 +65,20 @@ from gym_gridloc_agents.files import atomic_write_json, writable_directory
 
 # What a sweep is (--grid, the trials' configs, --resume's check) is sweep_spec; what its trials
 # produced and the report, sweep_results.  Their public names are importable from here too.
-from gym_gridloc_agents.sweep_results import (
+from gym_gridloc_agents.sweeps.sweep_results import (
     BEST_RULE,
     MEDIAN_RULE,
     METRICS,
-    _score,
     collect,
     completed_metadata,
     config_table,
     saved_statuses,
+    score,
     selected_evaluation,
     summarise,
     summary_table,
 )
-from gym_gridloc_agents.sweep_spec import (
+from gym_gridloc_agents.sweeps.sweep_spec import (
     OWNED_KEYS,
     SPEC_KEYS,
     SweepError,
@@ -140,7 +140,7 @@ def latest_checkpoint(directory: Path) -> Path | None:
 def trial_fn(config: dict[str, Any], spec: dict[str, Any]) -> None:
     """Ray Tune's function trainable: train one configuration with one seed, reporting every
     held-out evaluation (``final: False``) and the kept model's evaluation at the end (``final: True``)."""
-    from gym_gridloc_agents.train import train
+    from gym_gridloc_agents.training.train import train
     from ray import tune
 
     overrides = {k: json.loads(v) for k, v in (config.get("overrides") or {}).items()}
@@ -150,7 +150,7 @@ def trial_fn(config: dict[str, Any], spec: dict[str, Any]) -> None:
     ids = {"label": label, "seed": cfg["seed"]}
 
     def on_evaluation(entry: dict[str, Any]) -> None:
-        tune.report({**entry, "score": _score(cfg, entry), "final": False, **ids})
+        tune.report({**entry, "score": score(cfg, entry), "final": False, **ids})
 
     ckpt_dir = Path(cfg["checkpoint_dir"])
     with _exclusive(ckpt_dir / ".trial.lock"):
@@ -162,7 +162,7 @@ def trial_fn(config: dict[str, Any], spec: dict[str, Any]) -> None:
                          command=f"{spec['command']}  [trial {tune.get_context().get_trial_id()}: {label} seed {cfg['seed']}]")
     entry = selected_evaluation(meta)
     tune.report({**entry, "num_timesteps": int(meta["num_timesteps"]), "selected_timesteps": entry["num_timesteps"],
-                 "score": _score(cfg, entry), "final": True, "reused": reused, "model": cfg["output"], **ids})
+                 "score": score(cfg, entry), "final": True, "reused": reused, "model": cfg["output"], **ids})
 
 
 def _trial_dirname(trial) -> str:

@@ -13,9 +13,9 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from gym_gridloc_agents import stats
+from gym_gridloc_agents.evaluation import stats
 from gym_gridloc_agents.files import atomic_path, atomic_write_json, atomic_write_text, read_metadata
-from gym_gridloc_agents.sweep_spec import (
+from gym_gridloc_agents.sweeps.sweep_spec import (
     _canonical,
     config_label,
     configurations,
@@ -56,10 +56,12 @@ def selected_evaluation(meta: dict[str, Any]) -> dict[str, Any]:
     return dict((chosen or evals)[-1])
 
 
-def _score(cfg: dict[str, Any], entry: dict[str, Any]) -> float:
-    from gym_gridloc_agents.train import _score as score
+def score(cfg: dict[str, Any], entry: dict[str, Any]) -> float:
+    """A trial's number, lower is better: :func:`gym_gridloc_agents.training.train.score` (imported
+    when called: this module does not pull torch)."""
+    from gym_gridloc_agents.training import train
 
-    return float(score(cfg, entry))
+    return float(train.score(cfg, entry))
 
 # -- Tune's trials ---------------------------------------------------------------------------------
 def saved_statuses(exp_dir: Path) -> dict[str, str]:

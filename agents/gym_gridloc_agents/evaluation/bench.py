@@ -26,9 +26,9 @@ its start state.  A row holds:
 Several PPO models (one per training seed, e.g. a sweep's ``models/<configuration>/``) give one
 ``ppo`` row across seeds: every model plays the same episodes; ``mean_steps`` is the mean of the
 per-seed mean steps, ``mean_steps_iqm`` their interquartile mean and ``mean_steps_ci95`` a
-bootstrap 95% interval across seeds (:mod:`gym_gridloc_agents.stats`; so are ``success_rate_ci95``
+bootstrap 95% interval across seeds (:mod:`gym_gridloc_agents.evaluation.stats`; so are ``success_rate_ci95``
 and ``accuracy_at_ci95``); rates, curves and ``median_steps`` pool the episodes of all seeds;
-``per_seed`` holds each model's own numbers.  Tables and figures: :mod:`gym_gridloc_agents.report`.
+``per_seed`` holds each model's own numbers.  Tables and figures: :mod:`gym_gridloc_agents.evaluation.report`.
 """
 
 from __future__ import annotations
@@ -46,8 +46,8 @@ from gym_gridloc_agents.envs import make_env, served_env
 from gym_gridloc_agents.files import metadata_path, model_method, read_metadata
 from gym_gridloc_agents.policies import (DEFAULT_POLICIES, LEARNED_NAMES, PLANNER_POLICIES, POLICY_DIR, POLICY_NAMES,
                                          default_model_path, make_policy)
-from gym_gridloc_agents.rollout import rollout
-from gym_gridloc_agents.stats import wilson_ci95
+from gym_gridloc_agents.evaluation.rollout import rollout
+from gym_gridloc_agents.evaluation.stats import wilson_ci95
 
 BUDGETS = (5, 10, 25, 50)
 #: Decisions of the untimed warm-up episode that precedes every timed run (:func:`simulate`).
@@ -194,11 +194,11 @@ def simulate(task: Task, specs: Sequence[tuple[int, Any]], *, budgets: Sequence[
 
 
 def _model_name(path) -> str | None:
-    """How a results file names a model: shipped ones as ``agents/policies/<file>`` (not this
+    """How a results file names a model: shipped ones as ``agents/gym_gridloc_agents/models/<file>`` (not this
     machine's install path), a user's as given."""
     if not path:
         return None
-    return f"agents/policies/{Path(path).name}" if Path(path).resolve().parent == POLICY_DIR else str(path)
+    return f"agents/gym_gridloc_agents/models/{Path(path).name}" if Path(path).resolve().parent == POLICY_DIR else str(path)
 
 
 def summarise(task: Task | str, policy_name: str | None = None, parts: Sequence[dict[str, Any]] = (), *,
@@ -264,7 +264,7 @@ def seed_aggregate(task: Task, runs: Sequence[Sequence[dict[str, Any]]], *, seed
                    budgets: Sequence[int] = BUDGETS, test_set: bool = False) -> dict[str, Any]:
     """One row across seeds from the :func:`simulate` parts of several models (``runs[i]``: model
     ``i``'s parts, every model on the same episodes); see the module docstring."""
-    from gym_gridloc_agents import stats
+    from gym_gridloc_agents.evaluation import stats
 
     per = [summarise(task, parts=parts, seed_start=seed_start, budgets=budgets, test_set=test_set) for parts in runs]
     row = summarise(task, parts=[p for parts in runs for p in parts], seed_start=seed_start, budgets=budgets, test_set=test_set)
@@ -333,7 +333,7 @@ def run_benchmark(
     name to its options (e.g. ``{"expectimax": {"depth": 3}}``).  ``torch_threads``: torch's
     threads for the learned policies, in this process and in every job (None: torch's default).
     ``address``: run the same chunks as Ray tasks on the Ray cluster there (``HOST:PORT`` or
-    ``auto``; :mod:`gym_gridloc_agents.bench_cluster`), the same rows, each with a ``cluster``
+    ``auto``; :mod:`gym_gridloc_agents.evaluation.bench_cluster`), the same rows, each with a ``cluster``
     entry saying where its chunks ran."""
     given = {}
     for key, value in (("ppo", ppo_model), ("distilled", distilled_model)):
@@ -391,7 +391,7 @@ def run_benchmark(
 
     where = None
     if address is not None:  # Ray is imported there only (the 'sweep' extra)
-        from gym_gridloc_agents import bench_cluster
+        from gym_gridloc_agents.evaluation import bench_cluster
 
         models = {i: (path, _model_name(path)) for i, t in enumerate(tasks) if (path := _model_file(t)) is not None}
         work, done, where = bench_cluster.run_chunks(address, lambda cpus: chunk_work(tasks, specs, episodes, cpus, torch_threads),

@@ -1,7 +1,7 @@
 """``gridloc bench --address``: the benchmark's chunks of episodes as Ray tasks on a Ray cluster.
 
-The chunks are those of ``--jobs`` (:func:`gym_gridloc_agents.bench.chunk_work`, about 4 per CPU
-of the cluster and row) and each runs :func:`gym_gridloc_agents.bench.simulate` on its episodes,
+The chunks are those of ``--jobs`` (:func:`gym_gridloc_agents.evaluation.bench.chunk_work`, about 4 per CPU
+of the cluster and row) and each runs :func:`gym_gridloc_agents.evaluation.bench.simulate` on its episodes,
 with the seeds of a local run: the rows are a local run's (common random numbers), except the
 timing columns (``seconds``, ``ms_per_decision``) and the ``cluster`` entry saying where the
 chunks ran.
@@ -15,7 +15,7 @@ A chunk whose worker or node is lost is run again (up to :data:`RERUNS` times; t
 seeded, so the rerun gives the same numbers), and counted in the row's ``cluster.reruns``.  An
 error of the chunk itself (a bad option, say) is not retried: it stops the run, as locally.
 
-This module and :mod:`gym_gridloc_agents.sweep` are the only ones importing Ray (the ``sweep``
+This module and :mod:`gym_gridloc_agents.sweeps.sweep` are the only ones importing Ray (the ``sweep``
 extra), and only when a run on a cluster starts.
 """
 
@@ -85,7 +85,7 @@ def materialise(blob: dict[str, Any]) -> Path:
 
 
 def run_chunk(job: Callable[[tuple], dict[str, Any]], args: tuple, blob: dict[str, Any] | None, name: str | None) -> dict[str, Any]:
-    """One chunk on a worker: ``job(args)`` (:func:`gym_gridloc_agents.bench._job`) with the
+    """One chunk on a worker: ``job(args)`` (:func:`gym_gridloc_agents.evaluation.bench._job`) with the
     task's model written on this node; the part names the model as a local run does and says
     where it ran."""
     import ray
@@ -105,7 +105,7 @@ def run_chunks(address: str, chunks: Callable[[int], list[tuple[int, tuple]]], n
     """Run ``job`` on every chunk as a Ray task on the cluster at ``address``.
 
     ``chunks(cpus)``: the chunks ``(task index, job arguments)`` for the cluster's CPUs
-    (:func:`gym_gridloc_agents.bench.chunk_work`); ``models``: task index -> (its model file, the
+    (:func:`gym_gridloc_agents.evaluation.bench.chunk_work`); ``models``: task index -> (its model file, the
     name rows give it).  Returns the chunks, their results (the same order) and where they ran:
     ``{"address", "nodes", "cpus", "chunk_episodes", "tasks": [per task: {"chunks_per_node":
     {node: n}, "reruns": n}]}``."""

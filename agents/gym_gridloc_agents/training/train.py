@@ -1,4 +1,4 @@
-"""Training from a validated config (see :mod:`gym_gridloc_agents.config`).
+"""Training from a validated config (see :mod:`gym_gridloc_agents.training.config`).
 
 Training never loses work:
 
@@ -32,7 +32,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 import gym_gridloc
 from gym_gridloc import maps
-from gym_gridloc_agents.config import ConfigError, activation, load_config, validate_config
+from gym_gridloc_agents.training.config import ConfigError, activation, load_config, validate_config
 from gym_gridloc_agents.envs import make_env, make_training_env, served_env
 from gym_gridloc_agents.features import EXTRACTORS
 from gym_gridloc_agents.files import (
@@ -49,7 +49,7 @@ from gym_gridloc_agents.files import (
     writable_directory,
 )
 from gym_gridloc_agents.policies import PPOPolicy, RecurrentPolicy
-from gym_gridloc_agents.pretrain import WarmStartInterrupted, behaviour_cloning
+from gym_gridloc_agents.training.pretrain import WarmStartInterrupted, behaviour_cloning
 
 
 class TrainingInterrupted(Exception):
@@ -156,7 +156,7 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
     and leave training's torch generator as it was) on the held-out evaluation episodes: mean steps to localise (a
     truncated episode counts at its length), the fraction that end collapsed onto the truth
     (``accuracy``) and the fraction whose most probable state is the truth at the end."""
-    from gym_gridloc_agents.rollout import rollout
+    from gym_gridloc_agents.evaluation.rollout import rollout
 
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
     cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy  # (RecurrentPolicy ignores the wrapper)
@@ -170,7 +170,7 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
             "argmax_accuracy": sum(e.correct[-1] for e in eps) / n}
 
 
-def _score(cfg: dict[str, Any], entry: dict[str, Any]) -> float:
+def score(cfg: dict[str, Any], entry: dict[str, Any]) -> float:
     """Lower is better: mean steps, or minus the accuracy for fixed-length (protocol) episodes."""
     return -entry["accuracy"] if cfg["env_kwargs"].get("episode_length") else entry["mean_steps"]
 
@@ -209,14 +209,14 @@ def record_evaluation(model, cfg, episodes, directory: Path, history: list, on_e
     learning curves against wall time."""
     result = evaluate(model, cfg, episodes)
     kept = best_entry(directory)
-    best = min((_score(cfg, h) for h in [*history, *([kept] if kept else [])]), default=float("inf"))
+    best = min((score(cfg, h) for h in [*history, *([kept] if kept else [])]), default=float("inf"))
     entry = {"num_timesteps": int(model.num_timesteps), **{k: round(v, 4) for k, v in result.items()},
              **{k: round(v, 2) for k, v in (clock or {}).items()}}
     history.append(entry)
     print(f"evaluation at {entry['num_timesteps']} steps on {episodes} held-out episodes: mean steps {entry['mean_steps']:.3f}, "
           f"accuracy {entry['accuracy']:.3f}, argmax accuracy {entry['argmax_accuracy']:.3f}"
-          + ("  (best so far)" if _score(cfg, entry) < best else ""), file=sys.stderr, flush=True)
-    if _score(cfg, entry) < best:
+          + ("  (best so far)" if score(cfg, entry) < best else ""), file=sys.stderr, flush=True)
+    if score(cfg, entry) < best:
         atomic_save_model(model, directory / "best.zip")
         atomic_write_json(metadata_path(directory / "best.zip"), entry)
     if on_evaluation is not None:
@@ -375,7 +375,7 @@ def _train(
         # best_model: PPO's evaluation curve is noisy from one update to the next.
         if not evaluations or evaluations[-1]["num_timesteps"] != int(model.num_timesteps):
             evaluate_now(model)
-        best = best_entry(ckpt_dir) or min(evaluations, key=lambda h: _score(cfg, h))
+        best = best_entry(ckpt_dir) or min(evaluations, key=lambda h: score(cfg, h))
         if best not in evaluations:  # evaluated before the checkpoint this run resumed from was written
             evaluations.append({**best, "note": "evaluated before an interruption; kept as best.zip"})
         selected = best["num_timesteps"]

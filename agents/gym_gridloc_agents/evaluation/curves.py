@@ -1,11 +1,11 @@
 """Learning curves across seeds, as reinforcement-learning research reports them.
 
 Each training evaluates its policy on held-out validation episodes every ``eval_freq``
-environment steps (:func:`gym_gridloc_agents.train.record_evaluation`; the metadata beside the
+environment steps (:func:`gym_gridloc_agents.training.train.record_evaluation`; the metadata beside the
 model keeps them, with the training's wall time at each).  A *curve* gathers the runs of one
 configuration (the seeds of a sweep) and gives, at every evaluated step they share:
 
-* the interquartile mean (IQM) across seeds (:func:`gym_gridloc_agents.stats.iqm`, robust to one
+* the interquartile mean (IQM) across seeds (:func:`gym_gridloc_agents.evaluation.stats.iqm`, robust to one
   outlying seed; Agarwal et al. 2021, "Deep Reinforcement Learning at the Edge of the Statistical
   Precipice") and its percentile-bootstrap 95% interval (seeds resampled with replacement);
 * the median wall time of training at that step, to plot the same curve against wall time;
@@ -26,7 +26,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from gym_gridloc_agents import stats
+from gym_gridloc_agents.evaluation import stats
 from gym_gridloc_agents.files import metadata_path, model_method, read_metadata
 from gym_gridloc_agents.policies import PLANNER_POLICIES
 

@@ -197,7 +197,7 @@ def _expert(cfg: dict[str, Any], env):
 
 def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | None = None) -> list[dict[str, Any]]:
     """The expert's episodes as samples (continued from ``cache`` if it holds some)."""
-    from gym_gridloc_agents.rollout import rollout
+    from gym_gridloc_agents.evaluation.rollout import rollout
 
     pre = cfg["pretrain"]
     key = _cache_key(cfg, "expert")
@@ -225,7 +225,7 @@ def collect_expert(cfg: dict[str, Any], progress: bool = True, cache: Path | Non
 def dagger_round(model, cfg: dict[str, Any], round_index: int, progress: bool = True) -> list[dict[str, Any]]:
     """One DAgger round: the student (``model``, sampling its actions) plays; every belief it
     reaches is labelled with the expert's action."""
-    from gym_gridloc_agents.rollout import rollout
+    from gym_gridloc_agents.evaluation.rollout import rollout
 
     pre = cfg["pretrain"]
     env = _env(cfg)

@@ -1,6 +1,6 @@
 """``gridloc bench`` and ``gridloc bound``: their arguments checked before any long run, the run,
 and the outputs (a failing write puts computed rows elsewhere and says where).  The parser is
-:mod:`gym_gridloc_agents.cli`'s; the benchmark itself is :mod:`gym_gridloc_agents.bench`."""
+:mod:`gym_gridloc_agents.cli`'s; the benchmark itself is :mod:`gym_gridloc_agents.evaluation.bench`."""
 
 from __future__ import annotations
 
@@ -17,7 +17,9 @@ MAX_EPISODES = 10**7
 MAP_KWARGS = ("layout", "map_seed", "obstacle_density", "new_map_each_reset", "n_colours")
 
 
-def _fail(command: str, message: str) -> int:
+def fail(command: str, message: str) -> int:
+    """Print ``gridloc COMMAND: error: MESSAGE`` to stderr; the exit status of a usage error (2).
+    Every ``gridloc`` subcommand reports its errors through it."""
     print(f"gridloc {command}: error: {message}", file=sys.stderr)
     return 2
 
@@ -78,16 +80,16 @@ def _available_defaults(envs: list[str], policies: list[str], env_kwargs: dict, 
 
 def bench_main(args) -> int:
     """``gridloc bench``: every argument checked before the first episode, then the run and its outputs."""
-    from gym_gridloc_agents.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, BenchmarkInterrupted, add_gaps, run_benchmark
-    from gym_gridloc_agents.bench_cluster import ClusterError  # (Ray itself only once a run on a cluster starts)
+    from gym_gridloc_agents.evaluation.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, BenchmarkInterrupted, add_gaps, run_benchmark
+    from gym_gridloc_agents.evaluation.bench_cluster import ClusterError  # (Ray itself only once a run on a cluster starts)
     from gym_gridloc_agents.envs import check_environment
     from gym_gridloc_agents import files
     from gym_gridloc_agents.files import OutputError, expand_models
     from gym_gridloc_agents.policies import POLICY_NAMES
-    from gym_gridloc_agents.report import merge_rows, read_rows
+    from gym_gridloc_agents.evaluation.report import merge_rows, read_rows
 
     if args.all == bool(args.env):
-        return _fail("bench", "give exactly one of --env ENV_ID or --all")
+        return fail("bench", "give exactly one of --env ENV_ID or --all")
     envs = list(BENCH_ENV_IDS) if args.all else [args.env]
     policies = [p.strip() for p in (args.policies or ",".join(DEFAULT_POLICIES)).split(",") if p.strip()]
     episodes = args.episodes if args.episodes is not None else (1000 if args.all else 200)
@@ -160,7 +162,7 @@ def bench_main(args) -> int:
             if found is not None and len(found) == 1:
                 seeds_models[name] = found[0]
     except (ValueError, OutputError) as exc:
-        return _fail("bench", str(exc))
+        return fail("bench", str(exc))
     interrupted = None
     try:
         with warnings.catch_warnings(record=True) as notes:
@@ -174,13 +176,13 @@ def bench_main(args) -> int:
     except BenchmarkInterrupted as exc:  # Ctrl-C: the finished rows are written, then exit 130
         rows, interrupted = exc.rows, exc
     except (ValueError, TypeError, FileNotFoundError, ClusterError) as exc:  # ClusterError: --address could not run
-        return _fail("bench", " ".join(str(exc).split()))
+        return fail("bench", " ".join(str(exc).split()))
     for note in notes:  # e.g. a policy that does not apply to an environment: one line each
         print(f"gridloc bench: {note.message}", file=sys.stderr)
     if interrupted is not None and not rows:
         print(f"gridloc bench: {interrupted}; no row was finished, nothing written", file=sys.stderr)
         return 130
-    from gym_gridloc_agents.report import env_label
+    from gym_gridloc_agents.evaluation.report import env_label
 
     labels = {env_label(r) for r in rows}  # what this run measured (merged rows of other keywords are not plotted with it)
     lock = files.locked(json_path, what="results JSON") if json_path else contextlib.nullcontext()
@@ -189,7 +191,7 @@ def bench_main(args) -> int:
             try:
                 old_rows = read_rows(json_path) if Path(json_path).exists() else []
             except ValueError as exc:
-                return _fail("bench", f"{exc} (it changed during the run)")
+                return fail("bench", f"{exc} (it changed during the run)")
             rows = add_gaps(merge_rows(old_rows, rows))
         code = _write_bench(args, rows, labels, json_path, frontier, table, here)
     if interrupted is not None and code == 0:
@@ -201,7 +203,7 @@ def bench_main(args) -> int:
 
 def _write_bench(args, rows, labels, json_path, frontier, table, here) -> int:
     from gym_gridloc_agents.files import OutputError, atomic_write_json, atomic_write_text, rescue_write
-    from gym_gridloc_agents.report import env_label, markdown_table, plot, plot_frontier, public_row, terminal_table
+    from gym_gridloc_agents.evaluation.report import env_label, markdown_table, plot, plot_frontier, public_row, terminal_table
 
     mine = [r for r in rows if env_label(r) in labels]
 
@@ -223,7 +225,7 @@ def _write_bench(args, rows, labels, json_path, frontier, table, here) -> int:
         if args.all:
             rescue_write(lambda p: atomic_write_json(p, [public_row(r) for r in rows]), table, "table JSON")
     except OutputError as exc:
-        return _fail("bench", str(exc))
+        return fail("bench", str(exc))
     return 0
 
 
@@ -246,15 +248,15 @@ def bound_main(args) -> int:
             raise ValueError(f"--prune must be in [0, 1), got {args.prune}")
         files.check_outputs([(args.json, files.BOUND, "bound JSON")], replace=args.force)
     except (ValueError, OutputError) as exc:
-        return _fail("bound", str(exc))
+        return fail("bound", str(exc))
     env = make_env(args.env, kwargs)
     u = env.unwrapped
     if getattr(u, "episode_length", None):
         env.close()
-        return _fail("bound", "the bound is on steps to localise; fixed-length episodes (episode_length) have no such count")
+        return fail("bound", "the bound is on steps to localise; fixed-length episodes (episode_length) have no such count")
     if getattr(u, "_map_factory", None) is not None:  # the first map's bound is no bound of the environment
         env.close()
-        return _fail("bound", f"{args.env} draws a new map at every reset (new_map_each_reset): the bound is of one map; "
+        return fail("bound", f"{args.env} draws a new map at every reset (new_map_each_reset): the bound is of one map; "
                               "give a fixed map (--env-kwarg map_seed=N or layout=PATH)")
     print(f"gridloc bound: {args.env}, depth {args.depth}: exhaustive search over actions and readings ...", file=sys.stderr)
     result = lower_bound(u.model, args.depth, threshold=u.localise_threshold, prune=args.prune, progress=True)
@@ -266,7 +268,7 @@ def bound_main(args) -> int:
         try:
             rescue_write(lambda p: atomic_write_json(p, result), Path(args.json), "bound JSON")
         except OutputError as exc:
-            return _fail("bound", str(exc))
+            return fail("bound", str(exc))
         print(f"wrote {args.json}", file=sys.stderr)
     else:
         print(json.dumps({k: v for k, v in result.items() if k != "per_reading"}))
