@@ -1,7 +1,7 @@
 """Learning curves across seeds, as reinforcement-learning research reports them.
 
 Each training evaluates its policy on held-out validation episodes every ``eval_freq``
-environment steps (:func:`gym_gridloc_agents.training.train.record_evaluation`; the metadata beside the
+environment steps (:func:`gym_gridloc_agents.training.evaluation.record_evaluation`; the metadata beside the
 model keeps them, with the training's wall time at each).  A *curve* gathers the runs of one
 configuration (the seeds of a sweep) and gives, at every evaluated step they share:
 

@@ -15,7 +15,7 @@ trials whose held-out evaluations fall behind.
 
 The score of a trial is lower-is-better: the mean steps to localise on the held-out evaluation
 episodes, or minus the accuracy when ``env_kwargs.episode_length`` is set (fixed-length episodes),
-as :func:`~gym_gridloc_agents.training.train.score`; a seed's number is the evaluation of the model
+as :func:`~gym_gridloc_agents.training.evaluation.score`; a seed's number is the evaluation of the model
 ``train`` kept (its best evaluation).  These are validation numbers (the same episodes chose the model): compare the
 winners on the benchmark's episodes with ``gridloc bench --ppo-model <output>/models/<configuration>``.
 

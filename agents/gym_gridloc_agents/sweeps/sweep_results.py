@@ -57,11 +57,11 @@ def selected_evaluation(meta: dict[str, Any]) -> dict[str, Any]:
 
 
 def score(cfg: dict[str, Any], entry: dict[str, Any]) -> float:
-    """A trial's number, lower is better: :func:`gym_gridloc_agents.training.train.score` (imported
+    """A trial's number, lower is better: :func:`gym_gridloc_agents.training.evaluation.score` (imported
     when called: this module does not pull torch)."""
-    from gym_gridloc_agents.training import train
+    from gym_gridloc_agents.training import evaluation
 
-    return float(train.score(cfg, entry))
+    return float(evaluation.score(cfg, entry))
 
 # -- Tune's trials ---------------------------------------------------------------------------------
 def saved_statuses(exp_dir: Path) -> dict[str, str]:
