@@ -139,7 +139,9 @@ def plot_curves(curves: Sequence[dict[str, Any]], lines: dict[str, float], out: 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
     # the y range: the curves' bands and the lines near them (a line far off is named, not drawn)
     band = [v for c in curves for pair in c["ci95"] for v in pair] + [v for c in curves for v in c["iqm"]]
-    near = [v for v in lines.values() if band and min(band) - (max(band) - min(band)) <= v <= max(band) + (max(band) - min(band))]
+    span = (max(band) - min(band)) if band else 0.0
+    near = [v for name, v in lines.items()  # greedy2 and the best planner always; the random walk if near
+            if name != "random" or (band and min(band) - span <= v <= max(band) + span)]
     lo_y, hi_y = min(band + near, default=0.0), max(band + near, default=1.0)
     pad = 0.08 * (hi_y - lo_y or abs(hi_y) or 1.0)
     lo_y, hi_y = lo_y - pad, hi_y + pad
