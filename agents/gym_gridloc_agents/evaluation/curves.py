@@ -165,6 +165,10 @@ def plot_curves(curves: Sequence[dict[str, Any]], lines: dict[str, float], out: 
                 ax.annotate(f"{name} {value:.4g} ({'above' if value > hi_y else 'below'})", xy=(0.99, 0.98 if value > hi_y else 0.02),
                             xycoords="axes fraction", ha="right", va="top" if value > hi_y else "bottom", color=colour, fontsize=8)
         ax.set_ylim(lo_y, hi_y)
+        if xkey == "steps":  # 500k, 1M: no run-together tick labels
+            from matplotlib.ticker import EngFormatter
+
+            ax.xaxis.set_major_formatter(EngFormatter(sep=""))
         ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)
     metric = curves[0]["metric"] if curves else "mean_steps"
