@@ -303,3 +303,15 @@ def test_minor_cases(tmp_path, capsys):
     loop.script(["1"] * 200, 0.001, until_done=True)
     assert app.steps < 200 and app.done
     loop.close()
+
+
+def test_a_recording_never_replaces_another_kind_of_file(tmp_path):
+    """``view``/``play --record X.gif``: an existing X.gif that is not a picture (a model zip or a
+    JSON saved under that name) is refused before the window opens; a picture is redrawn."""
+    from gym_gridloc_agents.cli import main
+
+    for content in (b"PK\x03\x04 a model", b'[{"env": "WindyMaze-v0", "policy": "random"}]'):
+        target = tmp_path / "x.gif"
+        target.write_bytes(content)
+        assert main(["view", "WindyMaze-v0", "--no-window", "--steps", "2", "--record", str(target)]) == 2
+        assert target.read_bytes() == content

@@ -88,11 +88,14 @@ def _checked(args: argparse.Namespace) -> None:
             if missing:
                 raise UsageError(f"--record .mp4 needs imageio with its ffmpeg plugin (missing: {', '.join(missing)}): "
                                  f"{MP4_HINT}, or record a .gif")
-        from gym_gridloc_agents.files import OutputError, writable_file
+        from gym_gridloc_agents import files
 
-        try:
-            writable_file(args.record, "recording")
-        except OutputError as exc:
+        try:  # a .gif is a figure: an existing file of another kind under that name is refused
+            if suffix == ".gif":
+                files.check_outputs([(args.record, files.FIGURE, "recording")], inputs=[getattr(args, "layout", None)])
+            else:
+                files.writable_file(args.record, "recording")
+        except files.OutputError as exc:
             raise UsageError(str(exc)) from None
     args.keys = None if args.keys is None else [k.strip().lower() for k in args.keys.split(",") if k.strip()]
     args.inspect = None if args.inspect is None else _cell(args.inspect, "--inspect")
