@@ -220,7 +220,7 @@ def _plot_curves(args) -> int:
         if len({(c["env_id"], repr(sorted(c["env_kwargs"].items()))) for c in made}) > 1:
             raise ValueError("--curves: the runs are of different tasks; plot one task per figure")
         rows = read_rows(args.baselines) if Path(args.baselines).is_file() else []
-        lines = curves.baselines(rows, made[0]["env_id"], made[0]["metric"], made[0]["lower_is_better"])
+        lines = curves.baselines(rows, made[0]["env_id"], made[0]["metric"], made[0]["lower_is_better"], made[0]["env_kwargs"])
         files.check_outputs([(out, files.FIGURE, "plot"), (args.curves_json, files.CURVES, "curves JSON")],
                             inputs=[*args.curves, args.baselines], replace=True)
     except (ValueError, OutputError) as exc:

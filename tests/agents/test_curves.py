@@ -79,6 +79,10 @@ def test_sample_efficiency_and_baselines():
     acc = curves.baselines([{"env": "DepthMaze-v0", "policy": "greedy2", "accuracy_at_L": 0.63},
                             {"env": "DepthMaze-v0", "policy": "optimal", "accuracy_at_L": 0.93}], "DepthMaze-v0", "accuracy", False)
     assert acc == {"greedy2": 0.63, "best planner": 0.93}
+    protocol = [{"env": "DepthMaze-v0", "policy": "greedy2", "accuracy_at_L": 0.63, "env_kwargs": {"size": 7, "episode_length": 15}},
+                {"env": "DepthMaze-v0", "policy": "greedy2", "accuracy_at_L": 0.79, "env_kwargs": {"size": 7, "episode_length": 30}}]
+    assert curves.baselines(protocol, "DepthMaze-v0", "accuracy", False,
+                            {"size": 7, "episode_length": 15, "reward": "belief"}) == {"greedy2": 0.63}
     assert curves.sample_efficiency({"steps": [1, 2], "iqm": [0.5, 0.7], "wall_time_seconds": [None, None],
                                      "lower_is_better": False}, acc)["steps"] == 2
 

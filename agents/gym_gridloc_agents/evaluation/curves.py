@@ -101,12 +101,16 @@ def curve(runs: Sequence[dict[str, Any]], *, label: str = "", resamples: int = s
     }
 
 
-def baselines(rows: Sequence[dict[str, Any]], env_id: str, metric: str, lower: bool) -> dict[str, float]:
+def baselines(rows: Sequence[dict[str, Any]], env_id: str, metric: str, lower: bool,
+              env_kwargs: dict[str, Any] | None = None) -> dict[str, float]:
     """The horizontal lines of a curve from benchmark rows of ``env_id``: ``random``, ``greedy2``
     and ``best planner`` (the best of the planners' rows); the rows' ``mean_steps`` or
-    ``accuracy_at_L``."""
+    ``accuracy_at_L``.  With ``env_kwargs`` (the curve's), only rows whose keywords it holds
+    (a row at ``episode_length`` 30 is not a line of a curve at 15)."""
     col = "mean_steps" if metric == "mean_steps" else "accuracy_at_L"
-    mine = [r for r in rows if r.get("env") == env_id and r.get(col) is not None]
+    given = dict(env_kwargs or {})
+    mine = [r for r in rows if r.get("env") == env_id and r.get(col) is not None
+            and all(given.get(k) == v for k, v in (r.get("env_kwargs") or {}).items())]
     out = {r["policy"]: float(r[col]) for r in mine if r["policy"] in BASELINES}
     planners = [float(r[col]) for r in mine if r["policy"] in PLANNERS]
     if planners:
