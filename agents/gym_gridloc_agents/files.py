@@ -292,8 +292,3 @@ def read_metadata(model_path: str | Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ValueError(f"{meta}: the model's metadata must be a JSON object, got {type(data).__name__}")
     return data
-
-
-# Model loading lives in gym_gridloc_agents.loading; these names are read from here by older code.
-from gym_gridloc_agents.loading import (ALGOS, EPISODE_KWARGS, METHODS, algo_class, expand_models,  # noqa: E402,F401
-                                        load_model, model_kwargs, model_method)

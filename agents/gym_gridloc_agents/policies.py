@@ -32,7 +32,8 @@ from gymnasium import spaces
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.observation import BeliefObservation
 from gym_gridloc_agents.base import Policy
-from gym_gridloc_agents.files import METHODS, load_model, model_kwargs, model_method, read_metadata
+from gym_gridloc_agents.files import read_metadata
+from gym_gridloc_agents.loading import METHODS, load_model, model_kwargs, model_method
 from gym_gridloc.lookahead import Lookahead
 
 #: The one table of policies, in the benchmark's order: name -> (kind, a warm start may imitate it,
@@ -64,7 +65,7 @@ LEARNED_NAMES = tuple(name for name, (kind, _, _) in POLICIES.items() if kind ==
 DEFAULT_POLICIES = tuple(name for name, (_, _, default) in POLICIES.items() if default)
 
 #: Where the shipped models live: ``<env_id>[-size<N>]-<method>.zip``, method ``ppo``, ``distilled``
-#: or ``recurrent`` (:data:`gym_gridloc_agents.files.METHODS`).
+#: or ``recurrent`` (:data:`gym_gridloc_agents.loading.METHODS`).
 POLICY_DIR = Path(__file__).resolve().parent / "models"
 
 
@@ -144,7 +145,7 @@ class PPOPolicy(Policy):
 
     name = "ppo"
     algo = "ppo"
-    #: How the default (shipped) model was made: :func:`gym_gridloc_agents.files.model_method`.
+    #: How the default (shipped) model was made: :func:`gym_gridloc_agents.loading.model_method`.
     method = "ppo"
 
     def __init__(

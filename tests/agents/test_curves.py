@@ -190,7 +190,7 @@ def test_linear_schedules(tmp_path):
 def test_another_sb3_algorithm_trains_from_the_same_config_format(tmp_path, algo, hyperparams):
     """A2C and DQN: the same YAML keys as PPO, the same held-out evaluations (learning curves),
     metadata that names the algorithm as the method (from the reward alone, no planner)."""
-    from gym_gridloc_agents.files import algo_class
+    from gym_gridloc_agents.loading import algo_class
     from gym_gridloc_agents.training.train import train
 
     path = tmp_path / f"{algo}.yml"

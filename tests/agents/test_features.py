@@ -16,7 +16,7 @@ import gym_gridloc
 from gym_gridloc import engine
 from gym_gridloc_agents.training.config import ConfigError, validate_config
 from gym_gridloc_agents.features import EXTRACTORS, BeliefLogFeatures, BeliefMapCNN, CellPoolCNN, PosePoolCNN, depth_channels
-from gym_gridloc_agents.files import load_model
+from gym_gridloc_agents.loading import load_model
 from gym_gridloc_agents.policies import PPOPolicy
 from gym_gridloc_agents.training.train import train
 

@@ -133,7 +133,7 @@ def test_bench_refuses_what_its_row_would_misreport(capsys, argv, says):
 
 
 def test_a_checkpoint_directory_is_not_several_seeds(tmp_path):
-    from gym_gridloc_agents.files import expand_models
+    from gym_gridloc_agents.loading import expand_models
 
     for name in ("step_128.zip", "step_256.zip", "best.zip"):
         shutil.copy(MODEL, tmp_path / name)
@@ -161,7 +161,9 @@ def test_resume_refuses_another_model_and_evaluates_at_its_own_step(tmp_path, mo
     from gym_gridloc_agents.training.train import TrainingInterrupted, train
     from stable_baselines3.common.callbacks import BaseCallback
 
-    monkeypatch.setattr(t, "evaluate", lambda model, cfg, episodes: {"mean_steps": 5.0, "accuracy": 0.0, "argmax_accuracy": 0.0})
+    import gym_gridloc_agents.training.evaluation as held_out
+
+    monkeypatch.setattr(held_out, "evaluate", lambda model, cfg, episodes: {"mean_steps": 5.0, "accuracy": 0.0, "argmax_accuracy": 0.0})
 
     class CtrlC(BaseCallback):
         def _on_step(self):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import gym_gridloc
-from gym_gridloc_agents.files import model_method
+from gym_gridloc_agents.loading import model_method
 from gym_gridloc_agents.policies import (
     POLICY_NAMES,
     DistilledPolicy,

@@ -412,7 +412,7 @@ def test_sweep_on_a_running_ray_cluster(tmp_path):
 # -- bench over several models ---------------------------------------------------------------------
 def test_bench_aggregates_models_across_seeds(tmp_path, capsys):
     from gym_gridloc_agents.evaluation.bench import run_benchmark
-    from gym_gridloc_agents.files import expand_models
+    from gym_gridloc_agents.loading import expand_models
     from gym_gridloc_agents.training.train import train
 
     seeds = tmp_path / "seeds"

@@ -339,7 +339,9 @@ def test_resume_keeps_the_evaluations_and_the_best_model_of_the_interrupted_run(
     from stable_baselines3.common.callbacks import BaseCallback
 
     scores = iter([3.0, 9.0, 9.0, 9.0, 9.0, 9.0])
-    monkeypatch.setattr(t, "evaluate", lambda model, cfg, episodes: {"mean_steps": next(scores), "accuracy": 0.0, "argmax_accuracy": 0.0})
+    import gym_gridloc_agents.training.evaluation as held_out
+
+    monkeypatch.setattr(held_out, "evaluate", lambda model, cfg, episodes: {"mean_steps": next(scores), "accuracy": 0.0, "argmax_accuracy": 0.0})
 
     class CtrlC(BaseCallback):
         def _on_step(self):
@@ -464,7 +466,9 @@ def test_a_best_model_newer_than_the_resumed_checkpoint_stays_the_selection(tmp_
     # Evaluations at 128, 256, 384 score 5, 2, 9; the run dies after 384 but resumes from the
     # checkpoint at 256 (before the evaluation at 384 and... after the best one at 256).
     scores = iter([5.0, 2.0, 9.0, 8.0, 8.0, 8.0, 8.0, 8.0])  # (the resumed run evaluates at 128, its checkpoint's step, too)
-    monkeypatch.setattr(t, "evaluate", lambda model, cfg, episodes: {"mean_steps": next(scores), "accuracy": 0.0, "argmax_accuracy": 0.0})
+    import gym_gridloc_agents.training.evaluation as held_out
+
+    monkeypatch.setattr(held_out, "evaluate", lambda model, cfg, episodes: {"mean_steps": next(scores), "accuracy": 0.0, "argmax_accuracy": 0.0})
 
     class Crash(BaseCallback):
         def _on_step(self):

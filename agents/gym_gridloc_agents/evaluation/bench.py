@@ -42,7 +42,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from gym_gridloc_agents.envs import make_env, served_env
-from gym_gridloc_agents.files import metadata_path, model_method, read_metadata
+from gym_gridloc_agents.files import metadata_path, read_metadata
+from gym_gridloc_agents.loading import model_method
 from gym_gridloc_agents.policies import (DEFAULT_POLICIES, LEARNED_NAMES, PLANNER_POLICIES, POLICY_DIR, POLICY_NAMES,
                                          default_model_path, make_policy)
 from gym_gridloc_agents.evaluation.rollout import rollout

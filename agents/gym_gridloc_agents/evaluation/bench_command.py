@@ -84,7 +84,8 @@ def bench_main(args) -> int:
     from gym_gridloc_agents.evaluation.bench_cluster import ClusterError  # (Ray itself only once a run on a cluster starts)
     from gym_gridloc_agents.envs import check_environment
     from gym_gridloc_agents import files
-    from gym_gridloc_agents.files import OutputError, expand_models
+    from gym_gridloc_agents.files import OutputError
+    from gym_gridloc_agents.loading import expand_models
     from gym_gridloc_agents.policies import POLICY_NAMES
     from gym_gridloc_agents.evaluation.report import merge_rows, read_rows
 

@@ -27,7 +27,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from gym_gridloc_agents.evaluation import stats
-from gym_gridloc_agents.files import metadata_path, model_method, read_metadata
+from gym_gridloc_agents.files import metadata_path, read_metadata
+from gym_gridloc_agents.loading import model_method
 from gym_gridloc_agents.policies import PLANNER_POLICIES
 
 #: The baselines drawn as horizontal lines, and the policies counted as planners ("best planner").

@@ -31,7 +31,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from gym_gridloc_agents.files import ALGOS, algo_class  # the algorithms table lives with model loading
+from gym_gridloc_agents.loading import ALGOS, algo_class
 from gym_gridloc_agents.policies import EXPERT_NAMES
 
 TOP_KEYS = {

@@ -34,19 +34,9 @@ import gym_gridloc
 from gym_gridloc_agents.training.config import ConfigError, activation, load_config, validate_config
 from gym_gridloc_agents.envs import make_training_env
 from gym_gridloc_agents.features import EXTRACTORS
-from gym_gridloc_agents.files import (
-    OutputError,
-    locked,
-    algo_class,
-    atomic_save_model,
-    atomic_write_json,
-    load_model,
-    metadata_path,
-    model_method,
-    read_metadata,
-    rescue_write,
-    writable_directory,
-)
+from gym_gridloc_agents.files import (OutputError, atomic_save_model, atomic_write_json, locked, metadata_path, read_metadata,
+                                     rescue_write, writable_directory)
+from gym_gridloc_agents.loading import algo_class, load_model, model_method
 from gym_gridloc_agents.training.pretrain import WarmStartInterrupted, behaviour_cloning
 from gym_gridloc_agents.training.evaluation import (EVAL_SEED_BASE, best_entry, evaluate, evaluation_episodes,  # noqa: F401
                                                     record_evaluation, score)
