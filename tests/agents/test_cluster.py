@@ -207,7 +207,7 @@ def bench_on_two_nodes_gives_the_local_rows(cluster, windy_local, tmp_path):
     cluster_s = time.monotonic() - start
     remote = json.loads((tmp_path / "cluster.json").read_text())
     assert [_timeless(r) for r in remote] == [_timeless(r) for r in local]
-    assert remote[1]["model"] == local[1]["model"] == "agents/gym_gridloc_agents/models/WindyMaze-v0.zip"  # the name, not a worker's copy
+    assert remote[1]["model"] == local[1]["model"] == "agents/gym_gridloc_agents/models/WindyMaze-v0-ppo.zip"  # the name, not a worker's copy
     nodes = set()
     for row in remote:
         c = row["cluster"]
@@ -244,15 +244,17 @@ def maps_and_a_users_model_travel(cluster, tmp_path):
 
 
 def a_chunks_own_error_stops_the_run_as_locally(cluster, tmp_path):
-    """An error of the chunk itself (here a planner's bad depth, found when a worker makes the
-    policy) is not rerun: the run stops with the same one-line error as a local run."""
+    """A policy's bad option (a planner's depth) stops the run with the same one-line error as a
+    local run: every policy is built and checked before the first chunk is sent, and nothing is
+    rerun."""
     args = ["bench", "--env", "WindyMaze-v0", "--policies", "expectimax", "--option", "expectimax.depth=0", "--episodes", "4",
             "--no-progress"]
     local = io.StringIO()
     with contextlib.redirect_stderr(local):
         assert main(args) == 2
     remote = _gridloc(*args, "--address", cluster.address, env=cluster.env, cwd=tmp_path, status=2)
-    assert remote.stderr.strip().splitlines()[-1] == local.getvalue().strip() == "gridloc bench: error: depth must be >= 1, got 0"
+    assert remote.stderr.strip().splitlines()[-1] == local.getvalue().strip() == ("gridloc bench: error: policy 'expectimax' on WindyMaze-v0: "
+                                                                                  "depth must be >= 1, got 0")
 
 
 def _summary(out: Path) -> dict:
