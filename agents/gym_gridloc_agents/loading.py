@@ -86,7 +86,8 @@ def model_method(meta: dict[str, Any]) -> str:
         return "recurrent"
     if meta.get("pretrain") or (meta.get("config") or {}).get("pretrain"):
         return "distilled"
-    return meta.get("algo") if meta.get("algo") in ("a2c", "dqn") else "ppo"
+    algo = meta.get("algo")
+    return algo if algo in ALGOS and algo != "ppo" else "ppo"  # another algorithm of the table: its name
 
 
 #: Environment keywords that shape episodes, not the model a policy acts on: they may differ

@@ -212,7 +212,8 @@ def test_held_out_evaluation_keeps_the_best_model(tmp_path):
     best = min(ev, key=lambda h: h["mean_steps"])
     assert info["selected_timesteps"] == best["num_timesteps"]
     assert info["eval_seeds"].startswith("2000000..")
-    from gym_gridloc_agents.training.train import evaluate, load_model
+    from gym_gridloc_agents.loading import load_model
+    from gym_gridloc_agents.training.evaluation import evaluate
 
     model, _ = load_model(tmp_path / "model.zip", env_id="ColourGrid-v0")
     cfg = validate_config(tiny(tmp_path))

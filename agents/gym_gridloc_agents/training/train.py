@@ -38,8 +38,7 @@ from gym_gridloc_agents.files import (OutputError, atomic_save_model, atomic_wri
                                      rescue_write, writable_directory)
 from gym_gridloc_agents.loading import algo_class, load_model, model_method
 from gym_gridloc_agents.training.pretrain import WarmStartInterrupted, behaviour_cloning
-from gym_gridloc_agents.training.evaluation import (EVAL_SEED_BASE, best_entry, evaluate, evaluation_episodes,  # noqa: F401
-                                                    record_evaluation, score)
+from gym_gridloc_agents.training.evaluation import EVAL_SEED_BASE, best_entry, record_evaluation, score
 
 
 class TrainingInterrupted(Exception):
