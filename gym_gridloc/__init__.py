@@ -30,7 +30,7 @@ from gym_gridloc.models import (
     ring_sensor_model,
     windy_maze_model,
 )
-from gym_gridloc.wrappers import HMMBeliefWrapper
+from gym_gridloc.wrappers import HMMBeliefWrapper, PreviousActionWrapper
 from gym_gridloc.inference import FixedLagSmoother, fixed_lag_smooth, forward_backward, smooth, viterbi
 from gym_gridloc.particles import ParticleFilter
 from gym_gridloc.recording import RecordTrajectory, Trajectory
@@ -61,7 +61,7 @@ _register()
 
 __all__ = [
     "ENV_IDS", "DIRECTIONS", "ColourGridEnv", "ColourSensor", "DepthMazeEnv", "DepthSensor", "depth_maze_model", "ForwardFilter", "GridLocEnv",
-    "GridLocError", "GridMap", "GridModel", "HMMBeliefWrapper", "ImpossibleObservationError",
+    "GridLocError", "GridMap", "GridModel", "HMMBeliefWrapper", "ImpossibleObservationError", "PreviousActionWrapper",
     "MapError", "RingSensor", "RingSensorEnv", "Sensor", "Term", "WallSensor", "WindyMazeEnv",
     "colour_grid_model", "parse_colour_map", "parse_maze", "ring_sensor_model", "windy_maze_model",
     "FixedLagSmoother", "ParticleFilter", "RecordTrajectory", "Trajectory", "fixed_lag_smooth",

@@ -237,3 +237,58 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         f = self.filter
         position = None if self._shared or self.full_state else f.position_belief
         return self.builder.one(self.model, observation, f.full_belief, position=position)
+
+
+class PreviousActionWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """The environment's observation, flattened, with the previous action beside it, one-hot.
+
+    For memory-based agents that read the raw readings (no belief), e.g. RecurrentPPO: with
+    noisy moves and sampled actions, a recurrent policy cannot tell from the readings alone which
+    action it took, so the standard practice is to feed it back.  The observation is one
+    ``Box(0, 1, (n + A + 1,), float32)`` vector: the original observation as
+    :func:`gymnasium.spaces.flatten` gives it (one-hot for ``Discrete``, the bits for
+    ``MultiBinary``), then the previous action one-hot over ``A + 1`` slots, the last slot meaning
+    "no action yet" (the first observation of an episode).  The action space must be ``Discrete``.
+
+    >>> import gymnasium as gym, gym_gridloc
+    >>> env = gym_gridloc.PreviousActionWrapper(gym.make("ColourGrid-v0"))
+    >>> env.observation_space.shape   # 4 colours + 4 actions + "none yet"
+    (9,)
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.Wrapper.__init__(self, env)
+        self.observation_space = previous_action_space(env.observation_space, env.action_space)
+        self._raw_space = env.observation_space
+        self._n_actions = int(env.action_space.n)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        return with_previous_action(self._raw_space, self._n_actions, obs, None), info
+
+    def step(self, action: Any) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return with_previous_action(self._raw_space, self._n_actions, obs, action), reward, terminated, truncated, info
+
+
+def previous_action_space(observation_space: spaces.Space, action_space: spaces.Space) -> spaces.Box:
+    """The observation space of :class:`PreviousActionWrapper` over these spaces."""
+    if not isinstance(action_space, spaces.Discrete):
+        raise TypeError(f"PreviousActionWrapper needs a Discrete action space, got {action_space}")
+    n = spaces.flatdim(observation_space) + int(action_space.n) + 1
+    return spaces.Box(0.0, 1.0, (n,), np.float32)
+
+
+def with_previous_action(observation_space: spaces.Space, n_actions: int, observation: Any, previous: Any) -> np.ndarray:
+    """:class:`PreviousActionWrapper`'s observation: ``observation`` flattened, then ``previous``
+    (an action in ``0..n_actions-1``, or ``None`` at an episode's start) one-hot over
+    ``n_actions + 1`` slots.  The one encoding of the wrapper and of the policies that act on it."""
+    flat = spaces.flatten(observation_space, observation)
+    out = np.zeros(flat.shape[0] + n_actions + 1, dtype=np.float32)
+    out[: flat.shape[0]] = flat
+    slot = n_actions if previous is None else int(previous)
+    if not 0 <= slot <= n_actions or (previous is not None and slot == n_actions):
+        raise ValueError(f"previous action must be in 0..{n_actions - 1} or None, got {previous!r}")
+    out[flat.shape[0] + slot] = 1.0
+    return out

@@ -73,11 +73,15 @@ def _parameters(env_id: str) -> list | None:
 
 def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, wrapper: dict[str, Any] | None = None) -> gym.Env:
     """``gym.make(env_id, **env_kwargs)``, behind ``HMMBeliefWrapper(**wrapper)`` unless
-    ``wrapper["belief"]`` is false (raw readings).  ``wrapper=None``: the Dict belief observation
+    ``wrapper["belief"]`` is false (raw readings; behind :class:`gym_gridloc.PreviousActionWrapper`
+    with ``wrapper["previous_action"]``).  ``wrapper=None``: the Dict belief observation
     every policy of the benchmark reads."""
     env = gym.make(env_id, **dict(env_kwargs or {}))
     opts = {"belief": True} if wrapper is None else dict(wrapper)
-    return env if opts.pop("belief", True) is False else gym_gridloc.HMMBeliefWrapper(env, **opts)
+    previous = opts.pop("previous_action", False)
+    if opts.pop("belief", True) is False:
+        return gym_gridloc.PreviousActionWrapper(env) if previous else env
+    return gym_gridloc.HMMBeliefWrapper(env, **opts)
 
 
 def served_env(env: gym.Env, policy: Any) -> gym.Env:

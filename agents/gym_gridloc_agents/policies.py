@@ -31,6 +31,7 @@ from gymnasium import spaces
 
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.observation import BeliefObservation
+from gym_gridloc.wrappers import previous_action_space, with_previous_action
 from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.files import read_metadata
 from gym_gridloc_agents.loading import METHODS, load_model, model_kwargs, model_method
@@ -165,6 +166,7 @@ class PPOPolicy(Policy):
         self.deterministic = True if deterministic is None else bool(deterministic)
         if sb3_model is not None:  # a model in memory (e.g. evaluated during training)
             self.path, self.sb3, self.meta = None, sb3_model, {}
+            self.trained_wrapper = dict(wrapper or {})
             self.wrapper = _wrapper_options(wrapper)
             return
         if path is None:
@@ -172,8 +174,11 @@ class PPOPolicy(Policy):
                 raise ValueError(f"policy {self.name!r} needs env_id=... (for the shipped model) or path=...")
             path = default_model_path(env_id, self.method, env_kwargs)
         self.path = renamed_model(Path(path))
-        self.wrapper = _wrapper_options(wrapper if wrapper is not None else read_metadata(self.path).get("wrapper")
-                                        if self.path.is_file() else None)
+        if wrapper is None and self.path.is_file():
+            wrapper = read_metadata(self.path).get("wrapper")
+        #: the wrapper options of the model's training config, as given (``wrapper`` below: the belief observation's)
+        self.trained_wrapper = dict(wrapper or {})
+        self.wrapper = _wrapper_options(wrapper)
         expected = self.expected_space(model) if observation_space is None else observation_space
         self.sb3, self.meta = load_model(self.path, algo=self.algo, env_id=env_id, env_kwargs=env_kwargs,
                                          observation_space=expected)
@@ -244,23 +249,37 @@ class RecurrentPolicy(PPOPolicy):
         super().__init__(model, **kwargs)
         self._state = None  # the LSTM's memory, fresh at each episode's start
         self._start = np.ones((1,), dtype=bool)
+        self._previous: int | None = None  # the action taken last (wrapper.previous_action models read it)
 
     observation_options = None  # the raw readings: nothing to pass on
 
+    @property
+    def previous_action(self) -> bool:
+        """Whether the model reads :class:`gym_gridloc.PreviousActionWrapper`'s observation (its
+        config's ``wrapper.previous_action``): the readings with the previous action beside them."""
+        return bool(self.trained_wrapper.get("previous_action", False))
+
     def expected_space(self, model: GridModel) -> spaces.Space:
+        if self.previous_action:
+            return previous_action_space(model.sensor.observation_space, spaces.Discrete(model.n_actions))
         return model.sensor.observation_space
 
     def reset(self, seed: int | None = None, model: GridModel | None = None) -> None:
         super().reset(seed, model)
         self._state = None
         self._start = np.ones((1,), dtype=bool)
+        self._previous = None
 
     def act(self, observation: Any, belief: np.ndarray | None = None, encoded: Any = None) -> int:
+        if self.previous_action:
+            observation = with_previous_action(self.model.sensor.observation_space, self.model.n_actions, observation,
+                                               self._previous)
         action, self._state = self.sb3.predict(
             np.asarray(observation), state=self._state, episode_start=self._start, deterministic=self.deterministic
         )
         self._start = np.zeros((1,), dtype=bool)
-        return int(np.asarray(action).reshape(-1)[0])
+        self._previous = int(np.asarray(action).reshape(-1)[0])
+        return self._previous
 
 
 class DistilledPolicy(PPOPolicy):

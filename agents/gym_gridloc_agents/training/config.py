@@ -38,7 +38,7 @@ TOP_KEYS = {
     "algo": "ppo, recurrent_ppo, a2c or dqn",
     "env_id": "a registered environment id",
     "env_kwargs": "keyword arguments of gym.make",
-    "wrapper": "HMMBeliefWrapper options: belief, flatten, full_state, map, lookahead",
+    "wrapper": "HMMBeliefWrapper options: belief, flatten, full_state, map, lookahead; previous_action (raw readings)",
     "n_envs": "number of parallel environments (DummyVecEnv)",
     "seed": "the seed of environments, numpy and torch",
     "total_timesteps": "environment steps to train for",
@@ -79,7 +79,8 @@ PRETRAIN_KEYS = {
     "learning_rate_final": "if set, each fit lowers the learning rate along a cosine to this",
 }
 
-WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool, "lookahead": int}
+WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool, "lookahead": int,
+                "previous_action": bool}
 
 POLICIES = {
     "ppo": ("MlpPolicy", "MultiInputPolicy"),
@@ -253,6 +254,13 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         raise ConfigError(f"{source}: wrapper.flatten / wrapper.full_state / wrapper.map / wrapper.lookahead need wrapper.belief: true")
     if cfg.setdefault("vec_env", "dummy") not in ("dummy", "native"):
         raise ConfigError(f"{source}: vec_env must be dummy or native, got {cfg['vec_env']!r}")
+    if wrapper.get("previous_action"):
+        if wrapper["belief"]:
+            raise ConfigError(f"{source}: wrapper.previous_action (gym_gridloc.PreviousActionWrapper) is for the raw "
+                              "readings: it needs wrapper.belief: false")
+        if cfg["vec_env"] == "native":
+            raise ConfigError(f"{source}: wrapper.previous_action needs vec_env: dummy (the native vector env "
+                              "has no previous-action observation)")
 
     for key, default, minimum, maximum in (("n_envs", 8, 1, None), ("seed", 0, 0, 2**32 - 1),
                                            ("total_timesteps", None, 1, None), ("eval_freq", 0, 0, None),
