@@ -493,3 +493,40 @@ def test_lookahead_follows_the_map_and_flattens():
 def test_lookahead_must_be_0_1_or_2(bad):
     with pytest.raises(ValueError, match="lookahead must be 0, 1 or 2"):
         HMMBeliefWrapper(gym.make("WindyMaze-v0"), lookahead=bad)
+
+
+# -- PreviousActionWrapper (raw readings with the previous action, for memory-based agents) ----------
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_previous_action_wrapper_check_env_and_encoding(env_id):
+    from gym_gridloc import PreviousActionWrapper
+
+    run_check_env(PreviousActionWrapper(gym.make(env_id).unwrapped))
+    raw, env = gym.make(env_id), PreviousActionWrapper(gym.make(env_id))
+    n_obs, n_act = spaces.flatdim(raw.observation_space), int(raw.action_space.n)
+    assert env.observation_space == spaces.Box(0.0, 1.0, (n_obs + n_act + 1,), np.float32)
+    o_raw, _ = raw.reset(seed=3)
+    obs, _ = env.reset(seed=3)
+    assert obs.dtype == np.float32 and env.observation_space.contains(obs)
+    np.testing.assert_array_equal(obs[:n_obs], spaces.flatten(raw.observation_space, o_raw))
+    np.testing.assert_array_equal(obs[n_obs:], np.eye(n_act + 1)[n_act])  # no action yet
+    for action in (a % n_act for a in (2, 0, 3, 1)):
+        o_raw, r_raw, t_raw, tr_raw, _ = raw.step(action)
+        obs, r, t, tr, _ = env.step(action)
+        np.testing.assert_array_equal(obs[:n_obs], spaces.flatten(raw.observation_space, o_raw))
+        np.testing.assert_array_equal(obs[n_obs:], np.eye(n_act + 1)[action])
+        assert (r, t, tr) == (r_raw, t_raw, tr_raw)
+        if t or tr:
+            break
+
+
+def test_previous_action_encoding_refuses_bad_actions():
+    from gym_gridloc.wrappers import PreviousActionWrapper, with_previous_action
+
+    space = spaces.Discrete(3)
+    with pytest.raises(ValueError, match="previous action must be in 0..3 or None, got 4"):
+        with_previous_action(space, 4, 1, 4)
+    with pytest.raises(ValueError, match="previous action"):
+        with_previous_action(space, 4, 1, -1)
+    with pytest.raises(TypeError, match="Discrete action space"):
+        PreviousActionWrapper(gym.wrappers.TransformAction(
+            gym.make("ColourGrid-v0"), lambda a: int(a[0]), spaces.Box(0, 3, (1,))))

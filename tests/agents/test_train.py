@@ -543,3 +543,50 @@ def test_expert_episodes_are_shared_with_sibling_trainings(tmp_path, monkeypatch
     cfg["pretrain"]["episodes"] = 8  # more than any sibling holds: the rest is played
     third = pretrain.collect_expert(cfg, progress=False, cache=tmp_path / "seed2" / "expert.npz")
     assert len(calls) == 2 and [e["length"] for e in third[:6]] == [e["length"] for e in first]
+
+
+def test_recurrent_with_previous_action_trains_and_acts_on_it(tmp_path):
+    """wrapper.previous_action: the model reads PreviousActionWrapper's observation in training,
+    and the benchmark's RecurrentPolicy builds the same one (its own previous action)."""
+    from gym_gridloc.wrappers import previous_action_space
+
+    cfg = tiny(tmp_path, algo="recurrent_ppo", wrapper={"belief": False, "previous_action": True},
+               policy_kwargs={"lstm_hidden_size": 8, "net_arch": [8]})
+    train(cfg, progress_bar=False)
+    model = gym_gridloc.colour_grid_model()
+    policy = RecurrentPolicy(model, env_id="ColourGrid-v0", path=tmp_path / "model.zip")
+    assert policy.previous_action
+    assert policy.sb3.observation_space == previous_action_space(model.sensor.observation_space, spaces_discrete(4))
+    seen = []
+    real_predict = policy.sb3.predict
+    policy.sb3.predict = lambda obs, **kw: (seen.append(np.asarray(obs).copy()), real_predict(obs, **kw))[1]
+    policy.reset(seed=0)
+    actions = [policy.act(z) for z in (0, 1, 2)]
+    assert all(a in range(4) for a in actions)
+    np.testing.assert_array_equal(seen[0][4:], np.eye(5)[4])  # episode start: no action yet
+    np.testing.assert_array_equal(seen[1][4:], np.eye(5)[actions[0]])
+    np.testing.assert_array_equal(seen[2][:4], np.eye(4)[2])
+    policy.reset(seed=1)
+    policy.act(0)
+    np.testing.assert_array_equal(seen[3][4:], np.eye(5)[4])  # forgotten at reset
+    # without the option, the model reads the raw readings as before
+    cfg = tiny(tmp_path / "raw", algo="recurrent_ppo", policy_kwargs={"lstm_hidden_size": 8, "net_arch": [8]})
+    train(cfg, progress_bar=False)
+    assert not RecurrentPolicy(model, env_id="ColourGrid-v0", path=tmp_path / "raw" / "model.zip").previous_action
+
+
+def spaces_discrete(n):
+    from gymnasium import spaces
+
+    return spaces.Discrete(n)
+
+
+@pytest.mark.parametrize("wrapper, vec_env, match", [
+    ({"belief": True, "previous_action": True}, "dummy", "previous_action .* needs wrapper.belief: false"),
+    ({"belief": False, "previous_action": True}, "native", "previous_action needs vec_env: dummy"),
+    ({"belief": False, "previous_action": 1}, "dummy", "wrapper.previous_action must be true or false"),
+])
+def test_previous_action_config_errors(tmp_path, wrapper, vec_env, match):
+    cfg = tiny(tmp_path, algo="recurrent_ppo", wrapper=wrapper, vec_env=vec_env, policy="MlpLstmPolicy")
+    with pytest.raises(ConfigError, match=match):
+        validate_config(cfg)
