@@ -163,6 +163,20 @@ def test_address_errors_are_one_line(capsys, args, says):
     assert time.monotonic() - start < 30  # not Ray's endless retries on an address where nothing listens
 
 
+def test_a_ray_that_raises_a_bare_exception_is_one_line(capsys, monkeypatch):
+    ray = pytest.importorskip("ray")
+
+    def broken(*args, **kwargs):
+        raise Exception("The current node timed out during startup.")
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", broken)
+    assert main(["bench", "--env", "WindyMaze-v0", "--policies", "greedy", "--episodes", "2", "--no-progress",
+                 "--address", "auto"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "cannot join the Ray cluster at auto: The current node timed out" in err, err
+
+
 def test_chunks_in_any_number_give_the_serial_parts():
     """The chunking that --jobs and --address share: whatever the number of workers, the parts put
     back together are the serial run's episodes in order."""

@@ -471,3 +471,21 @@ def test_optuna_with_several_grid_keys_is_checked_key_by_key(tmp_path):
     keys = list(spec["grid"])
     assert config_label({"hyperparams.n_steps": 64}, keys) == "n_steps=64"
     assert config_label({"hyperparams.learning_rate": 1e-3, "hyperparams.n_steps": 64}, keys) == "learning_rate=0.001_n_steps=64"
+
+
+@needs_ray
+def test_ray_that_fails_to_start_gives_one_line(tmp_path, capsys, monkeypatch):
+    """Ray raises a bare Exception when its node times out starting (seen on a machine loaded by
+    trainings): one line, exit 2, nothing written."""
+    import ray
+
+    def timed_out(*args, **kwargs):
+        raise Exception("The current node timed out during startup. This could happen because ...")
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", timed_out)
+    cfg = tiny_config(tmp_path)
+    assert main(["sweep", str(cfg), "--output", str(tmp_path / "out"), "--cpus", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "cannot start Ray on this machine" in err and "less busy" in err, err
+    assert not (tmp_path / "out" / "sweep.json").exists()

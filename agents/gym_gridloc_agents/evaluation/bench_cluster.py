@@ -56,7 +56,7 @@ def connect(address: str) -> bool:
                                "start one with `ray start --head` or give the head's HOST:PORT") from None
     try:
         ray.init(address=address, logging_level="WARNING")
-    except (ConnectionError, ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - Ray raises bare Exception too (e.g. a node that timed out starting)
         hint = (" (a cluster with token authentication needs RAY_AUTH_MODE=token and its token: RAY_AUTH_TOKEN or "
                 "~/.ray/auth_token)") if isinstance(exc, ConnectionError) else ""
         raise ClusterError(f"cannot join the Ray cluster at {address}: {' '.join(str(exc).split())}{hint}") from None
