@@ -69,6 +69,57 @@ def test_sweep_output_with_unrelated_files_is_refused(tmp_path):
         assert not (out / "sweep.json").exists()
 
 
+def test_train_outputs_never_replace_its_inputs_or_its_checkpoints(tmp_path, capsys, monkeypatch):
+    """train judges its model and metadata with the shared checker: refused before any work, --force or not."""
+    from tests.agents.test_train import _write_yaml, tiny
+
+    monkeypatch.chdir(tmp_path)
+    cfg = tiny(tmp_path)
+    conf = tmp_path / "model.json"  # a JSON config beside the output: the model's metadata would replace it
+    conf.write_text(json.dumps(cfg))
+    yml = _write_yaml(tmp_path, cfg)
+    (tmp_path / "old.zip").write_bytes(b"PK\x03\x04 a checkpoint")
+    (tmp_path / "old.json").write_text(json.dumps({"algo": "ppo", "env_id": "ColourGrid-v0", "num_timesteps": 64}))
+    kept = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    for force in ([], ["--force"]):
+        fails(capsys, ["train", str(conf), "--no-progress", *force], "model.json is an input of this command")
+        fails(capsys, ["train", str(yml), "--resume", "old.zip", "--output", "old.zip", *force], "old.zip is an input of this command")
+        for name in ("best.zip", "step_64.zip", "interrupted_step_70.zip"):
+            fails(capsys, ["train", str(yml), "--output", str(tmp_path / "ckpt" / name), *force], "the name of a checkpoint")
+        fails(capsys, ["train", str(yml), "--tensorboard", str(tmp_path / "model.json"), *force],
+              "TensorBoard directory")
+    with pytest.raises(OSError, match="checkpoint directory .*model.zip is also the model"):
+        from gym_gridloc_agents.training.train import train
+
+        train(tiny(tmp_path, checkpoint_dir=str(tmp_path / "model.zip")), progress_bar=False, force=True)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == kept, "nothing may be written before the outputs are checked"
+
+
+def test_a_file_that_appears_during_training_is_kept_and_the_model_rescued(tmp_path):
+    """The final write is checked again, by the same checker: with --force an existing model would be
+    replaced, but a file of another kind that appeared meanwhile is kept and the model saved beside it."""
+    from stable_baselines3.common.callbacks import BaseCallback
+    from tests.agents.test_train import tiny
+
+    from gym_gridloc_agents.files import OutputError
+    from gym_gridloc_agents.training.train import train
+
+    out = tmp_path / "model.zip"
+
+    class Appear(BaseCallback):
+        def _on_step(self):
+            if self.num_timesteps >= 64 and not out.exists():
+                out.write_text("someone's notes")
+            return True
+
+    with pytest.raises(OutputError, match=r"at the end of training, the model \S+model.zip exists and holds a file of another "
+                                          r"kind, not model: .*; written to (\S+) instead") as exc:
+        train(tiny(tmp_path, total_timesteps=128), progress_bar=False, force=True, callbacks=[Appear()])
+    assert out.read_text() == "someone's notes"
+    rescued = Path(str(exc.value).split("written to ")[1].split(" ")[0])
+    assert rescued.parent == tmp_path / "ckpt" and json.loads(rescued.with_suffix(".json").read_text())["rescued_from"] == str(out)
+
+
 # -- 2. interruptions and late checks lose no finished row -----------------------------------------------
 def test_ctrl_c_in_a_later_policy_writes_the_finished_rows(tmp_path, capsys, monkeypatch):
     import gym_gridloc_agents.evaluation.bench as b
