@@ -7,6 +7,8 @@ Training never loses work:
   (:func:`gym_gridloc_agents.files.check_outputs`): the model and its metadata never replace an
   input (the config, the checkpoint resumed from), a file of another kind or a checkpoint of this
   run, and an existing model and its metadata are kept unless ``force=True``;
+* a training locks its checkpoint directory and its output (:func:`exclusive`): a second training
+  into either is refused;
 * a checkpoint every ``checkpoint_freq`` steps and one on Ctrl-C, also during the warm start (its
   expert episodes are cached), in a checkpoint directory of this output's own;
 * ``resume=`` continues from a checkpoint to ``total_timesteps``, with the evaluations made
@@ -151,6 +153,17 @@ def check_outputs(cfg: dict[str, Any], ckpt_dir: Path, *, force: bool, inputs=()
         writable_directory(directory, what)
 
 
+@contextlib.contextmanager
+def exclusive(output: str | Path, ckpt_dir: Path):
+    """Hold, for the block, the locks that make a training the only one writing its checkpoint
+    directory and its output (:func:`gym_gridloc_agents.files.locked`, held by this process:
+    released when it ends, even by ``kill -9``); :class:`OutputError` naming what another process
+    holds."""
+    with locked(ckpt_dir, wait=False, what="checkpoint directory", directory=True), \
+            locked(output, wait=False, what="model", directory=False):
+        yield
+
+
 def _every(freq: int, action: Callable[[Any], None]):
     """An SB3 callback that calls ``action(model)`` at the first step at or past each multiple of
     ``freq`` after the step where training (or a resumed training) starts."""
@@ -169,7 +182,7 @@ def _every(freq: int, action: Callable[[Any], None]):
 
 # -- training -------------------------------------------------------------------------------------
 def train(config: dict[str, Any] | str | Path, **kwargs: Any) -> dict[str, Any]:
-    with contextlib.ExitStack() as locks:  # the checkpoint directory and the output: one training each
+    with contextlib.ExitStack() as locks:  # the checkpoint directory and the output: one training each (exclusive)
         return _train(config, locks=locks, **kwargs)
 
 
@@ -192,8 +205,9 @@ def _train(
 
     ``output``, ``total_timesteps`` and ``tensorboard_log`` override the config.  Raises
     :class:`OutputError` before any training when an output cannot be written (see
-    :func:`check_outputs`; a ``FileExistsError`` when the model exists and ``force`` is not given),
-    :class:`TrainingInterrupted` after Ctrl-C (the checkpoint is saved first).
+    :func:`check_outputs`; a ``FileExistsError`` when the model exists and ``force`` is not given)
+    or another training holds the checkpoint directory or the output, :class:`TrainingInterrupted`
+    after Ctrl-C (the checkpoint is saved first).
     ``on_evaluation`` is called with each held-out evaluation (e.g. to report it to a tuner).
     """
     cfg = load_config(config) if isinstance(config, (str, Path)) else validate_config(config)
@@ -224,8 +238,7 @@ def _train(
     if resume is not None:
         inputs += [resume, metadata_path(resume)]
     check_outputs(cfg, ckpt_dir, force=force, inputs=inputs)
-    locks.enter_context(locked(ckpt_dir, wait=False, what="checkpoint directory", directory=True))
-    locks.enter_context(locked(cfg["output"], wait=False, what="model", directory=False))
+    locks.enter_context(exclusive(cfg["output"], ckpt_dir))
     if resume is None and (ckpt_dir / "best.zip").exists():  # an earlier run's best: kept aside, not mixed in
         stamp = time.strftime("%Y%m%d-%H%M%S")
         for name in ("best.zip", "best.json"):
