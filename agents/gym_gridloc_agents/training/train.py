@@ -2,13 +2,9 @@
 
 Training never loses work:
 
-* every output (model, metadata JSON, checkpoint directory, TensorBoard directory) is checked
-  before the first step by the checker every command shares
-  (:func:`gym_gridloc_agents.files.check_outputs`): the model and its metadata never replace an
-  input (the config, the checkpoint resumed from), a file of another kind or a checkpoint of this
-  run, and an existing model and its metadata are kept unless ``force=True``;
-* a training locks its checkpoint directory and its output (:func:`exclusive`): a second training
-  into either is refused;
+* every output (model, metadata JSON, checkpoint and TensorBoard directories) is checked before
+  the first step (:func:`check_outputs`), an existing model is kept unless ``force=True``, and a
+  second training into the same output or checkpoint directory is refused (:func:`exclusive`);
 * a checkpoint every ``checkpoint_freq`` steps and one on Ctrl-C, also during the warm start (its
   expert episodes are cached), in a checkpoint directory of this output's own;
 * ``resume=`` continues from a checkpoint to ``total_timesteps``, with the evaluations made
@@ -128,14 +124,11 @@ def model_outputs(out: Path) -> list[tuple[Path, str, str]]:
 
 
 def check_outputs(cfg: dict[str, Any], ckpt_dir: Path, *, force: bool, inputs=()) -> None:
-    """Everything training will write, checked before the first step.  The model and its
-    metadata by the checker every command shares (:func:`gym_gridloc_agents.files.check_outputs`):
-    neither may be one of ``inputs`` (the config file, the checkpoint resumed from), a directory,
-    an existing file of another kind or a checkpoint of this run (or the checkpoint or
-    TensorBoard directory); an existing model and its metadata are replaced only with ``force``.
-    Then writable directories for the checkpoints and the TensorBoard log.  Raises
-    :class:`OutputError` naming the path (:class:`~gym_gridloc_agents.files.OutputExists`, also
-    a ``FileExistsError``, for an existing model without ``force``)."""
+    """Everything training will write, checked before the first step: the model and its metadata
+    by the checker every command shares (:func:`gym_gridloc_agents.files.check_outputs`; never
+    one of ``inputs``, a file of another kind, a checkpoint of this run or its checkpoint or
+    TensorBoard directory; an existing model only with ``force``), then those directories.
+    :class:`OutputError` naming the path (``OutputExists``, a ``FileExistsError``, without ``force``)."""
     out = Path(cfg["output"])
     outputs = model_outputs(out)
     directories = [(ckpt_dir, "checkpoint directory")]
@@ -155,10 +148,9 @@ def check_outputs(cfg: dict[str, Any], ckpt_dir: Path, *, force: bool, inputs=()
 
 @contextlib.contextmanager
 def exclusive(output: str | Path, ckpt_dir: Path):
-    """Hold, for the block, the locks that make a training the only one writing its checkpoint
-    directory and its output (:func:`gym_gridloc_agents.files.locked`, held by this process:
-    released when it ends, even by ``kill -9``); :class:`OutputError` naming what another process
-    holds."""
+    """The locks (:func:`gym_gridloc_agents.files.locked`, released when the process ends, even by
+    ``kill -9``) that keep a training alone in its checkpoint directory and its output; an
+    :class:`OutputError` naming what another process holds."""
     with locked(ckpt_dir, wait=False, what="checkpoint directory", directory=True), \
             locked(output, wait=False, what="model", directory=False):
         yield
