@@ -36,7 +36,8 @@ def _parser() -> argparse.ArgumentParser:
 
     t = sub.add_parser("train", help="train a policy from a YAML config (see configs/)")
     t.add_argument("config", help="a YAML config, e.g. configs/ppo_windymaze.yml")
-    t.add_argument("--force", action="store_true", help="overwrite an existing model file")
+    t.add_argument("--force", action="store_true",
+                   help="replace an existing model and its metadata (never a file of another kind, an input or a checkpoint)")
     t.add_argument("--resume", metavar="CKPT", help="continue from a checkpoint .zip up to total_timesteps")
     t.add_argument("--output", metavar="PATH", help="model file to write (.zip; overrides the config)")
     t.add_argument("--timesteps", type=int, metavar="N", help="total timesteps (overrides the config)")

@@ -27,6 +27,11 @@ class OutputError(OSError):
     (the message says where the work was saved instead)."""
 
 
+class OutputExists(OutputError, FileExistsError):
+    """An output exists (a file of the kind the command writes) and the command was not told to
+    replace it (``--force``/``--update``)."""
+
+
 def writable_directory(directory: Path, what: str) -> None:
     """Create ``directory`` if needed and prove a file can be written there, or raise
     :class:`OutputError` naming it and why."""
@@ -102,7 +107,8 @@ def check_outputs(outputs, *, inputs=(), replace: bool = False, flag: str = "--f
     directory, an existing file of another kind (a model, its metadata -- also a JSON beside a
     model ``X.zip`` --, results, a file this project does not write), and an existing file of the
     same kind unless ``replace`` (the command's ``--update``/``--force``) or the kind is
-    :data:`REDRAWABLE`.  Then every output's directory is created and probed."""
+    :data:`REDRAWABLE` (:class:`OutputExists`, also a ``FileExistsError``).  Then every output's
+    directory is created and probed."""
     seen: dict[Path, str] = {}
     ins = {Path(p).expanduser().resolve(): str(p) for p in inputs if p}
     for path, kind, what in outputs:
@@ -125,7 +131,7 @@ def check_outputs(outputs, *, inputs=(), replace: bool = False, flag: str = "--f
             raise OutputError(f"the {what} {path} exists and holds {'a file of another kind' if found == 'other' else found}, "
                               f"not {kind}: it would be replaced; choose another name")
         if found is not None and not replace and kind not in REDRAWABLE:
-            raise OutputError(f"the {what} {path} exists ({kind}); pass {flag} to replace it, or choose another name")
+            raise OutputExists(f"the {what} {path} exists ({kind}); pass {flag} to replace it, or choose another name")
         writable_directory(path.parent, f"directory of the {what}")
 
 

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import json
+import select
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +70,57 @@ def test_sweep_output_with_unrelated_files_is_refused(tmp_path):
         with pytest.raises(SweepError, match=name.replace(".", r"\.")):
             run({"output": str(out), "search": None}, cpus=1)
         assert not (out / "sweep.json").exists()
+
+
+def test_train_outputs_never_replace_its_inputs_or_its_checkpoints(tmp_path, capsys, monkeypatch):
+    """train judges its model and metadata with the shared checker: refused before any work, --force or not."""
+    from tests.agents.test_train import _write_yaml, tiny
+
+    monkeypatch.chdir(tmp_path)
+    cfg = tiny(tmp_path)
+    conf = tmp_path / "model.json"  # a JSON config beside the output: the model's metadata would replace it
+    conf.write_text(json.dumps(cfg))
+    yml = _write_yaml(tmp_path, cfg)
+    (tmp_path / "old.zip").write_bytes(b"PK\x03\x04 a checkpoint")
+    (tmp_path / "old.json").write_text(json.dumps({"algo": "ppo", "env_id": "ColourGrid-v0", "num_timesteps": 64}))
+    kept = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    for force in ([], ["--force"]):
+        fails(capsys, ["train", str(conf), "--no-progress", *force], "model.json is an input of this command")
+        fails(capsys, ["train", str(yml), "--resume", "old.zip", "--output", "old.zip", *force], "old.zip is an input of this command")
+        for name in ("best.zip", "step_64.zip", "interrupted_step_70.zip"):
+            fails(capsys, ["train", str(yml), "--output", str(tmp_path / "ckpt" / name), *force], "the name of a checkpoint")
+        fails(capsys, ["train", str(yml), "--tensorboard", str(tmp_path / "model.json"), *force],
+              "TensorBoard directory")
+    with pytest.raises(OSError, match="checkpoint directory .*model.zip is also the model"):
+        from gym_gridloc_agents.training.train import train
+
+        train(tiny(tmp_path, checkpoint_dir=str(tmp_path / "model.zip")), progress_bar=False, force=True)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == kept, "nothing may be written before the outputs are checked"
+
+
+def test_a_file_that_appears_during_training_is_kept_and_the_model_rescued(tmp_path):
+    """The final write is checked again, by the same checker: with --force an existing model would be
+    replaced, but a file of another kind that appeared meanwhile is kept and the model saved beside it."""
+    from stable_baselines3.common.callbacks import BaseCallback
+    from tests.agents.test_train import tiny
+
+    from gym_gridloc_agents.files import OutputError
+    from gym_gridloc_agents.training.train import train
+
+    out = tmp_path / "model.zip"
+
+    class Appear(BaseCallback):
+        def _on_step(self):
+            if self.num_timesteps >= 64 and not out.exists():
+                out.write_text("someone's notes")
+            return True
+
+    with pytest.raises(OutputError, match=r"at the end of training, the model \S+model.zip exists and holds a file of another "
+                                          r"kind, not model: .*; written to (\S+) instead") as exc:
+        train(tiny(tmp_path, total_timesteps=128), progress_bar=False, force=True, callbacks=[Appear()])
+    assert out.read_text() == "someone's notes"
+    rescued = Path(str(exc.value).split("written to ")[1].split(" ")[0])
+    assert rescued.parent == tmp_path / "ckpt" and json.loads(rescued.with_suffix(".json").read_text())["rescued_from"] == str(out)
 
 
 # -- 2. interruptions and late checks lose no finished row -----------------------------------------------
@@ -215,6 +269,87 @@ def test_two_trainings_into_one_output_never_share_files(tmp_path):
             rescue_write(lambda p: (seen.append(p), p.write_text("w")) if "rescued" in p.name else (_ for _ in ()).throw(OSError("no")),
                          tmp_path / "out.zip", "model", places=(tmp_path,))
     assert len(set(seen)) == 2
+
+
+#: A training in its own process that stops after its first checkpoint, holding its locks, until its
+#: standard input closes.
+HOLDER = """
+import json, sys
+from stable_baselines3.common.callbacks import BaseCallback
+from gym_gridloc_agents.training.train import train
+
+class Hold(BaseCallback):
+    held = False
+
+    def _on_step(self):
+        if self.num_timesteps >= 100 and not self.held:
+            self.held = True
+            print("holding", flush=True)
+            sys.stdin.readline()
+        return True
+
+train(json.loads(sys.argv[1]), progress_bar=False, callbacks=[Hold()])
+print("done", flush=True)
+"""
+#: ``gridloc train ARGS`` in its own process, started at once (its imports take seconds on a busy
+#: machine) and run when a line arrives on its standard input.
+GRIDLOC = """
+import sys
+import gym_gridloc_agents.training.train
+from gym_gridloc_agents.cli import main
+
+sys.stdin.readline()
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def _line(proc: subprocess.Popen, timeout: float = 120) -> str:
+    ready = select.select([proc.stdout], [], [], timeout)[0]
+    line = proc.stdout.readline().strip() if ready else ""
+    assert line, proc.stderr.read()[-3000:] if proc.poll() is not None else f"no line in {timeout} s"
+    return line
+
+
+def test_a_second_training_process_is_refused_while_the_first_runs(tmp_path):
+    """Real processes: the first trains (and holds its locks) while a second `gridloc train` into
+    the same output and checkpoint directory starts; the second is refused with one line, and the
+    first's checkpoint and final model are its own."""
+    from tests.agents.test_train import _write_yaml, tiny
+
+    from gym_gridloc_agents.files import OutputError
+    from gym_gridloc_agents.training.train import train
+
+    ckpt = tmp_path / "ckpt"
+    second = _write_yaml(tmp_path, tiny(tmp_path, seed=2))  # another seed, the same output and checkpoints
+    pipes = {"stdin": subprocess.PIPE, "stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True, "cwd": tmp_path}
+    first = subprocess.Popen([sys.executable, "-c", HOLDER, json.dumps(tiny(tmp_path, total_timesteps=128, checkpoint_freq=64))],
+                             **pipes)
+    gridloc = subprocess.Popen([sys.executable, "-c", GRIDLOC, "train", str(second), "--no-progress"], **pipes)
+    try:
+        assert _line(first) == "holding"
+        kept = {p.name: p.read_bytes() for p in ckpt.iterdir()}
+        assert "step_64.zip" in kept and not (tmp_path / "model.zip").exists()
+        out, err = gridloc.communicate("go\n", timeout=120)
+        assert gridloc.returncode == 2, err[-3000:]
+        assert err.startswith(f"gridloc train: error: another process is writing the checkpoint directory {ckpt}"), err
+        assert len(err.strip().splitlines()) == 1 and "choose another output" in err
+        # each lock on its own: the same output with other checkpoints, another output with the same checkpoints
+        with pytest.raises(OutputError, match=f"another process is writing the model {tmp_path / 'model.zip'}"):
+            train(tiny(tmp_path, seed=2, checkpoint_dir=str(tmp_path / "ckpt2")), progress_bar=False)
+        with pytest.raises(OutputError, match="another process is writing the checkpoint directory"):
+            train(tiny(tmp_path, seed=2, output=str(tmp_path / "other.zip")), progress_bar=False)
+        assert {p.name: p.read_bytes() for p in ckpt.iterdir()} == kept, "the first training's checkpoints were touched"
+        assert not (tmp_path / "model.zip").exists() and not (tmp_path / "other.zip").exists()
+        out, err = first.communicate(timeout=120)  # closes its standard input: the first goes on and finishes
+        assert first.returncode == 0 and "done" in out, err[-3000:]
+    finally:
+        for proc in (first, gridloc):
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    meta = json.loads((tmp_path / "model.json").read_text())
+    assert meta["seed"] == 1 and meta["num_timesteps"] == 128 and meta["resumed_from"] is None
+    assert (ckpt / "step_64.zip").read_bytes() == kept["step_64.zip"] and not list(tmp_path.rglob("*rescued*"))
 
 
 # -- 5. sizes that pass a check but cannot run -------------------------------------------------------------

@@ -56,16 +56,20 @@ def test_tiny_recurrent_run_saves_and_reloads(tmp_path):
     assert [policy.act(z) in range(4) for z in (0, 1, 2)] == [True] * 3
 
 
-def test_existing_model_is_not_overwritten_without_force(tmp_path):
+def test_existing_model_is_not_overwritten_without_force(tmp_path, capsys):
     out = tmp_path / "model.zip"
-    out.write_bytes(b"precious")
-    with pytest.raises(FileExistsError, match="--force"):
+    precious = b"PK\x03\x04 an earlier model"  # a zip: a model, as the output checker judges files
+    out.write_bytes(precious)
+    with pytest.raises(FileExistsError, match=r"the model \S+model.zip exists \(model\); pass --force \(force=True\) to replace it"):
         train(tiny(tmp_path), progress_bar=False)
-    assert out.read_bytes() == b"precious"
+    assert out.read_bytes() == precious
     assert main(["train", str(_write_yaml(tmp_path, tiny(tmp_path))), "--no-progress"]) == 2
-    assert out.read_bytes() == b"precious"
+    err = capsys.readouterr().err
+    assert err.startswith("gridloc train: error: the model") and "--force" in err and len(err.strip().splitlines()) == 1
+    assert out.read_bytes() == precious
     train(tiny(tmp_path), progress_bar=False, force=True)
-    assert out.read_bytes() != b"precious"
+    assert out.read_bytes() != precious
+    assert not list(tmp_path.rglob("*rescued*"))
 
 
 def _write_yaml(tmp_path, cfg, name="cfg.yml"):
@@ -244,12 +248,22 @@ def test_an_output_that_cannot_be_written_fails_before_any_training(tmp_path, ca
             train(tiny(tmp_path, **{key: str(blocker / "x")}), progress_bar=False)
 
 
-def test_a_metadata_file_in_the_way_is_kept_without_force(tmp_path):
+def test_a_file_of_another_kind_in_the_way_is_kept_even_with_force(tmp_path):
+    from gym_gridloc_agents.training.train import OutputError
+
     js = tmp_path / "model.json"
     js.write_text('{"mine": true}')
-    with pytest.raises(FileExistsError, match="model.json exists: a file \\(it would be replaced by the model's metadata\\)"):
-        train(tiny(tmp_path), progress_bar=False)
+    for force in (False, True):
+        with pytest.raises(OutputError, match=r"the model's metadata \S+model.json exists and holds a file of another kind, "
+                                              r"not model metadata: it would be replaced"):
+            train(tiny(tmp_path), progress_bar=False, force=force)
     assert js.read_text() == '{"mine": true}'
+    js.unlink()
+    (tmp_path / "model.zip").write_text("my notes, not a model")
+    with pytest.raises(OutputError, match=r"model.zip exists and holds a file of another kind, not model"):
+        train(tiny(tmp_path), progress_bar=False, force=True)
+    assert (tmp_path / "model.zip").read_text() == "my notes, not a model"
+    assert not (tmp_path / "ckpt").exists(), "nothing may start before the outputs are checked"
 
 
 def test_outputs_of_the_same_name_in_different_directories_never_share_checkpoints(tmp_path):

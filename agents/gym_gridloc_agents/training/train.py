@@ -2,8 +2,9 @@
 
 Training never loses work:
 
-* every output (model, metadata JSON, checkpoint directory, TensorBoard directory) is checked
-  before the first step, and an existing model or metadata file is kept unless ``force=True``;
+* every output (model, metadata JSON, checkpoint and TensorBoard directories) is checked before
+  the first step (:func:`check_outputs`), an existing model is kept unless ``force=True``, and a
+  second training into the same output or checkpoint directory is refused (:func:`exclusive`);
 * a checkpoint every ``checkpoint_freq`` steps and one on Ctrl-C, also during the warm start (its
   expert episodes are cached), in a checkpoint directory of this output's own;
 * ``resume=`` continues from a checkpoint to ``total_timesteps``, with the evaluations made
@@ -22,6 +23,7 @@ import datetime as _dt
 import hashlib
 import os
 import platform
+import re
 import sys
 import time
 from pathlib import Path
@@ -34,6 +36,7 @@ import gym_gridloc
 from gym_gridloc_agents.training.config import ConfigError, activation, load_config, validate_config
 from gym_gridloc_agents.envs import make_training_env
 from gym_gridloc_agents.features import EXTRACTORS
+from gym_gridloc_agents import files
 from gym_gridloc_agents.files import (OutputError, atomic_save_model, atomic_write_json, locked, metadata_path, read_metadata,
                                      rescue_write, writable_directory)
 from gym_gridloc_agents.loading import algo_class, load_model, model_method
@@ -108,21 +111,49 @@ def default_checkpoint_dir(cfg: dict[str, Any]) -> Path:
     return Path("runs") / "checkpoints" / f"{out.stem}-{hashlib.sha1(str(out).encode()).hexdigest()[:8]}"
 
 
-def check_outputs(cfg: dict[str, Any], ckpt_dir: Path, *, force: bool) -> None:
-    """Everything training will write, checked before the first step: the model and its
-    metadata (kept unless ``force``), and writable directories for them, the checkpoints and the
-    TensorBoard log.  Raises :class:`FileExistsError` or :class:`OutputError` naming the path."""
+#: The files a training writes in its checkpoint directory under names of their own (the model's
+#: output there under one of these names would be replaced by a checkpoint).
+CHECKPOINT_NAMES = re.compile(r"(?:interrupted_)?step_\d+\.zip|best(?:-before-.*)?\.zip")
+#: How ``force`` is spelt in the messages (the command's flag, the library's keyword).
+FORCE = "--force (force=True)"
+
+
+def model_outputs(out: Path) -> list[tuple[Path, str, str]]:
+    """The model ``out`` and its metadata as :func:`gym_gridloc_agents.files.check_outputs` takes them."""
+    return [(out, files.MODEL, "model"), (metadata_path(out), files.MODEL_METADATA, "model's metadata")]
+
+
+def check_outputs(cfg: dict[str, Any], ckpt_dir: Path, *, force: bool, inputs=()) -> None:
+    """Everything training will write, checked before the first step: the model and its metadata
+    by the checker every command shares (:func:`gym_gridloc_agents.files.check_outputs`; never
+    one of ``inputs``, a file of another kind, a checkpoint of this run or its checkpoint or
+    TensorBoard directory; an existing model only with ``force``), then those directories.
+    :class:`OutputError` naming the path (``OutputExists``, a ``FileExistsError``, without ``force``)."""
     out = Path(cfg["output"])
-    for path in (out, metadata_path(out)):
-        if path.is_dir():
-            raise OutputError(f"output {path} is a directory; give a file name ending in .zip")
-        if path.exists() and not force:
-            what = "model" if path == out else "file (it would be replaced by the model's metadata)"
-            raise FileExistsError(f"{path} exists: a {what}; pass --force (force=True) to overwrite it, or choose another --output")
-    writable_directory(out.parent, "output directory")
-    writable_directory(ckpt_dir, "checkpoint directory")
+    outputs = model_outputs(out)
+    directories = [(ckpt_dir, "checkpoint directory")]
     if cfg.get("tensorboard_log"):
-        writable_directory(Path(cfg["tensorboard_log"]), "TensorBoard directory")
+        directories.append((Path(cfg["tensorboard_log"]), "TensorBoard directory"))
+    for directory, what in directories:
+        for path, _, owhat in outputs:
+            if directory.expanduser().resolve() == path.expanduser().resolve():
+                raise OutputError(f"the {what} {directory} is also the {owhat}: give each output its own path")
+    if out.expanduser().resolve().parent == ckpt_dir.expanduser().resolve() and CHECKPOINT_NAMES.fullmatch(out.name):
+        raise OutputError(f"the model {out} has the name of a checkpoint in this run's checkpoint directory {ckpt_dir}: "
+                          "a checkpoint would replace it; choose another --output")
+    files.check_outputs(outputs, inputs=inputs, replace=force, flag=FORCE)
+    for directory, what in directories:
+        writable_directory(directory, what)
+
+
+@contextlib.contextmanager
+def exclusive(output: str | Path, ckpt_dir: Path):
+    """The locks (:func:`gym_gridloc_agents.files.locked`, released when the process ends, even by
+    ``kill -9``) that keep a training alone in its checkpoint directory and its output; an
+    :class:`OutputError` naming what another process holds."""
+    with locked(ckpt_dir, wait=False, what="checkpoint directory", directory=True), \
+            locked(output, wait=False, what="model", directory=False):
+        yield
 
 
 def _every(freq: int, action: Callable[[Any], None]):
@@ -143,7 +174,7 @@ def _every(freq: int, action: Callable[[Any], None]):
 
 # -- training -------------------------------------------------------------------------------------
 def train(config: dict[str, Any] | str | Path, **kwargs: Any) -> dict[str, Any]:
-    with contextlib.ExitStack() as locks:  # the checkpoint directory and the output: one training each
+    with contextlib.ExitStack() as locks:  # the checkpoint directory and the output: one training each (exclusive)
         return _train(config, locks=locks, **kwargs)
 
 
@@ -165,8 +196,10 @@ def _train(
     """Train the model a config describes; returns the metadata written beside it.
 
     ``output``, ``total_timesteps`` and ``tensorboard_log`` override the config.  Raises
-    :class:`FileExistsError` / :class:`OutputError` before any training when an output cannot be
-    written, :class:`TrainingInterrupted` after Ctrl-C (the checkpoint is saved first).
+    :class:`OutputError` before any training when an output cannot be written (see
+    :func:`check_outputs`; a ``FileExistsError`` when the model exists and ``force`` is not given)
+    or another training holds the checkpoint directory or the output, :class:`TrainingInterrupted`
+    after Ctrl-C (the checkpoint is saved first).
     ``on_evaluation`` is called with each held-out evaluation (e.g. to report it to a tuner).
     """
     cfg = load_config(config) if isinstance(config, (str, Path)) else validate_config(config)
@@ -193,9 +226,11 @@ def _train(
                 f"but the config asks for {cfg['algo']} on {cfg['env_id']}"
             )
         check_resumed_config(resume, prev, cfg)
-    check_outputs(cfg, ckpt_dir, force=force)
-    locks.enter_context(locked(ckpt_dir, wait=False, what="checkpoint directory", directory=True))
-    locks.enter_context(locked(cfg["output"], wait=False, what="model", directory=False))
+    inputs = [config if isinstance(config, (str, Path)) else None]
+    if resume is not None:
+        inputs += [resume, metadata_path(resume)]
+    check_outputs(cfg, ckpt_dir, force=force, inputs=inputs)
+    locks.enter_context(exclusive(cfg["output"], ckpt_dir))
     if resume is None and (ckpt_dir / "best.zip").exists():  # an earlier run's best: kept aside, not mixed in
         stamp = time.strftime("%Y%m%d-%H%M%S")
         for name in ("best.zip", "best.json"):
@@ -345,13 +380,17 @@ def check_resumed_config(resume: Path, prev: dict[str, Any], cfg: dict[str, Any]
 
 
 def save_final(model, info: dict[str, Any], out: Path, ckpt_dir: Path, *, force: bool) -> None:
-    """Write the trained model and its metadata to ``out``; if that fails (or the file appeared
-    meanwhile, without ``force``), save them in the checkpoint directory (or elsewhere) and raise
-    :class:`OutputError` saying where."""
+    """Write the trained model and its metadata to ``out``; if that fails, or the outputs'
+    check (the one made before training, :func:`gym_gridloc_agents.files.check_outputs`) now
+    refuses them (a file appeared meanwhile), save them in the checkpoint directory (or
+    elsewhere) and raise :class:`OutputError` saying where."""
     def write(target: Path) -> None:
         atomic_save_model(model, target)
         atomic_write_json(metadata_path(target), info if target == out else {**info, "rescued_from": str(out)})
 
-    appeared = not force and (out.exists() or metadata_path(out).exists())
-    rescue_write(write, out, "model", places=(ckpt_dir,),
-                 problem=f"{out} (or its .json) appeared during training" if appeared else None)
+    try:
+        files.check_outputs(model_outputs(out), replace=force, flag=FORCE)
+        problem = None
+    except OutputError as exc:
+        problem = f"at the end of training, {exc}"
+    rescue_write(write, out, "model", places=(ckpt_dir,), problem=problem)
