@@ -42,6 +42,7 @@ from gym_gridloc import kernels
 from gym_gridloc.core.errors import ImpossibleObservationError
 from gym_gridloc.core.grid import read_only
 from gym_gridloc.core.model import GridModel, Term, mean_transition
+from gym_gridloc.core.validation import whole_numbers
 
 __all__ = [
     "predict", "update", "step", "backward", "kidnapped", "likelihood", "likelihoods", "impossible", "plan",
@@ -139,9 +140,8 @@ def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
         return np.array([A if a is None else model.check_action(a) for a in arr.reshape(-1)], dtype=np.int64).reshape(arr.shape)
     if arr.shape != (n,):
         raise ValueError(f"actions must be {n} actions (one per belief), got shape {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.integer):
-        if not (np.issubdtype(arr.dtype, np.floating) and np.all(arr == np.round(arr))):
-            raise ValueError(f"actions must be integers in 0..{A - 1}, got {arr!r}")
+    if not whole_numbers(arr):
+        raise ValueError(f"actions must be integers in 0..{A - 1}, got {arr!r}")
     out = arr.astype(np.int64)
     bad = (out < 0) | (out >= A)
     if np.any(bad):

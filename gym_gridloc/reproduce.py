@@ -26,6 +26,7 @@ import time
 import numpy as np
 
 from gym_gridloc import engine
+from gym_gridloc.core.validation import check_int
 from gym_gridloc.filter import ForwardFilter
 from gym_gridloc.models import colour_grid_model, ring_sensor_model, windy_maze_model
 from gym_gridloc.seeds import (
@@ -230,8 +231,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="seed 003: random seed of the simulation (default 0)")
     parser.add_argument("--quiet", action="store_true", help="print the differences only, not the tables")
     args = parser.parse_args(argv)
-    if args.runs < 1 or args.steps < 1:
-        parser.error(f"--runs and --steps must be at least 1, got --runs {args.runs} --steps {args.steps}")
+    try:
+        for flag, value in (("--runs", args.runs), ("--steps", args.steps)):
+            check_int(flag, value)
+    except ValueError as exc:
+        parser.error(str(exc))
     if args.runs * args.steps > 10**8:  # the simulation's arrays must fit in memory
         parser.error(f"--runs x --steps must be at most 10**8, got {args.runs * args.steps}")
     if not 0 <= args.seed < 2**63:

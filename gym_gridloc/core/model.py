@@ -24,7 +24,7 @@ import numpy as np
 
 from gym_gridloc.core.grid import DIRECTIONS, GridMap, read_only
 from gym_gridloc.core.sensors import Sensor
-from gym_gridloc.core.validation import check_probability
+from gym_gridloc.core.validation import check_int, check_probability
 
 _TOL = 1e-9
 
@@ -256,16 +256,12 @@ class GridModel:
         return layer[None] if self.n_layers == 1 else np.repeat(layer[None], self.n_layers, axis=0)
 
     def check_action(self, action: Any) -> int:
-        """``action`` as an int in ``0..n_actions-1``, or a clear error."""
-        if isinstance(action, bool) or isinstance(action, (str, bytes)):
-            raise TypeError(f"action must be an integer in 0..{self.n_actions - 1}, got {action!r}")
-        try:
-            a = int(action)
-        except (TypeError, ValueError, OverflowError):
-            raise TypeError(f"action must be an integer in 0..{self.n_actions - 1}, got {action!r}") from None
-        if a != action or not 0 <= a < self.n_actions:
-            raise ValueError(f"action must be an integer in 0..{self.n_actions - 1} ({self.action_legend}), got {action!r}")
-        return a
+        """``action`` as an int in ``0..n_actions-1`` (whole numbers such as ``2.0`` too), or a
+        clear error."""
+        if type(action) is int and 0 <= action < self.n_actions:  # the common case
+            return action
+        n = self.n_actions
+        return check_int("action", action, 0, n - 1, whole=True, what=f"an integer in 0..{n - 1} ({self.action_legend})")
 
     @property
     def action_legend(self) -> str:
