@@ -171,7 +171,7 @@ def seed001(report: Report, verbose: bool) -> None:
 def max_sum_errors(model) -> tuple[float, float]:
     """Largest |row sum - 1| over every action's transition matrix (and the unknown action), and
     largest |sum of a state's reading distribution - 1|."""
-    t_err = max(float(np.abs(np.asarray(model.transition_matrix(a).sum(axis=1)).ravel() - 1.0).max())
+    t_err = max(float(np.abs(np.asarray(engine.transition_matrix(model, a).sum(axis=1)).ravel() - 1.0).max())
                 for a in [*range(model.n_actions), None])
     o_err = max(abs(float(model.sensor.distribution(int(r), int(c))[1].sum()) - 1.0) for r, c in model.grid.free_cells)
     return t_err, o_err
