@@ -24,7 +24,7 @@ import numpy as np
 
 from gym_gridloc.core.grid import DIRECTIONS, GridMap, read_only
 from gym_gridloc.core.sensors import Sensor
-from gym_gridloc.core.validation import check_int, check_probability
+from gym_gridloc.core.validation import check_int, check_probability, is_int
 
 _TOL = 1e-9
 
@@ -258,9 +258,9 @@ class GridModel:
     def check_action(self, action: Any) -> int:
         """``action`` as an int in ``0..n_actions-1`` (whole numbers such as ``2.0`` too), or a
         clear error."""
-        if type(action) is int and 0 <= action < self.n_actions:  # the common case
-            return action
         n = self.n_actions
+        if is_int(action) and 0 <= action < n:  # the common case (the message is built on errors only)
+            return int(action)
         return check_int("action", action, 0, n - 1, whole=True, what=f"an integer in 0..{n - 1} ({self.action_legend})")
 
     @property
