@@ -22,7 +22,7 @@ def entropy(p: np.ndarray) -> np.ndarray:
     """Entropy in bits along the last axis of probabilities ``p`` (``0 log 0 = 0``); the same
     sums for one row or N: a float64 array of ``p.shape[:-1]`` (a 0-d array for one row).  The one
     belief entropy: the environments' ``info``, the planners' entropy leaf (its terms are
-    :func:`gym_gridloc.core.sensors.xlogx`, as the lookahead's expected entropies)."""
+    ``gym_gridloc.core.sensors.xlogx``, as the lookahead's expected entropies)."""
     return -np.add.reduce(xlogx(p), axis=-1) + 0.0  # + 0.0: no -0.0 for a sure belief
 
 
