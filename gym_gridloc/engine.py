@@ -16,8 +16,8 @@ the particle filter, smoothing and Viterbi, and the lookahead policies.
 
 Kidnapping (``model.kidnap_prob``: after a move, the robot is teleported to a uniformly chosen free
 state) is mixed in here and nowhere else: :func:`predict` and :func:`backward` mix it into the
-beliefs, :func:`kidnapped` into transition probabilities (Viterbi, pomdp_py's transition model),
-:func:`sample_next` draws it.
+beliefs, :func:`kidnapped` into transition probabilities (Viterbi, pomdp_py's transition model,
+:func:`transition_matrix`), :func:`sample_next` draws it.
 
 What the engine derives from a model (the plan of its kernel, the average transition, the batched
 sampler's table of every action's terms) is cached here, per model object, never stored on the
@@ -42,9 +42,10 @@ from gym_gridloc import kernels
 from gym_gridloc.core.errors import ImpossibleObservationError
 from gym_gridloc.core.grid import read_only
 from gym_gridloc.core.model import GridModel, Term, mean_transition
+from gym_gridloc.core.validation import whole_numbers
 
 __all__ = [
-    "predict", "update", "step", "backward", "kidnapped", "likelihood", "likelihoods", "impossible", "plan",
+    "predict", "update", "step", "backward", "kidnapped", "transition_matrix", "likelihood", "likelihoods", "impossible", "plan",
     "sample_initial", "sample_next", "sample_readings", "states_of", "simulate", "action_indices", "path", "terms",
     "checked_model",
 ]
@@ -139,9 +140,8 @@ def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
         return np.array([A if a is None else model.check_action(a) for a in arr.reshape(-1)], dtype=np.int64).reshape(arr.shape)
     if arr.shape != (n,):
         raise ValueError(f"actions must be {n} actions (one per belief), got shape {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.integer):
-        if not (np.issubdtype(arr.dtype, np.floating) and np.all(arr == np.round(arr))):
-            raise ValueError(f"actions must be integers in 0..{A - 1}, got {arr!r}")
+    if not whole_numbers(arr):
+        raise ValueError(f"actions must be integers in 0..{A - 1}, got {arr!r}")
     out = arr.astype(np.int64)
     bad = (out < 0) | (out >= A)
     if np.any(bad):
@@ -177,11 +177,14 @@ def _out(out: np.ndarray | None, like: np.ndarray, shape: tuple[int, ...]) -> np
 
 
 # -- beliefs ------------------------------------------------------------------------------------------
-def _kidnap(model: GridModel, before: np.ndarray, after: np.ndarray) -> None:
-    """Mix the kidnapped robot into predicted flat beliefs: ``after = (1-k) after + k/S * mass``."""
+def _kidnap(model: GridModel, mass: Any, after: np.ndarray) -> None:
+    """Mix the kidnapped robot into predicted beliefs or backward messages, in place:
+    ``after = (1-k) after + k/S * mass`` on the free states; ``after`` is flat ``(N, L*H*W)`` with
+    masses ``(N, 1)``, or one ``(L, H, W)`` with a number."""
     k = model.kidnap_prob
+    mask = model.state_mask if after.ndim == 3 else model.state_mask.reshape(1, -1)
     after *= 1.0 - k
-    after += (k / model.n_states) * before.sum(axis=1, keepdims=True) * model.state_mask.reshape(1, -1)
+    after += (k / model.n_states) * mass * mask
 
 
 def kidnapped(model: GridModel, p: Any) -> Any:
@@ -190,6 +193,26 @@ def kidnapped(model: GridModel, p: Any) -> Any:
     is when ``k = 0``).  ``kidnapped(model, 0.0)`` is the probability of one teleport's target."""
     k = model.kidnap_prob
     return p if k == 0.0 else (1.0 - k) * p + k / model.n_states
+
+
+def transition_matrix(model: GridModel, action: int | None = None):
+    """The transition of ``action`` (None: the average over actions) as a ``scipy.sparse`` CSR
+    matrix ``T[s, s'] = P(s' | s)`` over the free states (layer-major, as ``model.to_vector``),
+    kidnapping included (:func:`kidnapped`: then every row is dense)."""
+    from scipy import sparse
+
+    checked_model(model)
+    rows, cols, vals = [], [], []
+    index, n, S = model.grid.cell_index, model.grid.n_free, model.n_states
+    for t in terms(model, action):
+        rr, cc = np.nonzero(t.weight)
+        rows.append(t.src * n + index[rr, cc])
+        cols.append(t.dst * n + index[rr + t.dr, cc + t.dc])
+        vals.append(t.weight[rr, cc])
+    m = sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(S, S)).tocsr()
+    if model.kidnap_prob > 0.0:  # teleporting makes every row dense
+        m = sparse.csr_matrix(kidnapped(model, m.toarray()))
+    return m
 
 
 def predict(model: GridModel, beliefs: np.ndarray, actions: Any = None, out: np.ndarray | None = None) -> np.ndarray:
@@ -210,7 +233,7 @@ def predict(model: GridModel, beliefs: np.ndarray, actions: Any = None, out: np.
     else:
         p.run(flat, acts, _no_liks(n), 0, res2, 0, _all(n))
     if model.kidnap_prob > 0.0:
-        _kidnap(model, flat, res2)
+        _kidnap(model, flat.sum(axis=1, keepdims=True), res2)
     return res
 
 
@@ -225,9 +248,7 @@ def backward(model: GridModel, messages: np.ndarray, action: int | None) -> np.n
         src, dst = t.slices
         out[t.src][src] += t.weight[src] * msg[t.dst][dst]
     if model.kidnap_prob > 0.0:
-        mask = model.state_mask
-        out *= 1.0 - model.kidnap_prob
-        out += (model.kidnap_prob / model.n_states) * float(msg[mask].sum()) * mask
+        _kidnap(model, float(msg[model.state_mask].sum()), out)
     return out
 
 
@@ -332,7 +353,7 @@ def _mixed_step(model: GridModel, d: _Derived, flat: np.ndarray, acts: np.ndarra
     """:func:`step` with kidnapping: predict, mix, then weigh (the kernels' fused pass cannot mix)."""
     keep = None if sel.all() else out[~sel].copy()
     d.plan.run(flat, acts, _no_liks(flat.shape[0]), 0, out, 0, sel)
-    _kidnap(model, flat, out)
+    _kidnap(model, flat.sum(axis=1, keepdims=True), out)
     z = kernels.weigh(out, lik, d.layered, model.n_layers, 1 if normalise else 2)
     if keep is not None:
         out[~sel] = keep

@@ -16,6 +16,7 @@ import numpy as np
 
 from gym_gridloc import engine
 from gym_gridloc.core.model import GridModel
+from gym_gridloc.core.validation import check_int
 
 
 def checked_belief(model: GridModel, belief: Any) -> np.ndarray:
@@ -193,9 +194,7 @@ class BatchFilter:
 
     def __init__(self, model: GridModel, n: int) -> None:
         self.model = engine.checked_model(model, "BatchFilter needs a GridModel")
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"n (the number of beliefs) must be a positive integer, got {n!r}")
-        self.n = int(n)
+        self.n = check_int("n (the number of beliefs)", n, what="a positive integer", error=ValueError)
         self._b = np.empty((self.n, *model.belief_shape))
         self._spare = np.empty_like(self._b)
         self._ready = np.zeros(self.n, dtype=bool)

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from gym_gridloc.core.grid import GridMap
-from gym_gridloc.core.validation import check_int, check_size
+from gym_gridloc.core.validation import check_int, check_size, is_int
 
 #: Colour symbols: seed 000's four first, then more letters (``n_colours`` up to 26).
 COLOUR_SYMBOLS = ("R", "G", "B", "Y") + tuple(c for c in string.ascii_uppercase if c not in "RGBY")
@@ -31,11 +31,9 @@ def as_rng(seed: Any, name: str = "map_seed") -> np.random.Generator:
         return seed
     if seed is None:
         return np.random.default_rng()
-    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
+    if not is_int(seed):
         raise TypeError(f"{name} must be a non-negative integer, a numpy Generator or None, got {seed!r}")
-    if int(seed) < 0:
-        raise ValueError(f"{name} must be a non-negative integer, got {seed!r}")
-    return np.random.default_rng(int(seed))
+    return np.random.default_rng(check_int(name, seed, 0, what="a non-negative integer"))
 
 
 def check_density(name: str, value: Any) -> float:

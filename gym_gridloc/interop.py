@@ -51,7 +51,7 @@ import numpy as np
 
 from gym_gridloc import engine
 from gym_gridloc.core.model import GridModel
-from gym_gridloc.core.validation import check_threshold
+from gym_gridloc.core.validation import check_int, check_threshold, whole_numbers
 
 __all__ = ["INSTALL_HINT", "PomdpPy", "to_pomdp_py"]
 
@@ -366,8 +366,7 @@ class PomdpPy:
     def to_state(self, state: Any):
         """``(layer, row, col)`` (a tuple or an array) of a free state as a :class:`State`."""
         arr = np.asarray(state)
-        if arr.size != 3 or arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer)
-                                                      or (np.issubdtype(arr.dtype, np.floating) and (arr == np.round(arr)).all())):
+        if arr.size != 3 or not whole_numbers(arr):
             raise ValueError(f"state must be three whole numbers (layer, row, col), got {state!r}")
         layer, r, c = (int(v) for v in arr.reshape(3))
         if not (all(0 <= v < n for v, n in zip((layer, r, c), self.model.belief_shape)) and self.model.grid.free[r, c]):
@@ -426,8 +425,7 @@ class PomdpPy:
         belief ``(L, H, W)``.  ``plan`` (default): on the planning model (the blackbox that ends at
         the referee's test); ``plan=False``: on the plain POMDP's explicit models."""
         pomdp_py = _import_pomdp_py()
-        if isinstance(n_particles, (bool, np.bool_)) or not isinstance(n_particles, (int, np.integer)) or n_particles < 1:
-            raise ValueError(f"n_particles must be a whole number >= 1, got {n_particles!r}")
+        check_int("n_particles", n_particles, what="a whole number >= 1", error=ValueError)
         init = self.particles(belief, n_particles, plan=plan)
         models = ({"blackbox_model": self.blackbox_model} if plan
                   else {"transition_model": self.transition_model, "reward_model": self.reward_model})
@@ -448,11 +446,7 @@ def to_pomdp_py(model: GridModel, *, threshold: float = 0.9, discount: float = 1
     if not isinstance(model, GridModel):
         raise TypeError(f"to_pomdp_py needs a GridModel, got {type(model).__name__}")
     thr = check_threshold("threshold", threshold)
-    if isinstance(discount, (bool, np.bool_)) or not isinstance(discount, (int, float, np.integer, np.floating)):
-        raise TypeError(f"discount must be a number in (0, 1], got {discount!r}")
-    d = float(discount)
-    if not 0.0 < d <= 1.0:
-        raise ValueError(f"discount must be in (0, 1], got {discount!r}")
+    d = check_threshold("discount", discount)
     if not isinstance(pose, (bool, np.bool_)):  # bool("no") is True
         raise TypeError(f"pose must be True or False, got {pose!r}")
     return PomdpPy(model=model, threshold=thr, pose=bool(pose), discount=d, rng=seed, classes=classes)

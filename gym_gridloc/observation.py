@@ -17,6 +17,7 @@ import numpy as np
 from gymnasium import spaces
 
 from gym_gridloc.core.model import GridModel
+from gym_gridloc.core.validation import check_int
 from gym_gridloc.lookahead import lookahead_features
 
 __all__ = ["BeliefObservation", "observed_belief", "belief_observation_space", "batch_observation", "check_lookahead", "map_channels"]
@@ -44,9 +45,7 @@ def _channels(model: GridModel) -> np.ndarray:
 
 def check_lookahead(lookahead: Any) -> int:
     """The ``lookahead=`` keyword: 0 (none), 1 or 2 (rows of :func:`lookahead_features`)."""
-    if isinstance(lookahead, (bool, np.bool_)) or not isinstance(lookahead, (int, np.integer)) or lookahead not in (0, 1, 2):
-        raise ValueError(f"lookahead must be 0, 1 or 2 (the rows of expected entropies per action), got {lookahead!r}")
-    return int(lookahead)
+    return check_int("lookahead", lookahead, 0, 2, what="0, 1 or 2 (the rows of expected entropies per action)", error=ValueError)
 
 
 def belief_observation_space(model: GridModel, inner: spaces.Space, *, flatten: bool = False,

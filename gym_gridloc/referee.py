@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from gym_gridloc.core.sensors import xlogx
+
 #: Reward kinds: ``"step"`` is -1 per step; ``"belief"`` is the referee's confidence (the largest
 #: posterior probability it tests: the research protocol's reward).
 REWARDS = ("step", "belief")
@@ -18,8 +20,10 @@ REWARDS = ("step", "belief")
 
 def entropy(p: np.ndarray) -> np.ndarray:
     """Entropy in bits along the last axis of probabilities ``p`` (``0 log 0 = 0``); the same
-    sums for one row or N: a float64 array of ``p.shape[:-1]`` (a 0-d array for one row)."""
-    return -np.add.reduce(p * np.log2(p + (p <= 0.0)), axis=-1) + 0.0  # + 0.0: no -0.0 for a sure belief
+    sums for one row or N: a float64 array of ``p.shape[:-1]`` (a 0-d array for one row).  The one
+    belief entropy: the environments' ``info``, the planners' entropy leaf (its terms are
+    ``gym_gridloc.core.sensors.xlogx``, as the lookahead's expected entropies)."""
+    return -np.add.reduce(xlogx(p), axis=-1) + 0.0  # + 0.0: no -0.0 for a sure belief
 
 
 def confidences(beliefs: np.ndarray, *, pose: bool = False) -> np.ndarray:

@@ -26,6 +26,7 @@ import time
 import numpy as np
 
 from gym_gridloc import engine
+from gym_gridloc.core.validation import check_int
 from gym_gridloc.filter import ForwardFilter
 from gym_gridloc.models import colour_grid_model, ring_sensor_model, windy_maze_model
 from gym_gridloc.seeds import (
@@ -170,7 +171,7 @@ def seed001(report: Report, verbose: bool) -> None:
 def max_sum_errors(model) -> tuple[float, float]:
     """Largest |row sum - 1| over every action's transition matrix (and the unknown action), and
     largest |sum of a state's reading distribution - 1|."""
-    t_err = max(float(np.abs(np.asarray(model.transition_matrix(a).sum(axis=1)).ravel() - 1.0).max())
+    t_err = max(float(np.abs(np.asarray(engine.transition_matrix(model, a).sum(axis=1)).ravel() - 1.0).max())
                 for a in [*range(model.n_actions), None])
     o_err = max(abs(float(model.sensor.distribution(int(r), int(c))[1].sum()) - 1.0) for r, c in model.grid.free_cells)
     return t_err, o_err
@@ -230,8 +231,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="seed 003: random seed of the simulation (default 0)")
     parser.add_argument("--quiet", action="store_true", help="print the differences only, not the tables")
     args = parser.parse_args(argv)
-    if args.runs < 1 or args.steps < 1:
-        parser.error(f"--runs and --steps must be at least 1, got --runs {args.runs} --steps {args.steps}")
+    try:
+        for flag, value in (("--runs", args.runs), ("--steps", args.steps)):
+            check_int(flag, value)
+    except ValueError as exc:
+        parser.error(str(exc))
     if args.runs * args.steps > 10**8:  # the simulation's arrays must fit in memory
         parser.error(f"--runs x --steps must be at most 10**8, got {args.runs * args.steps}")
     if not 0 <= args.seed < 2**63:

@@ -30,6 +30,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from gym_gridloc import engine, referee
+from gym_gridloc.core.validation import check_int, is_int, whole_numbers
 from gym_gridloc.envs.base import GridLocEnv
 from gym_gridloc.observation import BeliefObservation, check_lookahead
 from gym_gridloc.wrappers import check_belief_option
@@ -74,8 +75,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         env_class: type[GridLocEnv] | None = None,
         **env_kwargs: Any,
     ) -> None:
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        num_envs = check_int("num_envs", num_envs, what="a positive integer", error=ValueError)
         if render_mode is not None:
             raise ValueError(f"the native vector env does not render (render_mode must be None, got {render_mode!r}); use vectorization_mode='sync' to render")
         self.belief = check_belief_option(belief, ("exact", None))
@@ -86,8 +86,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self.lookahead = check_lookahead(lookahead)
         if self.lookahead and self.belief is None:
             raise ValueError("lookahead needs a belief (belief='exact')")
-        if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
-            raise ValueError(f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}")
+        if max_episode_steps is not None:
+            max_episode_steps = check_int("max_episode_steps", max_episode_steps, what="a positive integer or None", error=ValueError)
         self.autoreset_mode = self._mode(autoreset_mode)
         #: The single environment the N share the parameters of (and, without map redraws, the model).
         self.template = template = (env_class or self.env_class)(**env_kwargs)
@@ -227,11 +227,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
 
     @staticmethod
     def _seeded(seed: Any) -> tuple[np.random.Generator, int]:
-        if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-            if seed < 0:
-                raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-            return seeding.np_random(int(seed))
-        if isinstance(seed, (list, tuple)) and seed and all(isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s >= 0 for s in seed):
+        if is_int(seed):
+            return seeding.np_random(check_int("seed", seed, 0, what="a non-negative integer", error=ValueError))
+        if isinstance(seed, (list, tuple)) and seed and all(is_int(s) and s >= 0 for s in seed):
             words = [int(s) for s in seed]
             rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(words[0] if len(words) == 1 else words)))
             return rng, words[0]
@@ -279,7 +277,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     def _actions(self, actions: Any, resetting: np.ndarray) -> np.ndarray:
         n, k = self.num_envs, self.single_action_space.n
         acts = np.asarray(actions)
-        if acts.shape != (n,) or not (np.issubdtype(acts.dtype, np.integer) or self._whole(acts)):
+        if acts.shape != (n,) or not whole_numbers(acts):
             raise ValueError(f"actions must be {n} integers in 0..{k - 1}, got {actions!r}")
         acts = acts.astype(np.int64)
         bad = ~resetting & ((acts < 0) | (acts >= k))
@@ -287,10 +285,6 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             i = int(np.flatnonzero(bad)[0])
             raise ValueError(f"action {int(acts[i])} of env {i} is not in the action space {self.single_action_space} ({self.models[i].action_legend})")
         return np.where(resetting, 0, acts)
-
-    @staticmethod
-    def _whole(a: np.ndarray) -> bool:
-        return np.issubdtype(a.dtype, np.floating) and bool(np.all(np.isfinite(a))) and bool(np.all(a == np.round(a)))
 
     @staticmethod
     def _masked(info: dict, mask: np.ndarray) -> dict:

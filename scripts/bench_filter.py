@@ -80,7 +80,7 @@ def setup_size(side: int, steps: int, dense_max_gib: float) -> tuple[dict, dict,
         for a, o in zip(actions, obs):
             f.step(a, o)
 
-    Tt = [model.transition_matrix(a).T.tocsr() for a in range(model.n_actions)]
+    Tt = [engine.transition_matrix(model, a).T.tocsr() for a in range(model.n_actions)]
     v0 = model.to_vector(model.prior()) * lik[first]
     v0 /= v0.sum()
 

@@ -206,10 +206,10 @@ _DENSE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def dense_transition(model, action) -> np.ndarray:
-    """``model.transition_matrix(action)`` as a dense (S, S) array (cached per model)."""
+    """``engine.transition_matrix(model, action)`` as a dense (S, S) array (cached per model)."""
     cache = _DENSE.setdefault(model, {})
     if action not in cache:
-        cache[action] = model.transition_matrix(action).toarray()
+        cache[action] = engine.transition_matrix(model, action).toarray()
     return cache[action]
 
 

@@ -75,7 +75,7 @@ def test_transition_probabilities_are_the_models(name):
     states = pp.transition_model.get_all_states()
     assert len(states) == model.n_states == len(set(states))
     for a in range(model.n_actions):
-        dense = model.transition_matrix(a).toarray()
+        dense = engine.transition_matrix(model, a).toarray()
         action = pp.to_action(a)
         got = np.array([[pp.transition_model.probability(s2, s, action) for s2 in states] for s in states])
         np.testing.assert_allclose(got, dense, rtol=0, atol=1e-12)

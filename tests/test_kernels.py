@@ -102,7 +102,7 @@ def test_diagonal_plan_of_raw_terms_equals_the_model():
     b = model.prior() * np.random.default_rng(0).random(model.belief_shape)
     out = np.full(model.belief_shape, np.nan)
     plan.predict_one(b.reshape(-1), 0, out.reshape(-1))
-    ref = model.from_vector(model.transition_matrix(0).T @ model.to_vector(b))
+    ref = model.from_vector(engine.transition_matrix(model, 0).T @ model.to_vector(b))
     np.testing.assert_allclose(out, ref, rtol=0, atol=1e-15)
     assert np.all(out[:, ~model.grid.free] == 0.0)
     # The batched form of the same plan (shared shifts over N beliefs) gives the same numbers.

@@ -1,8 +1,12 @@
 """One owner per concept (issue 22): the wrapper serves the environment's posterior (one filter
 step per environment step), one observation builder for the wrapper, the vector env and the
-learned policies, one KEY=VALUE reader, the planners stop where the referee does."""
+learned policies, one KEY=VALUE reader, the planners stop where the referee does; one place each
+for integer checks, kidnap mixing and entropy (the sources are read: a copy fails here)."""
 
 from __future__ import annotations
+
+import ast
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -164,3 +168,125 @@ def test_one_policy_table():
     assert set(policies.LEARNED_POLICIES) == set(policies.LEARNED_NAMES) == set(bench.LEARNED)
     assert set(bench.PLANNERS) == {n for n, (kind, *_) in policies.POLICIES.items() if kind == "planner"}
     assert bench.DEFAULT_POLICIES == policies.DEFAULT_POLICIES
+
+
+# -- one owner each: integer checks, kidnap mixing, entropy (checked on the source) ------------------
+ROOT = Path(__file__).resolve().parents[1]
+SOURCES = sorted([*(ROOT / "gym_gridloc").rglob("*.py"), *(ROOT / "agents" / "gym_gridloc_agents").rglob("*.py")])
+
+
+def _name(node: ast.AST) -> str:
+    """``np.integer`` -> ``integer``, ``int`` -> ``int`` (the last part of a dotted name)."""
+    return node.attr if isinstance(node, ast.Attribute) else node.id if isinstance(node, ast.Name) else ""
+
+
+def _where(path: Path, node: ast.AST) -> str:
+    return f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)[:100]}"
+
+
+def _found(check, owners: set[str]) -> list[str]:
+    """What ``check(path, node)`` flags in the package sources, the owners' files left out."""
+    out = []
+    for path in SOURCES:
+        if path.relative_to(ROOT).as_posix() in owners:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if check(node):
+                out.append(_where(path, node))
+    return out
+
+
+def _hand_rolled_integer_check(node: ast.AST) -> bool:
+    """``isinstance(x, int)`` / ``(int, np.integer)`` / ``numbers.Integral`` (not a number test
+    that lets floats in too), ``np.issubdtype(..., np.integer)``, ``int(x) != x``, ``a == np.round(a)``,
+    ``operator.index``."""
+    if isinstance(node, ast.Call) and _name(node.func) == "isinstance" and len(node.args) == 2:
+        t = node.args[1]
+        names = {_name(e) for e in (t.elts if isinstance(t, ast.Tuple) else [t])}
+        return bool(names & {"int", "Integral", "integer"}) and not names & {"float", "Real", "floating", "str", "Number"}
+    if isinstance(node, ast.Call) and _name(node.func) == "issubdtype":
+        return any(_name(a) in ("integer", "int64") for a in node.args[1:])
+    if isinstance(node, ast.Attribute) and node.attr == "index" and _name(node.value) == "operator":
+        return True
+    if isinstance(node, ast.Compare) and len(node.ops) == 1 and isinstance(node.ops[0], (ast.Eq, ast.NotEq)):
+        sides = [node.left, node.comparators[0]]
+        inner = [ast.dump(s.args[0]) for s in sides if isinstance(s, ast.Call) and _name(s.func) in ("int", "round") and s.args]
+        bare = [ast.dump(s) for s in sides] + [ast.dump(s.args[0]) for s in sides if isinstance(s, ast.Call) and _name(s.func) == "float" and s.args]
+        return any(i in bare for i in inner)
+    return False
+
+
+def test_integer_checks_in_one_place():
+    """Every integer check calls ``gym_gridloc.core.validation`` (``is_int``, ``check_int``,
+    ``whole_numbers``): no other module tests for an integer type or a whole value by hand."""
+    assert _found(_hand_rolled_integer_check, {"gym_gridloc/core/validation.py"}) == []
+    # (the check itself sees the forms it forbids)
+    for text in ("isinstance(n, (int, np.integer))", "isinstance(n, numbers.Integral)", "int(n) != n", "float(v) != int(v)",
+                 "np.all(a == np.round(a))", "np.issubdtype(a.dtype, np.integer)", "operator.index(n)"):
+        assert any(_hand_rolled_integer_check(n) for n in ast.walk(ast.parse(text))), text
+    assert not any(_hand_rolled_integer_check(n) for n in ast.walk(ast.parse("isinstance(v, (int, float))")))
+
+
+def test_the_integer_owner():
+    from gym_gridloc.core.validation import check_int, is_int, whole_numbers
+
+    assert is_int(np.int64(3)) and not is_int(True) and not is_int(np.bool_(True)) and not is_int(3.0)
+    assert check_int("n", 3.0, whole=True) == 3 and check_int("a", np.array(2), 0, 3, whole=True) == 2
+    with pytest.raises(ValueError, match=r"^n must be a whole number, got 2\.5"):
+        check_int("n", 2.5, whole=True)
+    with pytest.raises(TypeError, match=r"^n must be an integer, got 'x'"):
+        check_int("n", "x", whole=True)
+    with pytest.raises(ValueError, match=r"^num_envs must be a positive integer, got True"):
+        check_int("num_envs", True, what="a positive integer", error=ValueError)
+    assert whole_numbers(np.array([1.0, 2.0])) and whole_numbers(np.array([1, 2]))
+    assert not whole_numbers(np.array([1.5])) and not whole_numbers(np.array([np.inf])) and not whole_numbers(np.array([True]))
+
+
+def _kidnap_arithmetic(tree: ast.AST):
+    """Arithmetic on a kidnap probability (``model.kidnap_prob``, or a name bound to it)."""
+    bound = {t.id for n in ast.walk(tree) if isinstance(n, ast.Assign) and _name(n.value) == "kidnap_prob"
+             for t in n.targets if isinstance(t, ast.Name)}
+
+    def kidnap(e: ast.AST) -> bool:
+        return (isinstance(e, ast.Attribute) and e.attr == "kidnap_prob") or (isinstance(e, ast.Name) and e.id in bound)
+
+    return [n for n in ast.walk(tree) if isinstance(n, (ast.BinOp, ast.AugAssign))
+            and any(kidnap(e) for e in ([n.left, n.right] if isinstance(n, ast.BinOp) else [n.value]))]
+
+
+def test_no_other_module_mixes_kidnapping():
+    """Kidnap mixing is the engine's (``kidnapped``, and its dense matrix ``transition_matrix``): no
+    other module computes with a kidnap probability."""
+    found = []
+    for path in SOURCES:
+        if path.relative_to(ROOT).as_posix() != "gym_gridloc/engine.py":
+            found += [_where(path, n) for n in _kidnap_arithmetic(ast.parse(path.read_text(encoding="utf-8")))]
+    assert found == []
+    assert _kidnap_arithmetic(ast.parse("k = model.kidnap_prob\nm = (1.0 - k) * m + k / S"))  # the check sees a copy
+    assert not hasattr(gym_gridloc.GridModel, "transition_matrix")
+    model = gym_gridloc.windy_maze_model().with_kidnapping(0.1)
+    dense = engine.transition_matrix(model, 1).toarray()
+    plain = engine.transition_matrix(gym_gridloc.windy_maze_model(), 1).toarray()
+    np.testing.assert_array_equal(dense, engine.kidnapped(model, plain))
+    np.testing.assert_allclose(dense.sum(axis=1), 1.0, rtol=0, atol=1e-12)
+
+
+def _times_a_log(node: ast.AST) -> bool:
+    """``p * np.log2(...)`` (or ``np.log``, either side): an entropy's terms."""
+    return isinstance(node, ast.BinOp) and isinstance(node.op, ast.Mult) and any(
+        isinstance(e, ast.Call) and isinstance(e.func, ast.Attribute) and e.func.attr in ("log", "log2", "log10")
+        and _name(e.func.value) == "np" for e in (node.left, node.right))
+
+
+def test_entropy_in_one_place():
+    """The one belief entropy is ``referee.entropy``, its terms ``core.sensors.xlogx`` (the
+    lookahead's expected entropies use them too): no other module writes ``p log p``."""
+    assert _found(_times_a_log, {"gym_gridloc/core/sensors.py"}) == []
+    assert any(_times_a_log(n) for n in ast.walk(ast.parse("h = -(p * np.log2(np.where(p > 0, p, 1.0))).sum()")))
+    from gym_gridloc_agents.planners.ops import BeliefOps
+
+    model = gym.make("DepthMaze-v0").unwrapped.model  # layered: the position entropy sums the headings out
+    rng = np.random.default_rng(0)
+    b = rng.random((5, *model.belief_shape)) * model.state_mask
+    b /= b.reshape(5, -1).sum(axis=1)[:, None, None, None]
+    np.testing.assert_array_equal(BeliefOps(model, 0.9).entropy(b), referee.entropy(b.sum(axis=1).reshape(5, -1)))

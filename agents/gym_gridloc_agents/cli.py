@@ -136,6 +136,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _render(args) -> int:
     import gym_gridloc
+    from gym_gridloc.core.validation import check_int
     from gym_gridloc_agents.evaluation.figures import episode_frames, episode_strips, write_gif
 
     from gym_gridloc_agents import files
@@ -143,8 +144,7 @@ def _render(args) -> int:
 
     envs = args.env or list(gym_gridloc.ENV_IDS)
     try:
-        if args.frames < 1:
-            raise ValueError(f"--frames must be at least 1, got {args.frames}")
+        check_int("--frames", args.frames)
         if not 0 <= args.seed < 2**63:
             raise ValueError(f"--seed must be in 0..2**63-1, got {args.seed}")
         for e in envs:
@@ -240,13 +240,16 @@ def _plot_curves(args) -> int:
 
 
 def _train(args) -> int:
+    from gym_gridloc.core.validation import check_int
     from gym_gridloc_agents.training.config import ConfigError
     from gym_gridloc_agents.training.train import OutputError, TrainingInterrupted, train
 
-    if args.timesteps is not None and args.timesteps < 1:
-        return fail("train", f"--timesteps must be at least 1, got {args.timesteps}")
-    if args.torch_threads < 1:
-        return fail("train", f"--torch-threads must be at least 1, got {args.torch_threads}")
+    try:
+        if args.timesteps is not None:
+            check_int("--timesteps", args.timesteps)
+        check_int("--torch-threads", args.torch_threads)
+    except ValueError as exc:
+        return fail("train", str(exc))
     try:
         info = train(
             args.config,

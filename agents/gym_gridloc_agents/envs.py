@@ -15,6 +15,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 import gym_gridloc
+from gym_gridloc.core.validation import whole_numbers
 from gym_gridloc.envs.base import GridLocEnv
 from gym_gridloc.vector import GridLocVectorEnv
 
@@ -154,8 +155,7 @@ class SB3VecEnv(VecEnv):
 
     def step_async(self, actions: np.ndarray) -> None:
         acts = np.asarray(actions).reshape(self.num_envs)
-        if not np.issubdtype(acts.dtype, np.integer) and not (
-                np.issubdtype(acts.dtype, np.floating) and np.all(acts == np.round(acts))):
+        if not whole_numbers(acts):
             raise ValueError(f"actions must be integers (one per environment), got {actions!r}")
         self._actions = acts.astype(np.int64)
 

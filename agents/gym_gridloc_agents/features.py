@@ -37,6 +37,8 @@ from stable_baselines3.common.preprocessing import get_flattened_obs_dim
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
+from gym_gridloc.core.validation import check_int
+
 
 class BeliefMapCNN(BaseFeaturesExtractor):
     """3 x 3 convolutions over belief + map channels, then a linear layer; the reading beside.
@@ -252,8 +254,7 @@ class BeliefLogFeatures(BaseFeaturesExtractor):
         n = observation_space.shape[0]
         if not 0 <= readings < n:
             raise ValueError(f"BeliefLogFeatures: readings must be in [0, {n}) for {observation_space}, got {readings}")
-        if eps_exponent < 1:
-            raise ValueError(f"BeliefLogFeatures: eps_exponent must be >= 1, got {eps_exponent}")
+        eps_exponent = check_int("BeliefLogFeatures: eps_exponent", eps_exponent, whole=True, error=ValueError)
         super().__init__(observation_space, features_dim=2 * n - readings)
         self.readings = int(readings)
         self.eps = 10.0 ** -int(eps_exponent)

@@ -7,8 +7,8 @@ zero on obstacles.
 A transition is a tuple of :class:`Term`: "from a state in layer ``src`` at ``(r, c)``, go to
 layer ``dst`` at ``(r + dr, c + dc)`` with probability ``weight[r, c]``".  This is a sparse
 matrix written as a stencil: the filter's prediction is a few multiply-adds over shifted arrays,
-the simulator samples the same numbers, and :meth:`GridModel.transition_matrix` writes them out
-as a ``scipy.sparse`` matrix for anyone who wants one.
+the simulator samples the same numbers, and :func:`gym_gridloc.engine.transition_matrix` writes
+them out as a ``scipy.sparse`` matrix for anyone who wants one (kidnapping mixed in there).
 
 A :class:`GridModel` is frozen data; :mod:`gym_gridloc.engine` applies it (predict, update, sample)
 and keeps what it derives from it (kernel plans) apart from it.
@@ -24,7 +24,7 @@ import numpy as np
 
 from gym_gridloc.core.grid import DIRECTIONS, GridMap, read_only
 from gym_gridloc.core.sensors import Sensor
-from gym_gridloc.core.validation import check_probability
+from gym_gridloc.core.validation import check_int, check_probability, is_int
 
 _TOL = 1e-9
 
@@ -256,16 +256,12 @@ class GridModel:
         return layer[None] if self.n_layers == 1 else np.repeat(layer[None], self.n_layers, axis=0)
 
     def check_action(self, action: Any) -> int:
-        """``action`` as an int in ``0..n_actions-1``, or a clear error."""
-        if isinstance(action, bool) or isinstance(action, (str, bytes)):
-            raise TypeError(f"action must be an integer in 0..{self.n_actions - 1}, got {action!r}")
-        try:
-            a = int(action)
-        except (TypeError, ValueError, OverflowError):
-            raise TypeError(f"action must be an integer in 0..{self.n_actions - 1}, got {action!r}") from None
-        if a != action or not 0 <= a < self.n_actions:
-            raise ValueError(f"action must be an integer in 0..{self.n_actions - 1} ({self.action_legend}), got {action!r}")
-        return a
+        """``action`` as an int in ``0..n_actions-1`` (whole numbers such as ``2.0`` too), or a
+        clear error."""
+        n = self.n_actions
+        if is_int(action) and 0 <= action < n:  # the common case (the message is built on errors only)
+            return int(action)
+        return check_int("action", action, 0, n - 1, whole=True, what=f"an integer in 0..{n - 1} ({self.action_legend})")
 
     @property
     def action_legend(self) -> str:
@@ -286,24 +282,6 @@ class GridModel:
         layer, r, c = state
         terms = [t for t in self.terms(action) if t.src == layer]
         return [((t.dst, r + t.dr, c + t.dc), p) for t in terms if (p := float(t.weight[r, c])) > 0.0]
-
-    def transition_matrix(self, action: int | None = None):
-        """The transition of ``action`` (None: the average over actions) as a ``scipy.sparse``
-        CSR matrix ``T[s, s'] = P(s' | s)`` over the free states (kidnapping included: then every
-        row is dense)."""
-        from scipy import sparse
-
-        rows, cols, vals = [], [], []
-        index, n, S = self.grid.cell_index, self.grid.n_free, self.n_states
-        for t in self.terms(action):
-            rr, cc = np.nonzero(t.weight)
-            rows.append(t.src * n + index[rr, cc])
-            cols.append(t.dst * n + index[rr + t.dr, cc + t.dc])
-            vals.append(t.weight[rr, cc])
-        m = sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(S, S)).tocsr()
-        if self.kidnap_prob > 0.0:  # teleporting makes every row dense
-            m = sparse.csr_matrix((1.0 - self.kidnap_prob) * m.toarray() + self.kidnap_prob / S)
-        return m
 
     def likelihood(self, reading: int) -> np.ndarray:
         """P(reading | state): an (H, W) array for sensors that see the position only, (L, H, W)

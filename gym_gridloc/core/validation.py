@@ -1,11 +1,14 @@
 """Checks for parameters where they enter: each error names the parameter, the value and what is
-allowed."""
+allowed.  The one place for integer checks: :func:`is_int` and :func:`check_int` for one value,
+:func:`whole_numbers` for an array (``tests/test_one_owner.py`` holds other modules to them)."""
 
 from __future__ import annotations
 
 import math
 import numbers
 from typing import Any, Sequence
+
+import numpy as np
 
 
 def check_probability(name: str, value: Any) -> float:
@@ -28,19 +31,50 @@ def check_threshold(name: str, value: Any) -> float:
     return v
 
 
-def check_int(name: str, value: Any, minimum: int = 1, maximum: int | None = None) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise TypeError(f"{name} must be an integer, got {value!r}")
-    v = int(value)
+def is_int(value: Any) -> bool:
+    """``value`` is an integer: Python's or numpy's, not a bool."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def check_int(name: str, value: Any, minimum: int = 1, maximum: int | None = None, *, whole: bool = False,
+              what: str | None = None, error: type[Exception] | None = None) -> int:
+    """An integer (:func:`is_int`) in ``minimum..maximum`` (no upper bound with ``maximum=None``),
+    as an ``int``; else a TypeError (another type) or a ValueError (another value) naming ``name``.
+
+    ``whole``: a number equal to its ``int()`` counts too (``3.0``, a 0-d array; not a bool or a
+    string); a fraction is a ValueError.  ``what``: what the messages say is allowed (``"a positive
+    integer"``; default: "an integer" and the bounds).  ``error``: the one exception class for
+    both (a caller's ``ValueError`` subclass, say)."""
+    if is_int(value):
+        v = int(value)
+    elif not whole or isinstance(value, (bool, np.bool_, str, bytes)):
+        raise (error or TypeError)(f"{name} must be {what or 'an integer'}, got {value!r}")
+    else:
+        try:
+            v = int(value)
+        except (TypeError, ValueError, OverflowError):
+            raise (error or TypeError)(f"{name} must be {what or 'an integer'}, got {value!r}") from None
+        if v != value:
+            raise (error or ValueError)(f"{name} must be {what or 'a whole number'}, got {value!r}")
     if v < minimum or (maximum is not None and v > maximum):
         hi = "" if maximum is None else f" and at most {maximum}"
-        raise ValueError(f"{name} must be at least {minimum}{hi}, got {value!r}")
+        raise (error or ValueError)(f"{name} must be {what or f'at least {minimum}{hi}'}, got {value!r}")
     return v
+
+
+def whole_numbers(values: np.ndarray) -> bool:
+    """``values`` (an array) holds integers: an integer dtype, or finite floats with whole values
+    (not bools)."""
+    dtype = values.dtype
+    if np.issubdtype(dtype, np.integer):
+        return True
+    return (np.issubdtype(dtype, np.floating) and bool(np.all(np.isfinite(values)))
+            and bool(np.all(values == np.round(values))))
 
 
 def check_size(name: str, value: Any, maximum: int = 4096) -> tuple[int, int]:
     """A grid size ``(H, W)`` with both at least 1 (a single int means square)."""
-    if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+    if is_int(value):
         value = (value, value)
     if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
         raise TypeError(f"{name} must be a pair (H, W) of integers, got {value!r}")

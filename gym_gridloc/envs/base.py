@@ -10,7 +10,7 @@ from gymnasium import spaces
 
 from gym_gridloc import engine, referee
 from gym_gridloc.core.model import GridModel
-from gym_gridloc.core.validation import check_choice, check_int, check_threshold
+from gym_gridloc.core.validation import check_choice, check_int, check_threshold, is_int
 from gym_gridloc.filter import ForwardFilter
 
 
@@ -229,7 +229,6 @@ def redraw(rng: np.random.Generator, *, build: Callable[[Any], GridModel], draw:
 
 def _int_tuple(value: Any) -> tuple[int, ...] | None:
     """``value`` as a tuple of ints if it is a sequence of whole numbers (not strings or bools)."""
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or any(
-            isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) for v in value):
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or not all(is_int(v) for v in value):
         return None
     return tuple(int(v) for v in value)

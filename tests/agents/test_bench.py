@@ -122,7 +122,7 @@ def test_cli_bench_user_model(tmp_path, capsys):
     [
         (["bench", "--env", "Nope-v0"], "not a registered environment"),
         (["bench", "--env", "ColourGrid-v0", "--policies", "random,smart"], "unknown policy 'smart'"),
-        (["bench", "--env", "ColourGrid-v0", "--episodes", "0"], "--episodes must be >= 1"),
+        (["bench", "--env", "ColourGrid-v0", "--episodes", "0"], "--episodes must be at least 1"),
         (["bench"], "exactly one of --env ENV_ID or --all"),
         (["bench", "--all", "--plot", "x.png"], "--plot takes one environment"),
     ],
@@ -192,8 +192,8 @@ def test_cli_without_the_rl_extra_says_what_to_install(monkeypatch, capsys):
     (["--env", "Nope-v0"], "--env Nope-v0: 'Nope-v0' is not a registered environment"),
     (["--env", "WindyMaze-v0", "--seed", "-1"], "--seed must be in 0.."),
     (["--env", "WindyMaze-v0", "--policies", ","], "--policies names no policy"),
-    (["--env", "WindyMaze-v0", "--jobs", "0"], "--jobs must be >= 1, got 0"),
-    (["--env", "WindyMaze-v0", "--episodes", "0"], "--episodes must be >= 1, got 0"),
+    (["--env", "WindyMaze-v0", "--jobs", "0"], "--jobs must be at least 1, got 0"),
+    (["--env", "WindyMaze-v0", "--episodes", "0"], "--episodes must be at least 1, got 0"),
     (["--env", "WindyMaze-v0", "--policies", "random,smart"], "unknown policy 'smart'"),
 ])
 def test_bad_bench_arguments_get_one_line_and_exit_status_2(argv, message, capsys):

@@ -268,7 +268,7 @@ def a_chunks_own_error_stops_the_run_as_locally(cluster, tmp_path):
         assert main(args) == 2
     remote = _gridloc(*args, "--address", cluster.address, env=cluster.env, cwd=tmp_path, status=2)
     assert remote.stderr.strip().splitlines()[-1] == local.getvalue().strip() == ("gridloc bench: error: policy 'expectimax' on WindyMaze-v0: "
-                                                                                  "depth must be >= 1, got 0")
+                                                                                  "depth must be at least 1, got 0")
 
 
 def _summary(out: Path) -> dict:

@@ -12,6 +12,7 @@ import pytest
 
 import gym_gridloc
 import gym_gridloc_agents.planners as P
+from gym_gridloc.engine import transition_matrix
 from gym_gridloc_agents.policies import GreedyPolicy, make_policy
 from gym_gridloc_agents.evaluation.rollout import rollout
 
@@ -44,7 +45,7 @@ def test_predict_batch_equals_filter_and_dense(name):
     out = P.predict_batch(m, bs, acts)
     assert out.shape == (7, *m.belief_shape)
     for b, a, o in zip(bs, acts, out):
-        dense = m.transition_matrix(int(a)).toarray().T @ m.to_vector(b)
+        dense = transition_matrix(m, int(a)).toarray().T @ m.to_vector(b)
         np.testing.assert_allclose(m.to_vector(o), dense, atol=1e-13)
         f = gym_gridloc.ForwardFilter(m)
         f.reset()
@@ -65,7 +66,7 @@ def test_ops_likelihood_broadcasts_to_layers():
 # -- expectimax against a brute-force recursion on dense matrices ------------------------------------
 def brute_value(m, b, depth, leaf_value, thr=0.9, prune=0.0, renormalise=True):
     """min_a Q(a) with the recursion written out over dense matrices and likelihood_vector."""
-    T = [m.transition_matrix(a).toarray() for a in range(m.n_actions)]
+    T = [transition_matrix(m, a).toarray() for a in range(m.n_actions)]
     O = np.stack([m.likelihood_vector(z) for z in range(m.sensor.n_readings)])
     nf = m.grid.n_free
 
@@ -147,7 +148,7 @@ def test_central_matches_direct_computation_and_refuses_other_sensors():
     nothing = m.sensor.n_readings - 1
     for _ in range(5):
         b = random_belief(m, rng)
-        p = [m.likelihood_vector(nothing) @ (m.transition_matrix(a).toarray().T @ m.to_vector(b)) for a in range(4)]
+        p = [m.likelihood_vector(nothing) @ (transition_matrix(m, a).toarray().T @ m.to_vector(b)) for a in range(4)]
         np.testing.assert_allclose(pol.values(b), p, atol=1e-14)
         assert pol.act(None, b) == int(np.argmin(p))
     with pytest.raises(ValueError, match="nothing"):

@@ -192,7 +192,7 @@ def test_yaml_is_safe_loaded(tmp_path):
 
 
 def test_bad_values_name_the_key(tmp_path):
-    with pytest.raises(ConfigError, match="total_timesteps must be >= 1"):
+    with pytest.raises(ConfigError, match="total_timesteps must be at least 1"):
         validate_config(tiny(tmp_path, total_timesteps=0))
     with pytest.raises(ConfigError, match="n_envs must be a whole number"):
         validate_config(tiny(tmp_path, n_envs=2.5))
@@ -403,12 +403,12 @@ def test_a_metadata_file_that_is_not_a_json_object_is_named(tmp_path):
     ("env_kwargs: {foo: 1}", "ColourGrid-v0 has no keyword 'foo' (its keywords: accuracy, kidnap_prob, layout,"),
     ("env_kwargs: {slip: 2}", "ColourGrid-v0 does not build with {'slip': 2}: slip must be a probability in [0, 1], got 2"),
     ("env_id: CartPole-v1", "CartPole-v1 is not a gym_gridloc environment"),
-    ("hyperparams: {n_steps: -5}", "hyperparams.n_steps must be >= 1, got -5"),
-    ("hyperparams: {batch_size: 0}", "hyperparams.batch_size must be >= 2, got 0"),
+    ("hyperparams: {n_steps: -5}", "hyperparams.n_steps must be at least 1, got -5"),
+    ("hyperparams: {batch_size: 0}", "hyperparams.batch_size must be at least 2, got 0"),
     ("hyperparams: {gamma: 1.5}", "hyperparams.gamma must be <= 1"),
     ("policy_kwargs: {net_arch: [64, -1]}", "net_arch must be a list of positive integers"),
     ("policy: MultiInputPolicy", "policy MultiInputPolicy needs Dict observations"),
-    ("seed: 99999999999999999999999", "seed must be <= 4294967295"),
+    ("seed: 99999999999999999999999", "seed must be at least 0 and at most 4294967295"),
 ])
 def test_bad_config_values_get_one_line_and_exit_status_2(tmp_path, capsys, line, message):
     import yaml

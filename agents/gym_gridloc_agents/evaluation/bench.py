@@ -41,6 +41,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from gym_gridloc.core.validation import check_int, is_int
 from gym_gridloc_agents.envs import make_env, served_env
 from gym_gridloc_agents.files import metadata_path, read_metadata
 from gym_gridloc_agents.loading import model_method
@@ -80,7 +81,7 @@ def episode_specs(env_id: str, env_kwargs: dict, episodes: int, seed_start: int,
     size = env_kwargs.get("size")
     if size is None:
         raise ValueError(f"--test-set needs --size: the held-out maps of {env_id} are drawn per size")
-    side = size if isinstance(size, int) else size[0]
+    side = size if is_int(size) else size[0]
     return [(seed_start + m.index, {"map": m.grid, "state": m.state}) for m in maps.test_set(env_id, side, episodes)]
 
 
@@ -192,8 +193,7 @@ def run_episodes(env_id: str, policy_name: str, episodes: int, *, seed_start: in
                  model_path: str | Path | None = None, budgets: Sequence[int] = BUDGETS, progress: bool = True,
                  test_set: bool = False, options: dict | None = None) -> dict[str, Any]:
     """Run one policy for ``episodes`` episodes (seeds ``seed_start + i``); returns one row."""
-    if int(episodes) < 1:
-        raise ValueError(f"episodes must be >= 1, got {episodes!r}")
+    episodes = check_int("episodes", episodes, whole=True)
     task = Task(env_id, policy_name, dict(env_kwargs or {}), model_path, dict(options or {}))
     specs = episode_specs(env_id, task.env_kwargs, int(episodes), seed_start, test_set)
     return summarise(task, parts=[simulate(task, specs, budgets=budgets, progress=progress)], seed_start=seed_start,
@@ -260,8 +260,7 @@ def run_benchmark(
             raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")
     if len(set(policies)) != len(policies):
         raise ValueError(f"policies must not repeat, got {list(policies)}")
-    if int(episodes) < 1:
-        raise ValueError(f"episodes must be >= 1, got {episodes!r}")
+    episodes = check_int("episodes", episodes, whole=True)
     kwargs, options = dict(env_kwargs or {}), dict(policy_options or {})
     groups: list[list[Task]] = []  # one group per row; several tasks = several seeds' models
     for env_id in env_ids:

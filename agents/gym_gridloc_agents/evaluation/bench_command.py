@@ -32,12 +32,12 @@ def _key_values(items: list[str], what: str) -> dict:
 
 
 def _bench_env_kwargs(args) -> dict:
+    from gym_gridloc.core.validation import check_int
+
     kwargs = _key_values(args.env_kwarg, "--env-kwarg")
     for key, value in (("size", args.size), ("episode_length", args.episode_length)):
         if value is not None:
-            if value < 1:
-                raise ValueError(f"--{key.replace('_', '-')} must be at least 1, got {value}")
-            kwargs[key] = value
+            kwargs[key] = check_int(f"--{key.replace('_', '-')}", value)
     return kwargs
 
 
@@ -80,6 +80,7 @@ def _available_defaults(envs: list[str], policies: list[str], env_kwargs: dict, 
 
 def bench_main(args) -> int:
     """``gridloc bench``: every argument checked before the first episode, then the run and its outputs."""
+    from gym_gridloc.core.validation import check_int, is_int
     from gym_gridloc_agents.evaluation.bench import BENCH_ENV_IDS, DEFAULT_POLICIES, BenchmarkInterrupted, add_gaps, run_benchmark
     from gym_gridloc_agents.evaluation.bench_cluster import ClusterError  # (Ray itself only once a run on a cluster starts)
     from gym_gridloc_agents.envs import check_environment
@@ -114,14 +115,13 @@ def bench_main(args) -> int:
         options = _policy_options(args.option, policies)
         if args.test_set and "size" not in env_kwargs:
             raise ValueError("--test-set needs --size N: the held-out maps are drawn per size")
-        if episodes < 1:
-            raise ValueError(f"--episodes must be >= 1, got {episodes}")
+        check_int("--episodes", episodes)
         if episodes > MAX_EPISODES:  # the per-episode arrays must fit in memory
             raise ValueError(f"--episodes must be at most {MAX_EPISODES:_} (per policy), got {episodes}")
         if args.test_set and (given := [k for k in env_kwargs if k in MAP_KWARGS]):
             raise ValueError(f"--test-set runs on the stored test maps, which replace {', '.join(given)}: leave "
                              f"{'it' if len(given) == 1 else 'them'} out (the row would report keywords its maps ignored)")
-        if args.test_set and not isinstance(env_kwargs["size"], int):
+        if args.test_set and not is_int(env_kwargs["size"]):
             raise ValueError(f"--test-set: the test maps are square; give --size N, not size={env_kwargs['size']!r}")
         for flag, name in (("--ppo-model", "ppo"), ("--distilled-model", "distilled"), ("--recurrent-model", "recurrent")):
             if getattr(args, flag[2:].replace("-", "_")) and name not in policies:
@@ -130,8 +130,7 @@ def bench_main(args) -> int:
         if args.seed < 0 or args.seed + episodes > 2**32:
             raise ValueError(f"--seed must be in 0..{2**32 - episodes} (episode i uses seed+i), got {args.seed}")
         for flag, value in (("--jobs", args.jobs), ("--torch-threads", args.torch_threads)):
-            if value < 1:
-                raise ValueError(f"{flag} must be >= 1, got {value}")
+            check_int(flag, value)
         address = getattr(args, "address", None)
         if address is not None:
             if not address.strip():

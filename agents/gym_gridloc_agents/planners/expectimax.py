@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from gym_gridloc.core.validation import check_int
 from gym_gridloc_agents.planners.base import PlannerPolicy
 from gym_gridloc_agents.planners.leaves import ConstantLeaf, Leaf, load_leaf
 from gym_gridloc_agents.planners.ops import BeliefOps, _dedupe, initial_beliefs
@@ -91,9 +92,7 @@ class ExpectimaxPolicy(PlannerPolicy):
 
     def __init__(self, model, *, depth: int = 2, leaf: Any = "one", prune: float = 1e-3, memo: bool = True, **kw) -> None:
         super().__init__(model, **kw)
-        if int(depth) < 1:
-            raise ValueError(f"depth must be >= 1, got {depth!r}")
-        self.depth = int(depth)
+        self.depth = check_int("depth", depth, whole=True)
         self.leaf = load_leaf(leaf)
         self.prune = float(prune)
         self.memo = bool(memo)
@@ -123,8 +122,8 @@ def lower_bound(model, depth: int, *, threshold: float = 0.9, prune: float = 0.0
     benchmark counts truncated episodes at ``max_episode_steps`` (>= ``k + 1``), the bound also holds
     for the benchmark's mean steps.
     """
-    if isinstance(depth, bool) or not isinstance(depth, (int, np.integer)) or not 1 <= depth <= MAX_BOUND_DEPTH:
-        raise ValueError(f"depth must be a whole number in 1..{MAX_BOUND_DEPTH} (the search grows about |A x Z|^depth), got {depth!r}")
+    depth = check_int("depth", depth, 1, MAX_BOUND_DEPTH, error=ValueError,
+                      what=f"a whole number in 1..{MAX_BOUND_DEPTH} (the search grows about |A x Z|^depth)")
     ops = BeliefOps(model, threshold)
     b0, p0 = initial_beliefs(ops)
     one = ConstantLeaf(1.0)

@@ -106,7 +106,10 @@ class MCTSPolicy(_TreeSearch):
             return int(self.rng.integers(A))
         if self.rollout == "central":
             return self._break_ties(preds.reshape(A, -1) @ self.lik_nothing)
-        # greedy: expected posterior position entropy E_z[H(b_az)] via H(joint) identity; joint: (A, Z, HW)
+        # greedy: expected posterior position entropy E_z[H(b_az)] via H(joint) identity; joint: (A, Z, HW).
+        # (gym_gridloc.lookahead's one_step is the owner of this number, through another identity: its
+        # sums differ in the last bits (up to 2e-15 bits on WindyMaze and ColourGrid), so seeded
+        # rollouts could flip on near-ties; kept here, on the predictions the node already holds.)
         if self.ops.shape[0] == 1:
             joint = preds.sum(axis=1).reshape(A, -1)[:, None, :] * self.ops.lik[:, 0].reshape(1, self.ops.Z, -1)
         else:  # layered: marginalise layers after weighting by the likelihood (A, Z, L, H, W)

@@ -76,8 +76,8 @@ class BeliefOps:
         return preds[idx] * self.lik[z] / pz[:, None, None, None]
 
     def entropy(self, beliefs: np.ndarray) -> np.ndarray:
-        p = self.position(beliefs).reshape(beliefs.shape[0], -1)
-        return -(p * np.log2(np.where(p > 0, p, 1.0))).sum(axis=1)
+        """The position entropy (bits) of N beliefs (:func:`gym_gridloc.referee.entropy`), ``(N,)``."""
+        return referee.entropy(self.position(beliefs).reshape(beliefs.shape[0], -1))
 
 
 def _dedupe(beliefs: np.ndarray, decimals: int = 10) -> tuple[np.ndarray, np.ndarray]:

@@ -25,6 +25,7 @@ import numpy as np
 from gym_gridloc_agents.base import Policy
 
 from gym_gridloc.core.model import GridModel
+from gym_gridloc.core.validation import check_int
 
 #: The defaults (WindyMaze-v0 and ColourGrid-v0: see the docstring of :class:`PomcpPolicy`).
 NUM_SIMS = 300
@@ -65,16 +66,15 @@ class PomcpPolicy(Policy):
 
         _import_pomdp_py()  # the clear ImportError, before anything else
         super().__init__(model, seed=seed)
-        if planning_time is None and (isinstance(num_sims, bool) or int(num_sims) != num_sims or num_sims < 1):
-            raise ValueError(f"num_sims must be a positive integer, got {num_sims!r}")
+        positive = {"whole": True, "what": "a positive integer", "error": ValueError}
+        if planning_time is None:
+            check_int("num_sims", num_sims, **positive)
         if planning_time is not None and not planning_time > 0:
             raise ValueError(f"planning_time must be positive seconds, got {planning_time!r}")
-        if isinstance(max_depth, bool) or int(max_depth) != max_depth or max_depth < 1:
-            raise ValueError(f"max_depth must be a positive integer, got {max_depth!r}")
+        check_int("max_depth", max_depth, **positive)
         if not exploration_const >= 0:
             raise ValueError(f"exploration_const must be >= 0, got {exploration_const!r}")
-        if isinstance(n_particles, bool) or int(n_particles) != n_particles or n_particles < 1:
-            raise ValueError(f"n_particles must be a positive integer, got {n_particles!r}")
+        check_int("n_particles", n_particles, **positive)
         self.num_sims = int(num_sims)
         self.planning_time = None if planning_time is None else float(planning_time)
         self.max_depth = int(max_depth)

@@ -61,6 +61,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from gym_gridloc.core.validation import check_int
 from gym_gridloc_agents.files import atomic_write_json, writable_directory
 
 # What a sweep is (--grid, the trials' configs, --resume's check) is sweep_spec; what its trials
@@ -253,8 +254,8 @@ def run(spec: dict[str, Any], *, address: str | None = None, cpus: int | None = 
     stored_path = out / "sweep.json"
     if address is not None and cpus is not None:
         raise SweepError("--cpus sets the CPUs of the Ray started on this machine; with --address the cluster's own CPUs are used")
-    if cpus is not None and (isinstance(cpus, bool) or not isinstance(cpus, int) or cpus < 1):
-        raise SweepError(f"--cpus must be a whole number >= 1, got {cpus!r}")
+    if cpus is not None:
+        check_int("--cpus", cpus, what="a whole number >= 1", error=SweepError)
     if resume:
         if not stored_path.is_file():
             raise SweepError(f"--resume: {out} holds no sweep (no {stored_path.name}); run the command without --resume")

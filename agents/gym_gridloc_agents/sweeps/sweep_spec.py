@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from gym_gridloc.core.validation import check_int, is_int
 from gym_gridloc_agents import values
 from gym_gridloc_agents.training.config import ConfigError, load_config, read_yaml, validate_config
 from gym_gridloc_agents.values import split_values
@@ -158,16 +159,15 @@ def prepare(config: str | Path, *, seeds: int = 1, grid: Sequence[str] | dict | 
     command = command_line(config, seeds=seeds, grid=grid, search=search, trials=trials, output=output,
                            address=address, cpus=cpus)
 
-    if isinstance(seeds, bool) or not isinstance(seeds, int) or not 1 <= seeds <= MAX_SEEDS:
-        raise SweepError(f"--seeds must be a whole number in 1..{MAX_SEEDS}, got {seeds!r}")
+    seeds = check_int("--seeds", seeds, 1, MAX_SEEDS, what=f"a whole number in 1..{MAX_SEEDS}", error=SweepError)
     if search not in (None, "optuna"):
         raise SweepError(f"--search must be optuna, got {search!r}")
     if search == "optuna" and trials is None:
         raise SweepError("--search optuna needs --trials N (how many configurations Optuna tries, each with every seed)")
     if search is None and trials is not None:
         raise SweepError("--trials N needs --search optuna (a --grid sweep runs every combination)")
-    if trials is not None and (isinstance(trials, bool) or not isinstance(trials, int) or not 1 <= trials <= MAX_TRIALS):
-        raise SweepError(f"--trials must be a whole number in 1..{MAX_TRIALS}, got {trials!r}")
+    if trials is not None:
+        trials = check_int("--trials", trials, 1, MAX_TRIALS, what=f"a whole number in 1..{MAX_TRIALS}", error=SweepError)
     grid = dict(grid) if isinstance(grid, dict) else parse_grid(grid)
     n_configs = trials if search == "optuna" else math.prod(len(v) for v in grid.values())
     if n_configs * seeds > MAX_TRIALS:  # checked before Ray starts: Tune would list them all
@@ -218,7 +218,7 @@ def trial_config(spec: dict[str, Any], overrides: dict[str, Any], index: int) ->
     where = spec["config_path"] + "".join(f" {k}={json.dumps(v)}" for k, v in overrides.items())
     label = config_label(overrides, list(spec["grid"]))
     seed = raw.get("seed", 0)
-    if isinstance(seed, int) and not isinstance(seed, bool):
+    if is_int(seed):
         seed = raw["seed"] = seed + index
     out = Path(spec["output"])
     raw["output"] = str(out / "models" / label / f"seed{seed}.zip")

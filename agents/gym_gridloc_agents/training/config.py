@@ -31,6 +31,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from gym_gridloc.core.validation import check_int, is_int
 from gym_gridloc_agents.loading import ALGOS, algo_class
 from gym_gridloc_agents.policies import EXPERT_NAMES
 
@@ -182,10 +183,8 @@ def _num(source: str, key: str, value: Any, *, integer: bool, minimum: float, ma
         raise ConfigError(f"{source}: {key} must be a number, got {value!r}")
     if not math.isfinite(value):
         raise ConfigError(f"{source}: {key} must be a finite number, got {value!r}")
-    if integer:
-        if not isinstance(value, int) and float(value) != int(value):
-            raise ConfigError(f"{source}: {key} must be a whole number, got {value!r}")
-        value = int(value)
+    if integer:  # (no integer range is open below)
+        return check_int(f"{source}: {key}", value, minimum, maximum, whole=True, error=ConfigError)
     if value < minimum or (above and value == minimum):
         raise ConfigError(f"{source}: {key} must be {'>' if above else '>='} {minimum}, got {value!r}")
     if maximum is not None and value > maximum:
@@ -246,8 +245,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     wrapper.setdefault("map", False)
     for k, v in wrapper.items():
         if k == "lookahead":
-            if not isinstance(v, int) or isinstance(v, bool) or v not in (0, 1, 2):
-                raise ConfigError(f"{source}: wrapper.lookahead must be 0, 1 or 2, got {v!r}")
+            check_int(f"{source}: wrapper.lookahead", v, 0, 2, what="0, 1 or 2", error=ConfigError)
         elif not isinstance(v, bool):
             raise ConfigError(f"{source}: wrapper.{k} must be true or false, got {v!r}")
     if not wrapper["belief"] and (wrapper["flatten"] or wrapper["full_state"] or wrapper["map"] or wrapper.get("lookahead")):
@@ -291,7 +289,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             raise ConfigError(f"{source}: policy_kwargs.features_extractor {pk['features_extractor']} reads {'Dict' if reads_dict else 'flat'} "
                               f"observations: use policy {POLICIES[algo][int(reads_dict)]} (wrapper.flatten: {str(not reads_dict).lower()})")
     fek = pk.get("features_extractor_kwargs", {})
-    if not isinstance(fek, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v > 0 for k, v in fek.items()):
+    if not isinstance(fek, dict) or not all(isinstance(k, str) and is_int(v) and v > 0 for k, v in fek.items()):
         raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs must map names to positive integers, got {fek!r}")
     if fek and "features_extractor" not in pk:
         raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs needs policy_kwargs.features_extractor")
@@ -303,9 +301,9 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         raise ConfigError(f"{source}: policy_kwargs.activation_fn must be one of {', '.join(ACTIVATIONS)}, got {pk['activation_fn']!r}")
     if "net_arch" in pk:
         na = pk["net_arch"]
-        ok = isinstance(na, list) and all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in na)
+        ok = isinstance(na, list) and all(is_int(x) and x > 0 for x in na)
         ok = ok or (isinstance(na, dict) and set(na) <= {"pi", "vf"} and all(
-            isinstance(v, list) and all(isinstance(x, int) and x > 0 for x in v) for v in na.values()))
+            isinstance(v, list) and all(is_int(x) and x > 0 for x in v) for v in na.values()))
         if not ok:
             raise ConfigError(f"{source}: policy_kwargs.net_arch must be a list of positive integers or {{pi: [...], vf: [...]}}, got {na!r}")
 

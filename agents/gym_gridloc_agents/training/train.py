@@ -33,6 +33,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 import gym_gridloc
+from gym_gridloc.core.validation import check_int
 from gym_gridloc_agents.training.config import ConfigError, activation, load_config, validate_config
 from gym_gridloc_agents.envs import make_training_env
 from gym_gridloc_agents.features import EXTRACTORS
@@ -208,9 +209,7 @@ def _train(
         if not cfg["output"].endswith(".zip"):
             raise ConfigError(f"--output must end in .zip, got {cfg['output']!r}")
     if total_timesteps is not None:
-        if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, int) or total_timesteps < 1:
-            raise ConfigError(f"total_timesteps must be a whole number >= 1, got {total_timesteps!r}")
-        cfg["total_timesteps"] = int(total_timesteps)
+        cfg["total_timesteps"] = check_int("total_timesteps", total_timesteps, what="a whole number >= 1", error=ConfigError)
     if tensorboard_log is not None:
         cfg["tensorboard_log"] = str(tensorboard_log)
     ckpt_dir = default_checkpoint_dir(cfg)

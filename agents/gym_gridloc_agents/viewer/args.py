@@ -43,8 +43,10 @@ def parse_kw(items: Sequence[str] | None) -> dict[str, Any]:
 
 
 def _cell(text: str, what: str) -> tuple[int, int]:
+    from gym_gridloc.core.validation import is_int
+
     value = parse_value(text)
-    if not (isinstance(value, tuple) and len(value) == 2 and all(type(v) is int for v in value)):
+    if not (isinstance(value, tuple) and len(value) == 2 and all(is_int(v) for v in value)):
         raise UsageError(f"{what} takes ROW,COL (two integers), got {text!r}")
     return value
 
@@ -69,12 +71,13 @@ def _parser(prog: str, description: str) -> _Parser:
 
 
 def _checked(args: argparse.Namespace) -> None:
-    if args.steps is not None and args.steps < 1:
-        raise UsageError(f"--steps must be at least 1, got {args.steps}")
+    from gym_gridloc.core.validation import check_int
+
+    if args.steps is not None:
+        check_int("--steps", args.steps, error=UsageError)
     if not 0 <= args.seed < 2**63:
         raise UsageError(f"--seed must be in 0..2**63-1, got {args.seed}")
-    if args.delay < 1:
-        raise UsageError(f"--delay must be at least 1 ms, got {args.delay}")
+    check_int("--delay", args.delay, what="at least 1 ms", error=UsageError)
     if args.tile is not None and not 2 <= args.tile <= 200:
         raise UsageError(f"--tile must be 2..200 pixels, got {args.tile}")
     if args.record is not None:
