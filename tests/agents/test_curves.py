@@ -218,15 +218,19 @@ def test_sampled_acting_is_seeded_per_episode_and_read_from_the_metadata(tmp_pat
 
     env = make_env("RingSensor8x8-v0")
     shipped = POLICY_DIR / "RingSensor8x8-v0-recurrent.zip"
-    assert make_policy("recurrent", env.unwrapped.model, env_id="RingSensor8x8-v0").deterministic is True
+    meta = json.loads(shipped.with_suffix(".json").read_text())
+    assert make_policy("recurrent", env.unwrapped.model, env_id="RingSensor8x8-v0").deterministic is meta.get("deterministic", True)
+    greedy = tmp_path / "greedy.zip"
+    shutil.copy(shipped, greedy)
+    greedy.with_suffix(".json").write_text(json.dumps({**meta, "deterministic": True}))
+    assert make_policy("recurrent", env.unwrapped.model, env_id="RingSensor8x8-v0", path=greedy).deterministic is True
     sampled = tmp_path / "sampled.zip"
     shutil.copy(shipped, sampled)
-    meta = json.loads(shipped.with_suffix(".json").read_text())
     sampled.with_suffix(".json").write_text(json.dumps({**meta, "deterministic": False}))
     policy = make_policy("recurrent", env.unwrapped.model, env_id="RingSensor8x8-v0", path=sampled)
     assert policy.deterministic is False  # read from the metadata
     first = [rollout(env, policy, s, keep=True, max_steps=30).actions for s in range(3)]
     again = [rollout(env, policy, s, keep=True, max_steps=30).actions for s in range(3)]
     assert first == again and first[0] != first[1]
-    det = make_policy("recurrent", env.unwrapped.model, env_id="RingSensor8x8-v0")
+    det = make_policy("recurrent", env.unwrapped.model, env_id="RingSensor8x8-v0", path=greedy)
     assert [rollout(env, det, s, keep=True, max_steps=30).actions for s in range(3)] != first
