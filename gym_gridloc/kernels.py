@@ -53,6 +53,14 @@ def uses_numba(n_cells: int) -> bool:
     return AVAILABLE and n_cells < NUMBA_MAX_CELLS and _compiled() is not None
 
 
+def compiled(n_cells: int):
+    """:mod:`gym_gridloc._numba_kernels` when a belief of ``n_cells`` (L*H*W) is small enough for
+    the compiled kernels (:func:`uses_numba`), else None.  Besides the filter's plan, the referee's
+    and the observation's readout of one belief use them (the same numbers as their numpy code)."""
+    return _COMPILED if _COMPILED is not None and AVAILABLE and n_cells < NUMBA_MAX_CELLS else (
+        _compiled() if uses_numba(n_cells) else None)
+
+
 def make_plan(transitions, n_layers: int, shape: tuple[int, int]):
     """The plan for ``transitions`` (one tuple of terms per action, the unknown action last)."""
     cls = NumbaPlan if uses_numba(n_layers * shape[0] * shape[1]) else NumpyPlan
