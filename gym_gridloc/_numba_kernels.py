@@ -76,3 +76,131 @@ def batch_update(beliefs, w, meta, actions, lik, layered, out, n_layers, mode, s
             z[i] = stencil_update(beliefs[i], w[a], meta[a], lik[i], layered, out[i], n_layers, mode)
         else:
             z[i] = 1.0
+
+
+# -- one belief's readout: what the referee and the observation read after each step ------------------
+# Bit for bit what numpy computes (the callers' numpy paths are the reference; tests hold them equal):
+# layers are summed in order (numpy's sum over the layer axis), float32 casts round to nearest, and
+# the entropy's sum is numpy's pairwise summation.  log2 itself stays numpy's (its SIMD log2 may
+# differ in the last bit from libm's).
+
+@numba.njit(cache=True, nogil=True)
+def readout(flat, n_layers, pose, pos, q):  # pragma: no cover - compiled
+    """For one hidden-state belief ``flat`` (L*H*W, layer-major): ``pos`` (H*W) = the position
+    belief (the layers summed in order), ``q`` (H*W) = ``pos + (pos <= 0)`` (the entropy's log2
+    argument); returns the index of the first largest value (the first NaN, as numpy's argmax)
+    of ``flat`` (``pose``) or of ``pos``."""
+    hw = flat.size // n_layers
+    for i in range(hw):
+        x = flat[i]
+        for layer in range(1, n_layers):
+            x += flat[layer * hw + i]
+        pos[i] = x
+        q[i] = x + 1.0 if x <= 0.0 else x + 0.0
+    tested = flat if pose else pos
+    k = 0
+    best = tested[0]
+    if best != best:
+        return 0
+    for i in range(1, tested.size):
+        x = tested[i]
+        if x != x:
+            return i
+        if x > best:
+            best = x
+            k = i
+    return k
+
+
+@numba.njit(cache=True, nogil=True)
+def _block_product(p, q, lo, n):  # pragma: no cover - compiled
+    """numpy's pairwise sum of ``p[lo:lo+n] * q[lo:lo+n]`` for ``n <= 128`` (one block: eight
+    running sums, then the rest in order)."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += p[i] * q[i]
+        return res
+    r0 = p[lo] * q[lo]
+    r1 = p[lo + 1] * q[lo + 1]
+    r2 = p[lo + 2] * q[lo + 2]
+    r3 = p[lo + 3] * q[lo + 3]
+    r4 = p[lo + 4] * q[lo + 4]
+    r5 = p[lo + 5] * q[lo + 5]
+    r6 = p[lo + 6] * q[lo + 6]
+    r7 = p[lo + 7] * q[lo + 7]
+    i = 8
+    end = n - n % 8
+    while i < end:
+        j = lo + i
+        r0 += p[j] * q[j]
+        r1 += p[j + 1] * q[j + 1]
+        r2 += p[j + 2] * q[j + 2]
+        r3 += p[j + 3] * q[j + 3]
+        r4 += p[j + 4] * q[j + 4]
+        r5 += p[j + 5] * q[j + 5]
+        r6 += p[j + 6] * q[j + 6]
+        r7 += p[j + 7] * q[j + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += p[lo + i] * q[lo + i]
+        i += 1
+    return res
+
+
+@numba.njit(cache=True, nogil=True)
+def _pairwise_product(p, q, lo, n):  # pragma: no cover - compiled
+    """numpy's pairwise sum (``DOUBLE_pairwise_sum``) of ``p[lo:lo+n] * q[lo:lo+n]``: blocks of
+    at most 128, larger ranges split in two halves (the first a multiple of 8) and the halves'
+    sums added.  The recursion is unrolled on a stack (numba's cache cannot hold a recursive
+    function)."""
+    if n <= 128:
+        return _block_product(p, q, lo, n)
+    los = np.empty(64, dtype=np.int64)
+    ns = np.empty(64, dtype=np.int64)
+    stage = np.zeros(64, dtype=np.int64)
+    left = np.empty(64)
+    top = 0
+    los[0], ns[0] = lo, n
+    ret = 0.0
+    while True:
+        m = ns[top]
+        if m <= 128:
+            ret = _block_product(p, q, los[top], m)
+            top -= 1
+        elif stage[top] < 2:
+            n2 = m // 2
+            n2 -= n2 % 8
+            if stage[top] == 1:
+                left[top] = ret
+            child_lo, child_n = (los[top], n2) if stage[top] == 0 else (los[top] + n2, m - n2)
+            stage[top] += 1
+            top += 1
+            los[top], ns[top], stage[top] = child_lo, child_n, 0
+            continue
+        else:
+            ret = left[top] + ret
+            top -= 1
+        if top < 0:
+            return ret
+
+
+@numba.njit(cache=True, nogil=True)
+def entropy_sum(p, log2q):  # pragma: no cover - compiled
+    """``-np.add.reduce(p * log2q) + 0.0`` (the referee's entropy, ``log2q`` = log2 of
+    :func:`readout`'s ``q``), with numpy's order of additions."""
+    return -(0.0 + _pairwise_product(p, log2q, 0, p.size)) + 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def observed32(flat, n_layers, out):  # pragma: no cover - compiled
+    """``out`` (float32, H*W) = the position belief of one hidden-state belief ``flat`` (L*H*W,
+    layer-major: the layers summed in order; ``n_layers`` 1 for the full belief itself), cast to
+    float32 and clipped at 1."""
+    hw = flat.size // n_layers
+    for i in range(hw):
+        x = flat[i]
+        for layer in range(1, n_layers):
+            x += flat[layer * hw + i]
+        out[i] = min(np.float32(x), np.float32(1.0))

@@ -46,7 +46,7 @@ from gym_gridloc.core.validation import whole_numbers
 
 __all__ = [
     "predict", "update", "step", "backward", "kidnapped", "transition_matrix", "likelihood", "likelihoods", "impossible", "plan",
-    "sample_initial", "sample_next", "sample_readings", "states_of", "simulate", "action_indices", "path", "terms",
+    "sample_initial", "sample_next", "sample_readings", "sampler", "stepper", "states_of", "simulate", "action_indices", "path", "terms",
     "checked_model",
 ]
 
@@ -64,6 +64,7 @@ class _Derived:
         self._lik_bytes = 0
         self.layered = int(model.sensor.layered)
         self._steppers: dict[bool, Any] = {}
+        self._sampler: Any = None
         #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
         #: ``(cumulative probabilities, last possible outcome)`` (one-state draws).
         self.outcomes: dict[tuple[int, int, int, int], tuple[list[float], int]] = {}
@@ -365,7 +366,8 @@ def stepper(model: GridModel, *, normalise: bool = True) -> Callable[[np.ndarray
     """:func:`step` for one belief as a bound function ``(belief, action, reading, out) -> z``,
     for hot loops (the single filter): ``belief`` and ``out`` C-contiguous float64 arrays of the
     belief's ``L*H*W`` values, ``(L, H, W)`` or flat (not checked), ``action`` an int or None,
-    ``reading`` an int."""
+    ``reading`` an int.  Normalising multiplies by ``1.0 / z`` (both kernels), except with
+    kidnapping, which divides by ``z``; :class:`~gym_gridloc.ForwardFilter` relies on it."""
     d = _derived(model)
     if normalise not in d._steppers:
         d._steppers[normalise] = _make_stepper(model, d, normalise)
@@ -486,9 +488,10 @@ OUTCOMES_CACHED = 1 << 16
 
 def _next_one(ts: tuple[Term, ...], state: np.ndarray, rng: np.random.Generator,
               cache: dict | None = None, action: int = -1) -> tuple[int, int, int]:
-    """:func:`sample_next` for one moving state ``(3,)`` (the same uniform and arithmetic, on
-    scalars).  ``cache`` (keyed by ``action`` and the state) keeps each state's cumulative sums."""
-    layer, r, c = state.tolist()
+    """:func:`sample_next` for one moving state ``(3,)`` (an array, or a tuple of ints) (the same
+    uniform and arithmetic, on scalars).  ``cache`` (keyed by ``action`` and the state) keeps each
+    state's cumulative sums."""
+    layer, r, c = state.tolist() if type(state) is np.ndarray else state
     x = rng.random()
     key = (action, layer, r, c)
     found = None if cache is None else cache.get(key)
@@ -504,6 +507,34 @@ def _next_one(ts: tuple[Term, ...], state: np.ndarray, rng: np.random.Generator,
         k = last
     t = ts[k]
     return t.dst, r + t.dr, c + t.dc
+
+
+def sampler(model: GridModel) -> Callable[[tuple[int, int, int], Any, np.random.Generator], tuple[tuple[int, int, int], int]]:
+    """:func:`sample_next` then :func:`sample_readings` for ONE state as a bound function
+    ``(state, action, rng) -> (next state, reading)``, for hot loops (the single environment):
+    ``state`` a tuple ``(layer, row, col)`` of ints, the result a tuple and an ``int``; the same
+    random draws and numbers as the batched functions with N = 1."""
+    d = _derived(model)
+    if d._sampler is None:
+        d._sampler = _make_sampler(model, d)
+    return d._sampler
+
+
+def _make_sampler(model: GridModel, d: _Derived):
+    transitions, outcomes, n_actions = d.transitions, d.outcomes, model.n_actions
+    read = model.sensor.sample_one
+    scalar = model.kidnap_prob == 0.0
+    model_ref = weakref.ref(model)  # (the model's cache keeps this function)
+    del model
+
+    def sample_one(state: tuple[int, int, int], action: Any, rng: np.random.Generator):
+        if scalar and type(action) is int and 0 <= action < n_actions:
+            nxt = _next_one(transitions[action], state, rng, outcomes, action)
+        else:  # kidnapping, or an action to check: the batched draw of one
+            nxt = tuple(sample_next(model_ref(), np.array([state], dtype=np.int64), action, rng)[0].tolist())
+        return nxt, read(nxt, rng)
+
+    return sample_one
 
 
 def sample_readings(model: GridModel, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -57,17 +57,21 @@ class ForwardFilter:
     >>> _ = f.step(0, [0, 1, 0, 0])         # move N, then read
     >>> round(float(f.position_belief.max()), 4)
     0.425
+
+    ``read_every_step=True`` (the environment's referee, whose belief is read after every step)
+    normalises in the step's own pass instead of on the next read: the same numbers when the
+    belief is read between steps (each value times ``1 / z`` either way), one array pass fewer.
     """
 
-    def __init__(self, model: GridModel, *, kidnap_prob: float | None = None) -> None:
+    def __init__(self, model: GridModel, *, kidnap_prob: float | None = None, read_every_step: bool = False) -> None:
         model = engine.checked_model(model, "ForwardFilter needs a GridModel")
         if kidnap_prob is not None:
             # The kidnapped robot: mix a teleport to a uniform free state with this probability
             # into every prediction (0.0 switches off any kidnapping the model has).
             model = model.with_kidnapping(kidnap_prob)
         self.model = model
-        self._step = engine.stepper(model, normalise=False)
-        self._to_reading = model.sensor.to_reading
+        self.read_every_step = bool(read_every_step)
+        self._bind()
         self._f: np.ndarray | None = None
         self._spare: np.ndarray | None = None  # the other buffer: steps alternate between the two
         self._scale = 1.0  # the belief is self._f * self._scale (see step)
@@ -114,6 +118,11 @@ class ForwardFilter:
         out = self._spare  # the other buffer, as in predict() (same shapes here)
         if out is None or out is before:
             out = np.empty_like(before)
+        if self._step_now is not None:  # normalised in the pass (times 1 / z, as on a read)
+            zz = self._step_now(before, action, reading, out)
+            self.log_likelihood += math.log(zz * self._scale)
+            self._f, self._spare, self._scale = out, before, 1.0
+            return self
         zz = self._step(before, action, reading, out)
         # Normalised lazily: the next read (or step) multiplies by 1/z, a pass that a loop of
         # steps without reads never pays; the log likelihood carries the deferred scale.
@@ -123,20 +132,36 @@ class ForwardFilter:
             self._belief()
         return self
 
+    def _bind(self) -> None:
+        """The engine's bound functions (rebuilt on load).  ``_step_now`` normalises in the pass:
+        only without kidnapping, where the engine's normalised step multiplies by ``1 / z``
+        exactly as a read does (its kidnapping step divides)."""
+        self._step = engine.stepper(self.model, normalise=False)
+        eager = self.read_every_step and self.model.kidnap_prob == 0.0
+        self._step_now = engine.stepper(self.model, normalise=True) if eager else None
+        self._to_reading = self.model.sensor.to_reading
+
     def __getstate__(self) -> dict:
         # all but the bound functions, which are rebuilt on load
-        return {k: v for k, v in self.__dict__.items() if k not in ("_step", "_to_reading")}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_step", "_step_now", "_to_reading")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        self._step = engine.stepper(self.model, normalise=False)
-        self._to_reading = self.model.sensor.to_reading
+        self.__dict__.setdefault("read_every_step", False)
+        self._bind()
 
     # -- reading the belief -----------------------------------------------------------------------
     @property
     def full_belief(self) -> np.ndarray:
         """The hidden-state belief as an (L, H, W) array (a copy)."""
         return self._belief().copy()
+
+    @property
+    def belief_view(self) -> np.ndarray:
+        """The hidden-state belief as an (L, H, W) array, not copied: read it, never write it; it
+        changes at the filter's next step (for hot loops: the environment's referee and the
+        wrapper's observation read it once per step)."""
+        return self._belief()
 
     @property
     def position_belief(self) -> np.ndarray:

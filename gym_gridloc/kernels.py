@@ -13,8 +13,9 @@ give the same numbers (within rounding; the tests compare both with a dense refe
 * **numpy** (every larger model, and every model without numba or with ``GYM_GRIDLOC_NO_NUMBA=1``):
   for one belief, a stencil term ``(dr, dc)`` is one diagonal of ``T^T`` over the flat belief, at
   offset ``-(dr*W + dc)``, whose values are the term's own weight array (the cells where a shift
-  wraps round a row edge have weight 0).  scipy's DIA matrix-vector loop adds ``w * x`` for each
-  diagonal in one fused pass straight into the output buffer, reading the model's weights in place
+  wraps round a row edge have weight 0).  :func:`diagonal_add` adds ``w * x`` for each diagonal
+  straight into the output buffer (the loop of scipy's DIA matrix-vector product, in numpy, chunk
+  by chunk so that the products are added while in cache), reading the model's weights in place
   (no copy); a ``(0, 0)`` term is written first with one multiply.  For a batch, each distinct
   shift is one multiply-add over all N beliefs, with the N actions' weights gathered (or shared).
 
@@ -29,6 +30,7 @@ from __future__ import annotations
 import functools
 import importlib.util
 import os
+import threading
 
 import numpy as np
 
@@ -39,6 +41,8 @@ AVAILABLE = (
 )
 #: Models whose belief (layers x rows x columns) has fewer cells use the numba kernels.
 NUMBA_MAX_CELLS = 128 * 128
+#: Elements per chunk of :func:`diagonal_add` (128 KiB of products, added while in cache).
+DIAGONAL_CHUNK = 16384
 
 _COMPILED = None
 
@@ -47,6 +51,14 @@ def uses_numba(n_cells: int) -> bool:
     """Whether a belief of ``n_cells`` (L*H*W) is filtered by the compiled kernels.  When it is
     small enough, this imports numba (once)."""
     return AVAILABLE and n_cells < NUMBA_MAX_CELLS and _compiled() is not None
+
+
+def compiled(n_cells: int):
+    """:mod:`gym_gridloc._numba_kernels` when a belief of ``n_cells`` (L*H*W) is small enough for
+    the compiled kernels (:func:`uses_numba`), else None.  Besides the filter's plan, the referee's
+    and the observation's readout of one belief use them (the same numbers as their numpy code)."""
+    return _COMPILED if _COMPILED is not None and AVAILABLE and n_cells < NUMBA_MAX_CELLS else (
+        _compiled() if uses_numba(n_cells) else None)
 
 
 def make_plan(transitions, n_layers: int, shape: tuple[int, int]):
@@ -95,21 +107,19 @@ def _compiled():
     return _COMPILED
 
 
-def _dia_matvec_numpy(n_row, n_col, n_diags, length, offsets, data, x, y):
-    """``y[i] += data[k, j] * x[j]`` for ``j = i + offsets[k]``: scipy's ``dia_matvec`` in numpy
-    (used only if a scipy release drops that function)."""
-    for k in range(n_diags):
-        o = int(offsets[k])
-        i0, j0 = max(0, -o), max(0, o)
-        j1 = min(n_row + o, n_col, length)
-        if j1 > j0:
-            y[i0 : i0 + j1 - j0] += data[k, j0:j1] * x[j0:j1]
-
-
-try:  # the loop behind scipy.sparse.dia_array @ x, called on our own buffers (no allocation)
-    from scipy.sparse._sparsetools import dia_matvec as _dia_matvec
-except ImportError:  # pragma: no cover - depends on the scipy release
-    _dia_matvec = _dia_matvec_numpy
+def diagonal_add(w, x, y, offset: int, tmp) -> None:
+    """``y[i] += w[j] * x[j]`` for ``j = i + offset``: one diagonal of ``T^T`` added to ``y``
+    (the loop of scipy's DIA matrix-vector product, in public numpy: the same products and sums
+    in the same order), chunk by chunk through the buffer ``tmp``, so that each chunk's products
+    are still in cache when they are added."""
+    i0, j0 = max(0, -offset), max(0, offset)
+    n = min(y.shape[0] + offset, x.shape[0]) - j0
+    c = tmp.shape[0]
+    for s in range(0, n, c):
+        m = min(c, n - s)
+        t = np.multiply(w[j0 + s : j0 + s + m], x[j0 + s : j0 + s + m], out=tmp[:m])
+        ys = y[i0 + s : i0 + s + m]
+        np.add(ys, t, out=ys)
 
 
 class NumbaPlan:
@@ -156,6 +166,7 @@ class NumpyPlan:
         self.single = [self._diagonals(terms, w) for terms in transitions]
         self._transitions = transitions
         self._width = w
+        self._local = threading.local()  # diagonal_add's buffer, one per thread (numpy drops the GIL)
 
     def _diagonals(self, terms, width: int):
         """``(zero, writes, adds)``: layers to clear, ``(src, dst, weight)`` of the ``(0, 0)``
@@ -168,19 +179,22 @@ class NumpyPlan:
                 covered.add(t.dst)
                 writes.append((t.src, t.dst, t.weight.reshape(hw)))
             else:
-                adds.append((t.src, t.dst, np.array([-(t.dr * width + t.dc)], dtype=np.int32), t.weight.reshape(1, hw)))
+                adds.append((t.src, t.dst, -(t.dr * width + t.dc), t.weight.reshape(hw)))
         zero = tuple(layer for layer in range(self.n_layers) if layer not in covered)
         return zero, tuple(writes), tuple(adds)
 
     def predict_one(self, b, action: int, out) -> None:
         hw = self.hw
         zero, writes, adds = self.single[action]
+        tmp = getattr(self._local, "tmp", None)
+        if tmp is None:
+            tmp = self._local.tmp = np.empty(min(hw, DIAGONAL_CHUNK))
         for layer in zero:
             out[layer * hw : (layer + 1) * hw] = 0.0
         for src, dst, wt in writes:
             np.multiply(wt, b[src * hw : (src + 1) * hw], out=out[dst * hw : (dst + 1) * hw])
-        for src, dst, offsets, rows in adds:
-            _dia_matvec(hw, hw, 1, hw, offsets, rows, b[src * hw : (src + 1) * hw], out[dst * hw : (dst + 1) * hw])
+        for src, dst, offset, wt in adds:
+            diagonal_add(wt, b[src * hw : (src + 1) * hw], out[dst * hw : (dst + 1) * hw], offset, tmp)
 
     def run_one(self, belief, action: int, lik, layered: int, out, mode: int) -> float:
         """One belief (flat, or C-contiguous (L, H, W)) with one action (see the module docstring)."""

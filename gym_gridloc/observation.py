@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from gym_gridloc import kernels
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.core.validation import check_int
 from gym_gridloc.lookahead import lookahead_features
@@ -108,6 +109,12 @@ def batch_observation(model: GridModel, observations: Any, readings: np.ndarray,
 def observed_belief(full: np.ndarray, full_state: bool) -> np.ndarray:
     """The observed belief of hidden-state beliefs ``(..., L, H, W)``: float32 in [0, 1], over
     positions (``(..., H, W)``) unless ``full_state``."""
+    if full.ndim == 3 and full.dtype.char == "d":  # one small belief: one compiled pass, the same numbers
+        fast = kernels.compiled(full.size)
+        if fast is not None:
+            out = np.empty(full.shape if full_state else full.shape[1:], dtype=np.float32)
+            fast.observed32(full.reshape(-1), 1 if full_state else full.shape[0], out.reshape(-1))
+            return out
     b = full if full_state else full[..., 0, :, :] if full.shape[-3] == 1 else full.sum(axis=-3)
     out = b.astype(np.float32)
     return np.minimum(out, 1.0, out=out)  # beliefs are never negative: clip(0, 1) in one pass
@@ -134,6 +141,7 @@ class BeliefObservation:
         self.inner = model.sensor.observation_space if inner is None else inner
         self.space = belief_observation_space(model, self.inner, flatten=self.flatten, full_state=self.full_state,
                                               key=key, map=self.map, lookahead=self.lookahead)
+        self._plain = not (self.flatten or self.map or self.lookahead)  # the belief beside the reading, nothing else
 
     @property
     def options(self) -> dict[str, Any]:
@@ -147,6 +155,8 @@ class BeliefObservation:
         observation keeps its keys) and the hidden-state belief ``(L, H, W)`` on ``model``.
         ``reading``: the observation's reading index, when the caller knows it (flat only);
         ``position``: the position belief ``(H, W)``, when the caller holds its own (particles)."""
+        if self._plain and position is None and not isinstance(observation, dict):  # the common case, shortest
+            return {"observation": observation, self.key: observed_belief(full_belief, self.full_state)}
         belief = observed_belief(full_belief if self.full_state or position is None else position[None], self.full_state)
         look = lookahead_features(model, full_belief, self.lookahead, pose=self.full_state) if self.lookahead else None
         if not self.flatten:

@@ -219,7 +219,7 @@ class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     def _served(self, observation: Any):
         """The observation with the environment's posterior (its reading index known: no round trip)."""
         inner = self._inner
-        return self.builder.one(self.model, observation, inner.exact_filter.full_belief, reading=inner.last_reading)
+        return self.builder.one(self.model, observation, inner.exact_filter.belief_view, reading=inner.last_reading)
 
     def belief_array(self) -> np.ndarray:
         """The current belief as float32, (H, W) or (L, H, W) with ``full_state``."""

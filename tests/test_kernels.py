@@ -1,6 +1,6 @@
 """The filter kernels (gym_gridloc/kernels.py): numba only on small models and imported lazily (never
-by a process that only builds large grids), chosen by the belief's cell count, and the numpy/scipy
-diagonal path.  Both paths against the dense reference: tests/test_engine.py."""
+by a process that only builds large grids), chosen by the belief's cell count, and the numpy
+diagonal path (its diagonal pass: tests/test_readout.py).  Both paths against the dense reference: tests/test_engine.py."""
 
 from __future__ import annotations
 
@@ -112,19 +112,3 @@ def test_diagonal_plan_of_raw_terms_equals_the_model():
     np.testing.assert_array_equal(z, [1.0, 1.0])
     np.testing.assert_allclose(res[0], ref.reshape(-1), rtol=0, atol=1e-15)
     np.testing.assert_allclose(res[1], 2 * ref.reshape(-1), rtol=0, atol=1e-15)
-
-
-def test_numpy_fallback_equals_scipy_dia_matvec():
-    from scipy.sparse._sparsetools import dia_matvec
-
-    rng = np.random.default_rng(0)
-    for n_row, n_col in [(50, 50), (30, 70), (70, 30)]:
-        offsets = np.array([0, 1, -1, 7, -9, 40, -45], dtype=np.int32)
-        length = max(n_row, n_col)
-        data = rng.random((len(offsets), length))
-        x = rng.random(n_col)
-        y0 = rng.random(n_row)
-        a, b = y0.copy(), y0.copy()
-        dia_matvec(n_row, n_col, len(offsets), length, offsets, data, x, a)
-        kernels._dia_matvec_numpy(n_row, n_col, len(offsets), length, offsets, data, x, b)
-        np.testing.assert_allclose(a, b, rtol=0, atol=1e-13)

@@ -129,14 +129,18 @@ class RingSensor(Sensor):
     def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The 25 window cells in row-major order (zero off the grid), then nothing."""
         h, w = self.grid.shape
-        if states.shape[0] == 1:  # the same draw, its probabilities kept per cell
-            r, c = states[0, 1:].tolist()
-            k = self._draw_one((r, c), lambda: self._window(states)[0][0], rng)
-            return np.array([self.nothing if k == 25 else (r + k // 5 - 2) * w + c + k % 5 - 2])
+        if states.shape[0] == 1:
+            return np.array([self.sample_one(tuple(states[0].tolist()), rng)])
         probs, rr, cc = self._window(states)
         k = self._categorical(probs, rng)
         cell = np.take_along_axis(rr * w + cc, np.minimum(k, 24)[:, None], axis=1)[:, 0]
         return np.where(k == 25, self.nothing, cell)
+
+    def sample_one(self, state: tuple[int, int, int], rng: np.random.Generator) -> int:
+        """The same draw as :meth:`sample`, its probabilities kept per cell."""
+        key = state[1:]
+        k = self._draw_one(key, lambda: self._window(np.array([state], dtype=np.int64))[0][0], rng)
+        return self.nothing if k == 25 else (key[0] + k // 5 - 2) * self.grid.shape[1] + key[1] + k % 5 - 2
 
     def _window(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(probabilities (N, 26), rows (N, 25), columns (N, 25))`` of each state's readings."""

@@ -83,14 +83,22 @@ class Sensor(ABC):
     def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """One reading per state ``(N, 3)``, (N,) int64, drawn with ``rng``."""
 
+    def sample_one(self, state: tuple[int, int, int], rng: np.random.Generator) -> int:
+        """:meth:`sample` for one state ``(layer, row, col)`` (a tuple of ints): the same draws,
+        as an ``int`` (the single environment's hot loop)."""
+        return int(self.sample(np.array([state], dtype=np.int64), rng)[0])
+
     def _draw_one(self, key: Any, row_of, rng: np.random.Generator) -> int:
         """:meth:`_categorical` for one state (the same uniform and arithmetic), its row of
         probabilities ``row_of()`` summed once per state ``key`` and kept while few are kept."""
-        rows = self.__dict__.setdefault("_rows", {})
+        rows = self.__dict__.get("_rows")
+        if rows is None:
+            rows = self.__dict__["_rows"] = {}
         found = rows.get(key)
         if found is None:
             row = row_of()
-            found = (np.cumsum(row).tolist(), row.sum(), row.size - 1)
+            # (the total as a Python float: the same product with the uniform, without numpy scalars)
+            found = (np.cumsum(row).tolist(), float(row.sum()), row.size - 1)
             if len(rows) < self.ROWS_CACHED:
                 rows[key] = found
         cum, total, last = found
@@ -202,9 +210,12 @@ class TableSensor(Sensor):
 
     def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         if states.shape[0] == 1:
-            key = tuple(states[0].tolist()) if self.layered else tuple(states[0, 1:].tolist())
-            return np.array([self._draw_one(key, lambda: self._columns(states)[0], rng)])
+            return np.array([self.sample_one(tuple(states[0].tolist()), rng)])
         return self._categorical(self._columns(states), rng)
+
+    def sample_one(self, state: tuple[int, int, int], rng: np.random.Generator) -> int:
+        key = state if self.layered else state[1:]
+        return self._draw_one(key, lambda: self.table[(slice(None), *key)], rng)
 
     def likelihoods(self, readings: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         flat = self.table.reshape(self.table.shape[0], -1)
@@ -270,18 +281,24 @@ class WallSensor(TableSensor):
         self._set_table(table)
 
     def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        if states.shape[0] == 1:  # the same draws and comparisons, on scalars
-            r, c = states[0, 1:].tolist()
-            rows = self.__dict__.setdefault("_rows", {})
-            p = rows.get((r, c))
-            if p is None:
-                p = self.p_bits[:, r, c].tolist()
-                if len(rows) < self.ROWS_CACHED:
-                    rows[(r, c)] = p
-            u = rng.random(4).tolist()
-            return np.array([(u[0] < p[0]) * 8 + (u[1] < p[1]) * 4 + (u[2] < p[2]) * 2 + (u[3] < p[3])])
+        if states.shape[0] == 1:
+            return np.array([self.sample_one(tuple(states[0].tolist()), rng)])
         bits = rng.random((states.shape[0], 4)) < self.p_bits[:, states[:, 1], states[:, 2]].T
         return bits.astype(np.int64) @ self._BITS
+
+    def sample_one(self, state: tuple[int, int, int], rng: np.random.Generator) -> int:
+        """The same draws and comparisons as :meth:`sample`, on scalars."""
+        key = state[1:]
+        rows = self.__dict__.get("_rows")
+        if rows is None:
+            rows = self.__dict__["_rows"] = {}
+        p = rows.get(key)
+        if p is None:
+            p = self.p_bits[(slice(None), *key)].tolist()
+            if len(rows) < self.ROWS_CACHED:
+                rows[key] = p
+        u = rng.random(4).tolist()
+        return (u[0] < p[0]) * 8 + (u[1] < p[1]) * 4 + (u[2] < p[2]) * 2 + (u[3] < p[3])
 
     def to_observation(self, reading: int) -> np.ndarray:
         if type(reading) is int and 0 <= reading < 16:

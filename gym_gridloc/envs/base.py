@@ -56,11 +56,13 @@ class GridLocEnv(gym.Env):
         self.observation_space = model.sensor.observation_space
         self.action_space = spaces.Discrete(model.n_actions)
         self._n_actions = model.n_actions
-        self._referee = ForwardFilter(model)
+        self._referee = ForwardFilter(model, read_every_step=True)
+        self._sample = engine.sampler(model)  # the engine's move and reading of one robot
+        self._to_observation = model.sensor.to_observation
         self._fixed_model = model
         self._builder = builder
         self._map_factory = map_factory
-        self._states: np.ndarray | None = None  # (1, 3): layer, row, col
+        self._state: tuple[int, int, int] | None = None  # layer, row, col
         self._last_reading: int | None = None
         self._last_action: int | None = None
         self._elapsed = 0
@@ -87,15 +89,16 @@ class GridLocEnv(gym.Env):
         elif self.model is not self._fixed_model:
             self._set_model(self._fixed_model)
         start = self._start_state(options)
-        self._states = start if start is not None else engine.sample_initial(self.model, 1, self.np_random)
+        states = start if start is not None else engine.sample_initial(self.model, 1, self.np_random)
         self._last_action = None
         self._elapsed = 0
-        obs = self._read()
-        self._referee.reset(reading=self._last_reading)
-        return obs, self._info()
+        self._last_reading = reading = int(engine.sample_readings(self.model, states, self.np_random)[0])
+        self._state = tuple(states[0].tolist())
+        self._referee.reset(reading=reading)
+        return self.model.sensor.to_observation(reading), self._info()
 
     def step(self, action):
-        if self._states is None:
+        if self._state is None:
             raise RuntimeError("call reset() before step()")
         if type(action) is int and 0 <= action < self._n_actions:  # the common case, without the space's checks
             a = action
@@ -103,11 +106,12 @@ class GridLocEnv(gym.Env):
             a = int(action)
         else:
             raise ValueError(f"action {action!r} is not in the action space {self.action_space} ({self.model.action_legend})")
-        self._states = engine.sample_next(self.model, self._states, a, self.np_random)
+        self._state, reading = self._sample(self._state, a, self._np_random)  # engine.sample_next, sample_readings
         self._last_action = a
+        self._last_reading = reading
         self._elapsed += 1
-        obs = self._read()
-        self._referee.step(a, reading=self._last_reading)  # the reading drawn: no round trip through obs
+        obs = self._to_observation(reading)
+        self._referee.step(a, reading=reading)  # the reading drawn: no round trip through obs
         info = self._info()
         if self.episode_length is None:
             terminated, truncated = bool(info["localised"]), False
@@ -122,7 +126,7 @@ class GridLocEnv(gym.Env):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode=... to gym.make")
             return None
-        if self._states is None:
+        if self._state is None:
             raise RuntimeError("call reset() before render()")
         from gym_gridloc import rendering
 
@@ -172,7 +176,9 @@ class GridLocEnv(gym.Env):
             )
         if model is not self.model:
             self.model = model
-            self._referee = ForwardFilter(model)
+            self._referee = ForwardFilter(model, read_every_step=True)
+            self._sample = engine.sampler(model)
+            self._to_observation = model.sensor.to_observation
 
     def _start_state(self, options) -> np.ndarray | None:
         """The start state a reset option asks for, as (1, 3), or None (draw it)."""
@@ -189,19 +195,22 @@ class GridLocEnv(gym.Env):
             )
         return np.array([st], dtype=np.int64)
 
-    def _read(self):
-        reading = int(engine.sample_readings(self.model, self._states, self.np_random)[0])
-        self._last_reading = reading
-        return self.model.sensor.to_observation(reading)
-
     def _info(self) -> dict[str, Any]:
-        return referee.summary(self._referee.full_belief, self._states[0], self.localise_threshold, pose=self.referee_pose)
+        return referee.summary(self._referee.belief_view, self._state, self.localise_threshold, pose=self.referee_pose)
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k not in ("_sample", "_to_observation")}  # (rebuilt on load)
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._sample = engine.sampler(self.model)
+        self._to_observation = self.model.sensor.to_observation
 
     # Exposed for renderers and tests: the true hidden state and the referee's posterior.
     @property
     def state(self) -> tuple[int, int, int] | None:
         """The true hidden state ``(layer, row, col)`` (not part of the observation)."""
-        return None if self._states is None else tuple(int(v) for v in self._states[0])
+        return self._state
 
     @property
     def exact_filter(self) -> ForwardFilter:

@@ -1,0 +1,139 @@
+"""The single step's fast paths (issue 22 item 5) give the numbers of the code they replace, bit for
+bit: the compiled readout of one belief (the referee's summary, the observed float32 belief)
+against their numpy code, a referee filter normalised in its step against the lazy one read after
+every step, the engine's one-robot sampler against the batched draws, and the numpy diagonal pass
+against its definition."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import gym_gridloc
+from gym_gridloc import ForwardFilter, engine, kernels, observation, referee
+
+needs_numba = pytest.mark.skipif(kernels.compiled(1) is None, reason="numba is not installed (or switched off)")
+
+
+def beliefs(rng: np.random.Generator):
+    """Beliefs of many shapes and spreads: 1 to 4 layers, up to just below the compiled path's
+    limit (the pairwise sums' blocks and halves), zeros, ties, a sure belief."""
+    shapes = [(1, 1, 1), (1, 1, 7), (1, 6, 7), (4, 7, 7), (2, 3, 5), (1, 11, 12), (1, 40, 41), (4, 17, 19),
+              (1, 127, 129), (3, 50, 60)]
+    for shape in shapes:
+        for power in (1.0, 4.0, 40.0):
+            b = rng.random(shape) ** power
+            b[rng.random(shape) < 0.3] = 0.0
+            b.reshape(-1)[0] += 1e-3
+            yield b / b.sum()
+        tie = np.zeros(shape)
+        tie.reshape(-1)[[0, -1]] = 0.5
+        yield tie
+        sure = np.zeros(shape)
+        sure.reshape(-1)[-1] = 1.0
+        yield sure
+
+
+def numpy_only(monkeypatch):
+    monkeypatch.setattr(kernels, "AVAILABLE", False)
+    assert kernels.compiled(1) is None
+
+
+def same(a, b) -> bool:
+    """Equal to the bit, with the same types (floats compared by repr, arrays by bytes)."""
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
+    if isinstance(a, np.ndarray):
+        return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+    if isinstance(a, tuple):
+        return type(b) is tuple and len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
+    return type(a) is type(b) and repr(a) == repr(b)
+
+
+@needs_numba
+@pytest.mark.parametrize("pose", [False, True])
+def test_compiled_summary_equals_numpy_summary(pose, monkeypatch):
+    rng = np.random.default_rng(0)
+    cases = list(beliefs(rng))
+    fast = [referee.summary(b, (0, 0, 0), 0.5, pose=pose) for b in cases]
+    numpy_only(monkeypatch)
+    for b, got in zip(cases, fast):
+        ref = referee.summary(b, (0, 0, 0), 0.5, pose=pose)
+        assert same(got, ref), (b.shape, got, ref)
+
+
+@needs_numba
+@pytest.mark.parametrize("full_state", [False, True])
+def test_compiled_observed_belief_equals_numpy(full_state, monkeypatch):
+    rng = np.random.default_rng(1)
+    cases = list(beliefs(rng))
+    cases.append(np.full((2, 3, 3), 0.75))  # sums above 1: clipped
+    fast = [observation.observed_belief(b, full_state) for b in cases]
+    numpy_only(monkeypatch)
+    for b, got in zip(cases, fast):
+        assert same(got, observation.observed_belief(b, full_state)), b.shape
+
+
+@pytest.mark.parametrize("no_numba", [False, True])
+@pytest.mark.parametrize("env_id, kwargs", [("WindyMaze-v0", {}), ("DepthMaze-v0", {"map_seed": 3}),
+                                             ("ColourGrid-v0", {"kidnap_prob": 0.05}),
+                                             ("WindyMaze-v0", {"size": 131})])
+def test_a_filter_normalised_in_its_step_equals_the_lazy_one_read_every_step(env_id, kwargs, no_numba, monkeypatch):
+    if no_numba:
+        numpy_only(monkeypatch)
+    model = gym.make(env_id, **kwargs).unwrapped.model
+    _, actions, readings = engine.simulate(model, 60, np.random.default_rng(2))
+    lazy = ForwardFilter(model).reset(reading=int(readings[0]))
+    eager = ForwardFilter(model, read_every_step=True).reset(reading=int(readings[0]))
+    for a, r in zip(actions.tolist(), readings[1:].tolist()):
+        lazy.step(a, reading=r)
+        eager.step(a, reading=r)
+        assert lazy.full_belief.tobytes() == eager.belief_view.tobytes()
+        assert repr(lazy.log_likelihood) == repr(eager.log_likelihood)
+
+
+@pytest.mark.parametrize("env_id, kwargs", [("WindyMaze-v0", {}), ("ColourGrid-v0", {}), ("RingSensor8x8-v0", {}),
+                                             ("RingSensor8x8-v0", {"dynamics": "passive"}), ("DepthMaze-v0", {}),
+                                             ("ColourGrid-v0", {"kidnap_prob": 0.2})])
+def test_the_one_robot_sampler_draws_what_the_batched_functions_draw(env_id, kwargs):
+    model = gym.make(env_id, **kwargs).unwrapped.model
+    sample = engine.sampler(model)
+    one, batch = np.random.default_rng(3), np.random.default_rng(3)
+    state = tuple(engine.sample_initial(model, 1, one)[0].tolist())
+    states = engine.sample_initial(model, 1, batch)
+    actions = np.random.default_rng(4).integers(model.n_actions, size=300).tolist()
+    for k, a in enumerate(actions):
+        state, reading = sample(state, np.int64(a) if k % 5 == 0 else a, one)
+        states = engine.sample_next(model, states, a, batch)
+        assert type(reading) is int and all(type(v) is int for v in state)
+        assert state == tuple(states[0].tolist())
+        assert reading == int(engine.sample_readings(model, states, batch)[0])
+    assert one.random() == batch.random()  # as many draws
+
+
+def test_diagonal_add_is_the_dia_product_of_one_diagonal():
+    rng = np.random.default_rng(5)
+    for n, chunk in [(50, 7), (50, 50), (1000, 64), (300, 1)]:
+        tmp = np.empty(chunk)
+        for offset in (0, 1, -1, 7, -9, n - 1, 1 - n, n, -n - 3):
+            w, x, y = rng.random(n), rng.random(n), rng.random(n)
+            ref = y.copy()
+            for i in range(n):  # y[i] += w[j] x[j], j = i + offset
+                j = i + offset
+                if 0 <= j < n:
+                    ref[i] = ref[i] + w[j] * x[j]
+            kernels.diagonal_add(w, x, y, offset, tmp)
+            assert y.tobytes() == ref.tobytes(), (n, chunk, offset)
+
+
+def test_the_single_step_pickles_with_its_environment():
+    import pickle
+
+    env = gym_gridloc.HMMBeliefWrapper(gym.make("WindyMaze-v0"))
+    env.reset(seed=0)
+    env.step(1)
+    copy = pickle.loads(pickle.dumps(env))
+    for a in (0, 2, 3, 1):
+        one, two = env.step(a), copy.step(a)
+        assert same(one[4], two[4]) and same(one[0]["belief"], two[0]["belief"])
