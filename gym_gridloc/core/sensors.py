@@ -291,7 +291,7 @@ class WallSensor(TableSensor):
         return bits.astype(np.int64) @ self._BITS
 
     def sample_one(self, state: tuple[int, int, int], rng: np.random.Generator) -> int:
-        """The same draws and comparisons as :meth:`sample`, on scalars."""
+        """The same draws and comparisons as ``sample``, on scalars."""
         key = state[1:]
         rows = self.__dict__.get("_rows")
         if rows is None:
