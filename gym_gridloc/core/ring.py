@@ -137,7 +137,7 @@ class RingSensor(Sensor):
         return np.where(k == 25, self.nothing, cell)
 
     def sample_one(self, state: tuple[int, int, int], rng: np.random.Generator) -> int:
-        """The same draw as ``sample``, its probabilities kept per cell."""
+        """The same draw as :meth:`gym_gridloc.core.sensors.Sensor.sample`, its probabilities kept per cell."""
         key = state[1:]
         k = self._draw_one(key, lambda: self._window(np.array([state], dtype=np.int64))[0][0], rng)
         return self.nothing if k == 25 else (key[0] + k // 5 - 2) * self.grid.shape[1] + key[1] + k % 5 - 2

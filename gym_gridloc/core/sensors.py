@@ -20,7 +20,7 @@ import numpy as np
 from gymnasium import spaces
 
 from gym_gridloc.core.grid import DIRECTIONS, GridMap, read_only
-from gym_gridloc.core.validation import check_probability
+from gym_gridloc.core.validation import check_probability, whole_numbers
 
 
 class Sensor(ABC):
@@ -141,7 +141,7 @@ class Sensor(ABC):
         (``(N,)`` ints for ``Discrete``); a clear error for anything else."""
         obs = np.asarray(observations)
         space = self.observation_space
-        if obs.shape != (n,) or not (np.issubdtype(obs.dtype, np.integer) or self._whole(obs)):
+        if obs.shape != (n,) or not whole_numbers(obs):
             what = f"observation {single!r}" if single is not None else "observations"
             raise ValueError(f"{what} must be {'an integer' if single is not None else f'{n} integers (one per belief)'} in the sensor's space {space}, got {observations!r}")
         readings = obs.astype(np.int64) - int(space.start)
@@ -155,10 +155,6 @@ class Sensor(ABC):
             shown = single if single is not None else obs[i].tolist()
             where = "" if single is not None else f" of belief {i}"
             raise ValueError(f"observation {shown!r}{where} is not in the sensor's space {self.observation_space}")
-
-    @staticmethod
-    def _whole(obs: np.ndarray) -> bool:
-        return obs.dtype != object and np.issubdtype(obs.dtype, np.floating) and bool(np.all(np.isfinite(obs))) and bool(np.all(obs == np.round(obs)))
 
     @property
     def encoded_size(self) -> int:
@@ -291,7 +287,7 @@ class WallSensor(TableSensor):
         return bits.astype(np.int64) @ self._BITS
 
     def sample_one(self, state: tuple[int, int, int], rng: np.random.Generator) -> int:
-        """The same draws and comparisons as ``sample``, on scalars."""
+        """The same draws and comparisons as :meth:`Sensor.sample`, on scalars."""
         key = state[1:]
         rows = self.__dict__.get("_rows")
         if rows is None:
@@ -322,7 +318,7 @@ class WallSensor(TableSensor):
 
     def readings(self, observations: Any, n: int, *, single: Any = None) -> np.ndarray:
         obs = np.asarray(observations)
-        if obs.shape != (n, 4) or not (np.issubdtype(obs.dtype, np.integer) or obs.dtype == bool or self._whole(obs)):
+        if obs.shape != (n, 4) or not (obs.dtype == bool or whole_numbers(obs)):
             what = f"observation {single!r}" if single is not None else "observations"
             raise ValueError(f"{what} must be {'4 bits' if single is not None else f'({n}, 4) bits (four per belief)'} (W, N, E, S) in {self.observation_space}, got {observations!r}")
         bits = obs.astype(np.int64)
