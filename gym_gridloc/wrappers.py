@@ -287,8 +287,8 @@ def with_previous_action(observation_space: spaces.Space, n_actions: int, observ
     flat = spaces.flatten(observation_space, observation)
     out = np.zeros(flat.shape[0] + n_actions + 1, dtype=np.float32)
     out[: flat.shape[0]] = flat
-    slot = n_actions if previous is None else int(previous)
-    if not 0 <= slot <= n_actions or (previous is not None and slot == n_actions):
+    slot = n_actions if previous is None else int(previous)  # the last slot: no action yet
+    if previous is not None and not 0 <= slot < n_actions:
         raise ValueError(f"previous action must be in 0..{n_actions - 1} or None, got {previous!r}")
     out[flat.shape[0] + slot] = 1.0
     return out

@@ -562,6 +562,8 @@ def test_expert_episodes_are_shared_with_sibling_trainings(tmp_path, monkeypatch
 def test_recurrent_with_previous_action_trains_and_acts_on_it(tmp_path):
     """wrapper.previous_action: the model reads PreviousActionWrapper's observation in training,
     and the benchmark's RecurrentPolicy builds the same one (its own previous action)."""
+    from gymnasium import spaces
+
     from gym_gridloc.wrappers import previous_action_space
 
     cfg = tiny(tmp_path, algo="recurrent_ppo", wrapper={"belief": False, "previous_action": True},
@@ -570,7 +572,7 @@ def test_recurrent_with_previous_action_trains_and_acts_on_it(tmp_path):
     model = gym_gridloc.colour_grid_model()
     policy = RecurrentPolicy(model, env_id="ColourGrid-v0", path=tmp_path / "model.zip")
     assert policy.previous_action
-    assert policy.sb3.observation_space == previous_action_space(model.sensor.observation_space, spaces_discrete(4))
+    assert policy.sb3.observation_space == previous_action_space(model.sensor.observation_space, spaces.Discrete(4))
     seen = []
     real_predict = policy.sb3.predict
     policy.sb3.predict = lambda obs, **kw: (seen.append(np.asarray(obs).copy()), real_predict(obs, **kw))[1]
@@ -587,12 +589,6 @@ def test_recurrent_with_previous_action_trains_and_acts_on_it(tmp_path):
     cfg = tiny(tmp_path / "raw", algo="recurrent_ppo", policy_kwargs={"lstm_hidden_size": 8, "net_arch": [8]})
     train(cfg, progress_bar=False)
     assert not RecurrentPolicy(model, env_id="ColourGrid-v0", path=tmp_path / "raw" / "model.zip").previous_action
-
-
-def spaces_discrete(n):
-    from gymnasium import spaces
-
-    return spaces.Discrete(n)
 
 
 @pytest.mark.parametrize("wrapper, vec_env, match", [
