@@ -204,3 +204,71 @@ def observed32(flat, n_layers, out):  # pragma: no cover - compiled
         for layer in range(1, n_layers):
             x += flat[layer * hw + i]
         out[i] = min(np.float32(x), np.float32(1.0))
+
+
+# -- a batch of N: the native vector environment's step ---------------------------------------------
+@numba.njit(cache=True, nogil=True)
+def sample_moves(weights, keys, actions, states, u, width, out):  # pragma: no cover - compiled
+    """The engine's draw of N next states (``engine.sample_next`` without kidnapping), with the
+    same arithmetic: state ``i`` under action ``actions[i]`` takes the first term whose running
+    sum (left to right, as ``np.cumsum``) exceeds ``u[i]`` times the total, or, when the product
+    rounds up to the total, the last term of positive weight.  ``weights`` ``(A + 1, K, H*W)`` and
+    ``keys`` ``(A + 1, 4, K)`` are the engine's padded tables; ``states``/``out`` ``(N, 3)``."""
+    K = weights.shape[1]
+    cum = np.empty(K)
+    for i in range(states.shape[0]):
+        a = actions[i]
+        layer, r, c = states[i, 0], states[i, 1], states[i, 2]
+        cell = r * width + c
+        total = 0.0
+        last = K - 1
+        for k in range(K):
+            p = weights[a, k, cell] if keys[a, 0, k] == layer else 0.0
+            total += p
+            cum[k] = total
+            if p > 0.0:
+                last = k
+        target = u[i] * total
+        chosen = last
+        for k in range(K):
+            if target < cum[k]:
+                chosen = k
+                break
+        out[i, 0] = keys[a, 1, chosen]
+        out[i, 1] = r + keys[a, 2, chosen]
+        out[i, 2] = c + keys[a, 3, chosen]
+
+
+@numba.njit(cache=True, nogil=True)
+def batch_readout(flat, n_layers, pose, width, states, threshold, pos, q, k, confidence, estimate, error, localised, success, layer):  # pragma: no cover - compiled
+    """:func:`readout` of N hidden-state beliefs ``flat`` (N, L*H*W) and the referee's arrays of
+    ``referee.summarise`` (the same numbers): ``pos``/``q`` (N, H*W) as :func:`readout` fills
+    them, then per row the index ``k`` of the largest tested value, its ``confidence``, the
+    ``estimate`` (row, column), the Manhattan ``error`` to the true ``states`` (layer, row, col),
+    ``localised`` (confidence >= threshold), ``success`` and the estimated ``layer`` (pose)."""
+    hw = pos.shape[1]
+    for i in range(flat.shape[0]):
+        j = readout(flat[i], n_layers, pose, pos[i], q[i])
+        conf = flat[i, j] if pose else pos[i, j]
+        cell = j % hw if pose and n_layers > 1 else j
+        er, ec = cell // width, cell % width
+        lay = j // hw
+        e = abs(er - states[i, 1]) + abs(ec - states[i, 2])
+        k[i] = j
+        confidence[i] = conf
+        estimate[i, 0] = er
+        estimate[i, 1] = ec
+        error[i] = e
+        localised[i] = conf >= threshold
+        right = e == 0
+        if pose:
+            right = right and lay == states[i, 0]
+        success[i] = localised[i] and right
+        layer[i] = lay
+
+
+@numba.njit(cache=True, nogil=True)
+def batch_entropy(pos, log2q, out):  # pragma: no cover - compiled
+    """:func:`entropy_sum` of each row: ``out[i] = -np.add.reduce(pos[i] * log2q[i]) + 0.0``."""
+    for i in range(pos.shape[0]):
+        out[i] = entropy_sum(pos[i], log2q[i])

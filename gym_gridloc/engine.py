@@ -11,6 +11,7 @@ the particle filter, smoothing and Viterbi, and the lookahead policies.
   normalise, and raise one :class:`~gym_gridloc.ImpossibleObservationError` when a reading has
   probability zero.
 * :func:`backward` -- the transpose of :func:`predict` (the backward pass of smoothing).
+* :func:`first_posterior` -- an episode's first beliefs: the prior conditioned on N readings.
 * :func:`sample_initial`, :func:`sample_next`, :func:`sample_readings` -- the simulator's side,
   batched: states are ``(N, 3)`` int64 arrays of ``(layer, row, col)``.
 
@@ -46,7 +47,7 @@ from gym_gridloc.core.validation import whole_numbers
 
 __all__ = [
     "predict", "update", "step", "backward", "kidnapped", "transition_matrix", "likelihood", "likelihoods", "impossible", "plan",
-    "sample_initial", "sample_next", "sample_readings", "sampler", "stepper", "states_of", "simulate", "action_indices", "path", "terms",
+    "first_posterior", "sample_initial", "sample_next", "sample_readings", "sampler", "stepper", "states_of", "simulate", "action_indices", "path", "terms",
     "checked_model",
 ]
 
@@ -65,6 +66,8 @@ class _Derived:
         self.layered = int(model.sensor.layered)
         self._steppers: dict[bool, Any] = {}
         self._sampler: Any = None
+        self._first: tuple[np.ndarray, np.ndarray] | None = None
+        self._first_asked = 0
         #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
         #: ``(cumulative probabilities, last possible outcome)`` (one-state draws).
         self.outcomes: dict[tuple[int, int, int, int], tuple[list[float], int]] = {}
@@ -92,7 +95,28 @@ class _Derived:
         ``weights`` ``(A + 1, K, H*W)`` and ``keys`` ``(A + 1, 4, K)`` (source layer, destination
         layer, row shift, column shift; a padding term's source is -1): :func:`kernels.padded`."""
         weights, keys = kernels.padded(self.transitions, self.model().shape)
-        return weights, keys[:, :4]
+        return weights, np.ascontiguousarray(keys[:, :4])
+
+    #: :func:`first_posterior` keeps every reading's posterior when (readings x cells) is at most this.
+    FIRST_TABLE_MAX = 2**18
+
+    def first_table(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(posteriors (R, L*H*W), possible (R,))`` of the prior and each reading, built on the
+        second request (a model used once, e.g. a map of one episode, never builds it); None
+        when too large."""
+        if self._first is None:
+            model = self.model()
+            R, size = model.sensor.n_readings, int(np.prod(model.belief_shape))
+            if R * size > self.FIRST_TABLE_MAX or self._first_asked == 0:
+                self._first_asked += 1
+                return None
+            flat = np.broadcast_to(model.prior().reshape(1, -1), (R, size)).copy()
+            post = _weighted(model, flat, likelihoods(model, np.arange(R)))
+            z = post.sum(axis=1)
+            ok = (z > 0.0) & np.isfinite(z)
+            np.divide(post, np.where(ok, z, 1.0)[:, None], out=post)
+            self._first = (read_only(post), read_only(ok))
+        return self._first
 
     @functools.cached_property
     def plan(self) -> kernels.NumbaPlan | kernels.NumpyPlan:
@@ -132,6 +156,9 @@ def action_indices(model: GridModel, actions: Any, n: int) -> np.ndarray:
     """``actions`` as ``n`` plan indices (int64): each an action in ``0..A-1``, or ``A`` for an
     unknown action (``None``, alone or as an element).  A scalar applies to all ``n``."""
     A = checked_model(model).n_actions
+    if type(actions) is np.ndarray and actions.dtype == np.int64 and actions.shape == (n,) and (
+            n == 0 or (actions.min() >= 0 and actions.max() < A)):
+        return actions  # already N plan indices (the batched callers' common case)
     if actions is None:
         return np.full(n, A, dtype=np.int64)
     if np.ndim(actions) == 0:
@@ -307,12 +334,40 @@ def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
             raise impossible(model, int(rs[0]))
         np.divide(post, z1, out=flat[0])
         return np.array([z1])
-    lik = likelihoods(model, rs)
-    post = flat * lik if lik.shape[1] == flat.shape[1] else (flat.reshape(n, model.n_layers, -1) * lik[:, None, :]).reshape(n, -1)
+    post = _weighted(model, flat, likelihoods(model, rs))
     z = post.sum(axis=1)
     _check_z(model, z, rs)
     np.divide(post, z[:, None], out=flat)
     return z
+
+
+def _weighted(model: GridModel, flat: np.ndarray, lik: np.ndarray) -> np.ndarray:
+    """Flat beliefs ``(N, L*H*W)`` times their likelihoods (``(N, H*W)``, or ``(N, L*H*W)`` layered)."""
+    if lik.shape[1] == flat.shape[1]:
+        return flat * lik
+    return (flat.reshape(flat.shape[0], model.n_layers, -1) * lik[:, None, :]).reshape(flat.shape[0], -1)
+
+
+def first_posterior(model: GridModel, readings: Any) -> np.ndarray:
+    """The beliefs after the first reading of an episode: the prior conditioned on each of N
+    ``readings``, ``(N, L, H, W)`` (what :func:`update` gives on N copies of ``model.prior()``,
+    the same numbers).  From the second call on a model, while (readings x states) is small, the
+    posterior of every reading is computed once and each call is a gather."""
+    d = _derived(model)
+    rs = np.asarray(readings, dtype=np.int64).reshape(-1)
+    table = d.first_table()
+    if table is None:
+        post = np.broadcast_to(model.prior(), (rs.size, *model.belief_shape)).copy()
+        update(model, post, rs)
+        return post
+    posts, ok = table
+    bad = ~ok.take(rs, mode="clip") | (rs < 0) | (rs >= ok.size)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        if not 0 <= rs[i] < ok.size:
+            raise ValueError(f"reading {rs[i]} of belief {i} is outside 0..{ok.size - 1}")
+        raise impossible(model, int(rs[i]), label=f"observation {model.sensor.observation_text(int(rs[i]))} of belief {i}")
+    return posts.take(rs, axis=0).reshape(rs.size, *model.belief_shape)
 
 
 def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out: np.ndarray | None = None,
@@ -467,6 +522,15 @@ def sample_next(model: GridModel, states: np.ndarray, actions: Any, rng: np.rand
         return out
     u = rng.random(moving.size)
     weights, keys = d.moves
+    fast = kernels.compiled(model.n_layers * model.shape[0] * model.shape[1])
+    if fast is not None:  # one compiled pass, the same arithmetic (tests/test_readout.py)
+        if moving.size == n:
+            fast.sample_moves(weights, keys, acts, st, u, model.shape[1], out)
+        else:
+            moved = np.empty((moving.size, 3), dtype=np.int64)
+            fast.sample_moves(weights, keys, acts[moving], st[moving], u, model.shape[1], moved)
+            out[moving] = moved
+        return out
     acts, st_m = acts[moving], st[moving]
     p = weights[acts, :, st_m[:, 1] * model.shape[1] + st_m[:, 2]]  # (n, K): each state's action's terms
     key = keys[acts]  # (n, 4, K)

@@ -53,6 +53,9 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     position belief in bits.
     """
     n, L, h, w = beliefs.shape
+    fast = kernels.compiled(L * h * w) if beliefs.dtype.char == "d" and beliefs.flags.c_contiguous else None
+    if fast is not None and n > 0:
+        return _summarise_compiled(fast, beliefs, states, threshold, pose)
     flat = beliefs.reshape(n, -1)
     pflat = flat if L == 1 else beliefs.sum(axis=1).reshape(n, -1)
     tested = flat if pose else pflat
@@ -79,6 +82,30 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     }
     if L > 1:
         info["heading"] = states[:, 0].copy()
+    if pose:
+        info["estimate_heading"] = layer
+    return info
+
+
+def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold: float, pose: bool) -> dict[str, np.ndarray]:
+    """:func:`summarise` on small float64 beliefs: one compiled pass for the readout, numpy's
+    log2, one compiled pass for the entropies (the same numbers; ``tests/test_readout.py``)."""
+    n, L, h, w = beliefs.shape
+    hw = h * w
+    flat = beliefs.reshape(n, -1)
+    st = np.ascontiguousarray(states, dtype=np.int64)
+    pos, q = np.empty((n, hw)), np.empty((n, hw))
+    k, layer = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    confidence, estimate = np.empty(n), np.empty((n, 2), dtype=np.int64)
+    error = np.empty(n, dtype=np.int64)
+    localised, success = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
+    fast.batch_readout(flat, L, pose, w, st, float(threshold), pos, q, k, confidence, estimate, error, localised, success, layer)
+    ent = np.empty(n)
+    fast.batch_entropy(pos, np.log2(q, out=q), ent)
+    info = {"position": st[:, 1:3].copy(), "estimate": estimate, "confidence": confidence, "error": error,
+            "localised": localised, "success": success, "entropy": ent}
+    if L > 1:
+        info["heading"] = st[:, 0].copy()
     if pose:
         info["estimate_heading"] = layer
     return info

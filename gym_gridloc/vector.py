@@ -139,16 +139,21 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         for i, m in enumerate(self.models):
             groups.setdefault(id(m), []).append(i)
         self._groups = [np.array(g) for g in groups.values()]
+        self._group_of = np.empty(self.num_envs, dtype=np.int64)  # each env's group, groups in order
+        for k, g in enumerate(self._groups):
+            self._group_of[g] = k
 
     def _by_model(self, idx: np.ndarray):
-        """``(model, indices)`` for the environments ``idx``, one pair per distinct model."""
+        """``(model, indices)`` for the environments ``idx``, one pair per distinct model, in the
+        order of the groups (each model's first environment), indices ascending within each."""
         if len(self._groups) == 1:
             yield self.models[0], idx
             return
-        for g in self._groups:
-            sub = g[np.isin(g, idx)]
-            if sub.size:
-                yield self.models[sub[0]], sub
+        gid = self._group_of[idx]
+        order = np.argsort(gid, kind="stable")
+        cuts = np.flatnonzero(np.diff(gid[order])) + 1
+        for sub in np.split(idx[order], cuts):
+            yield self.models[sub[0]], sub
 
     def _restart(self, idx: np.ndarray) -> None:
         """Start new episodes in the environments ``idx``: maps (if redrawn), states, readings,
@@ -163,9 +168,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._states[sub] = engine.sample_initial(model, sub.size, rng)
         for model, sub in self._by_model(idx):  # each group's beliefs after its readings (they draw nothing)
             self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
-            post = np.broadcast_to(model.prior(), (sub.size, *model.belief_shape)).copy()
-            engine.update(model, post, self._readings[sub])
-            self._beliefs[sub] = post
+            self._beliefs[sub] = engine.first_posterior(model, self._readings[sub])
         self._elapsed[idx] = 0
 
     def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
@@ -276,6 +279,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
 
     def _actions(self, actions: Any, resetting: np.ndarray) -> np.ndarray:
         n, k = self.num_envs, self.single_action_space.n
+        if type(actions) is np.ndarray and actions.dtype == np.int64 and actions.shape == (n,) and actions.min() >= 0 and actions.max() < k:
+            return actions * ~resetting  # (the common case: a new array, 0 where resetting)
         acts = np.asarray(actions)
         if acts.shape != (n,) or not whole_numbers(acts):
             raise ValueError(f"actions must be {n} integers in 0..{k - 1}, got {actions!r}")

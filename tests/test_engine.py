@@ -237,6 +237,8 @@ def test_bad_arguments_are_named():
     batch = np.stack([b, b, b])
     with pytest.raises(ValueError, match=r"^action 4 of belief 2 is outside 0\.\.3$"):
         engine.predict(model, batch, np.array([0, 0, 4]))
+    with pytest.raises(ValueError, match=r"^action -1 of belief 0 is outside 0\.\.3$"):
+        engine.sample_next(model, np.zeros((3, 3), dtype=np.int64) + [0, 1, 1], np.array([-1, 0, 0]), np.random.default_rng(0))
     with pytest.raises(ValueError, match=r"actions must be 3 actions \(one per belief\), got shape \(2,\)"):
         engine.predict(model, batch, np.array([0, 1]))
     with pytest.raises(ValueError, match=r"actions must be integers in 0\.\.3"):
@@ -253,6 +255,34 @@ def test_bad_arguments_are_named():
         engine.update(model, b.astype(np.float32), 0)
     with pytest.raises(TypeError, match="expected a GridModel, got str"):
         engine.path("windy")
+
+
+@pytest.mark.parametrize("name", ["colour", "maze", "ring", "maze-kidnap"])
+def test_first_posterior_is_the_update_of_the_prior(name):
+    """The first belief of an episode: the prior updated on each reading, the same numbers on the
+    first call (no table) and later ones (every reading's posterior kept)."""
+    model = PATH_MODELS[name]()
+    rng = np.random.default_rng(1)
+    readings = engine.sample_readings(model, engine.sample_initial(model, 40, rng), rng)
+    ref = np.broadcast_to(model.prior(), (40, *model.belief_shape)).copy()
+    engine.update(model, ref, readings)
+    first = engine.first_posterior(model, readings)
+    again = engine.first_posterior(model, readings)  # the second call builds the table
+    assert engine._derived(model)._first is not None
+    assert first.tobytes() == ref.tobytes() and again.tobytes() == ref.tobytes()
+    assert again.shape == (40, *model.belief_shape)
+
+
+def test_first_posterior_names_impossible_and_bad_readings():
+    model = colour_grid_model(colour_map((2, 2), n_colours=5, seed=0), accuracy=1.0)  # two cells: colours 1, 2
+    assert sorted(model.grid.labels[model.grid.free].tolist()) == [1, 2]
+    with pytest.raises(ImpossibleObservationError, match="of belief 1"):
+        engine.first_posterior(model, [1, 4])  # without the table
+    engine.first_posterior(model, [1, 2])  # builds it
+    with pytest.raises(ImpossibleObservationError, match="of belief 1"):
+        engine.first_posterior(model, [2, 0])
+    with pytest.raises(ValueError, match=r"reading 9 of belief 1 is outside 0\.\.4"):
+        engine.first_posterior(model, [1, 9])
 
 
 # -- impossible observations --------------------------------------------------------------------------------

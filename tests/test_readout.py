@@ -64,6 +64,51 @@ def test_compiled_summary_equals_numpy_summary(pose, monkeypatch):
 
 
 @needs_numba
+@pytest.mark.parametrize("pose", [False, True])
+def test_compiled_summarise_equals_numpy_summarise(pose, monkeypatch):
+    """The batched referee (the native vector env's info) on its compiled path, row by row."""
+    rng = np.random.default_rng(5)
+    by_shape: dict = {}
+    for b in beliefs(rng):
+        by_shape.setdefault(b.shape, []).append(b)
+    cases = []
+    for shape, group in by_shape.items():
+        batch = np.ascontiguousarray(np.stack(group))
+        states = np.stack([rng.integers(0, d, size=len(group)) for d in shape], axis=1)
+        cases.append((batch, states))
+    fast = [referee.summarise(b, s, 0.5, pose=pose) for b, s in cases]
+    numpy_only(monkeypatch)
+    for (b, s), got in zip(cases, fast):
+        assert same(got, referee.summarise(b, s, 0.5, pose=pose)), b.shape
+
+
+@needs_numba
+@pytest.mark.parametrize("env_id, kwargs", [("WindyMaze-v0", {}), ("DepthMaze-v0", {"map_seed": 3}),
+                                             ("RingSensor8x8-v0", {"dynamics": "passive"}), ("ColourGrid-v0", {})])
+def test_compiled_sample_next_equals_numpy(env_id, kwargs, monkeypatch):
+    """The engine's batched draw of next states: the compiled pass takes the same uniforms to the
+    same states, including uniforms next to 1 (the product rounds up to the total)."""
+    model = gym.make(env_id, **kwargs).unwrapped.model
+    rng = np.random.default_rng(2)
+    states = engine.sample_initial(model, 500, rng)
+    actions = rng.integers(0, model.n_actions, size=500)
+    actions[:7] = np.arange(7) % model.n_actions
+    fast = engine.sample_next(model, states, actions, np.random.default_rng(9))
+    numpy_only(monkeypatch)
+    assert np.array_equal(fast, engine.sample_next(model, states, actions, np.random.default_rng(9)))
+    ones = np.full(7, np.nextafter(1.0, 0.0))
+
+    class Near1:  # a generator whose uniforms are all just below 1
+        def random(self, n=None):
+            return ones[:n].copy() if n is not None else float(ones[0])
+
+    monkeypatch.setattr(kernels, "AVAILABLE", True)
+    top = engine.sample_next(model, states[:7], actions[:7], Near1())
+    numpy_only(monkeypatch)
+    assert np.array_equal(top, engine.sample_next(model, states[:7], actions[:7], Near1()))
+
+
+@needs_numba
 @pytest.mark.parametrize("full_state", [False, True])
 def test_compiled_observed_belief_equals_numpy(full_state, monkeypatch):
     rng = np.random.default_rng(1)

@@ -1,7 +1,7 @@
 """The ring sensor of seeds 001 and 003: a vague report of a cell near the robot, or nothing.
 
-Its likelihoods are computed from a 5x5 kernel, never stored as a (readings x cells) table: an
-H x W grid has H*W + 1 readings.
+Its likelihoods are computed from a 5x5 kernel: an H x W grid has H*W + 1 readings, so only a
+small grid keeps them as one (readings x cells) table.
 """
 
 from __future__ import annotations
@@ -20,7 +20,8 @@ class RingSensor(Sensor):
     The true cell with ``p_true``; each of the 8 cells at Chebyshev distance 1 with ``p_ring1``;
     each of the 16 at distance 2 with ``p_ring2``; a reading that would fall outside the grid, and
     the rest, is "nothing".  Reading ``r * W + c`` is a cell, ``H * W`` is nothing.  The
-    likelihood of a cell reading is computed from its 5x5 neighbourhood, never stored densely.
+    likelihood of a cell reading is computed from its 5x5 neighbourhood, stored densely on small
+    grids only (:data:`DENSE_MAX`).
     """
 
     def __init__(self, grid: GridMap, p_true: float = 0.1, p_ring1: float = 0.05, p_ring2: float = 0.025) -> None:
@@ -72,11 +73,27 @@ class RingSensor(Sensor):
         out[r1:r2, c1:c2] = self.kernel[r1 - r0 + 2 : r2 - r0 + 2, c1 - c0 + 2 : c2 - c0 + 2] * self.grid.free[r1:r2, c1:c2]
         return out
 
+    #: Grids with at most this many (readings x cells) likelihoods (8 MiB) keep them as one dense
+    #: table, built on first use: a batch's likelihoods are then one gather.
+    DENSE_MAX = 2**20
+
     def likelihoods(self, readings: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """Cell readings write the 5x5 kernel round the cell (25 scatters over the batch),
-        "nothing" its (H, W) row."""
-        h, w = self.grid.shape
+        """Rows of the dense table on small grids (:data:`DENSE_MAX`); on larger ones, cell
+        readings write the 5x5 kernel round the cell (25 scatters over the batch), "nothing" its
+        (H, W) row.  The same numbers either way (the table is built by the scatters)."""
         readings = np.asarray(readings, dtype=np.int64).reshape(-1)
+        table = self.__dict__.get("_dense")
+        if table is None and self.n_readings * self.grid.free.size <= self.DENSE_MAX:
+            table = self.__dict__["_dense"] = read_only(self._scattered(np.arange(self.n_readings), None))
+        if table is not None:
+            return np.take(table, readings, axis=0, out=out)
+        return self._scattered(readings, out)
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in super().__getstate__().items() if k != "_dense"}  # (a cache)
+
+    def _scattered(self, readings: np.ndarray, out: np.ndarray | None) -> np.ndarray:
+        h, w = self.grid.shape
         if out is None:
             out = np.zeros((readings.size, h * w))
         else:

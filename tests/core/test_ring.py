@@ -45,6 +45,22 @@ def test_likelihoods_equal_the_definition(grid):
     assert table[:, ~grid.free].sum() == 0.0
 
 
+def test_the_dense_table_of_small_grids_equals_the_scatters(monkeypatch):
+    """Small grids keep every likelihood in one table, built by the scatters large grids use."""
+    grid = obstacle_layout(MAZE_WITH_WALLS)
+    readings = np.random.default_rng(0).integers(0, grid.free.size + 1, size=300)
+    dense = RingSensor(grid, *P)
+    assert dense.likelihoods(readings).tobytes() == dense.likelihoods(readings).tobytes()
+    assert "_dense" in dense.__dict__ and "_dense" not in dense.__getstate__()
+    monkeypatch.setattr(RingSensor, "DENSE_MAX", 0)
+    scattered = RingSensor(grid, *P)
+    got = scattered.likelihoods(readings)
+    assert "_dense" not in scattered.__dict__
+    assert got.tobytes() == dense.likelihoods(readings).tobytes()
+    out = np.empty_like(got)
+    assert dense.likelihoods(readings, out=out) is out and out.tobytes() == got.tobytes()
+
+
 def test_samples_fall_in_the_window_or_say_nothing():
     model = ring_sensor_model(layout=obstacle_layout(MAZE_WITH_WALLS), size=(4, 5), p_true=0.3, p_ring1=0.04, p_ring2=0.02)
     sensor = model.sensor
