@@ -14,6 +14,8 @@ the particle filter, smoothing and Viterbi, and the lookahead policies.
 * :func:`first_posterior` -- an episode's first beliefs: the prior conditioned on N readings.
 * :func:`sample_initial`, :func:`sample_next`, :func:`sample_readings` -- the simulator's side,
   batched: states are ``(N, 3)`` int64 arrays of ``(layer, row, col)``.
+* :func:`stepper`, :func:`sampler`, :func:`advancer` -- bound functions for hot loops: one
+  belief's step, one robot's move and reading, and N robots moved, read and filtered at once.
 
 Kidnapping (``model.kidnap_prob``: after a move, the robot is teleported to a uniformly chosen free
 state) is mixed in here and nowhere else: :func:`predict` and :func:`backward` mix it into the
@@ -47,7 +49,7 @@ from gym_gridloc.core.validation import whole_numbers
 
 __all__ = [
     "predict", "update", "step", "backward", "kidnapped", "transition_matrix", "likelihood", "likelihoods", "impossible", "plan",
-    "first_posterior", "sample_initial", "sample_next", "sample_readings", "sampler", "stepper", "states_of", "simulate", "action_indices", "path", "terms",
+    "first_posterior", "sample_initial", "sample_next", "sample_readings", "sampler", "stepper", "advancer", "states_of", "simulate", "action_indices", "path", "terms",
     "checked_model",
 ]
 
@@ -68,6 +70,7 @@ class _Derived:
         self._sampler: Any = None
         self._first: tuple[np.ndarray, np.ndarray] | None = None
         self._first_asked = 0
+        self._advancer: Any = None
         #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
         #: ``(cumulative probabilities, last possible outcome)`` (one-state draws).
         self.outcomes: dict[tuple[int, int, int, int], tuple[list[float], int]] = {}
@@ -599,6 +602,56 @@ def _make_sampler(model: GridModel, d: _Derived):
         return nxt, read(nxt, rng)
 
     return sample_one
+
+
+def advancer(model: GridModel) -> Callable[..., tuple[np.ndarray, np.ndarray]]:
+    """:func:`sample_next`, :func:`sample_readings` and :func:`step` for N robots and their
+    beliefs as one bound function, for hot loops (the native vector environment):
+    ``(states, actions, beliefs, out, rng) -> (next states, readings)``.  ``states`` ``(N, 3)``
+    int64, ``actions`` N int64 actions in ``0..A-1`` (not checked: the caller has), ``beliefs``
+    and ``out`` C-contiguous float64 ``(N, L*H*W)``, apart; ``out`` receives the normalised
+    posteriors.  The same random draws and numbers as the three functions; an impossible reading
+    raises as :func:`step` does (it cannot happen to readings drawn from the model)."""
+    d = _derived(model)
+    if d._advancer is None:
+        d._advancer = _make_advancer(model, d)
+    return d._advancer
+
+
+def _make_advancer(model: GridModel, d: _Derived):
+    fast = kernels.compiled(model.n_layers * model.shape[0] * model.shape[1])
+    plan_ = d.plan
+    model_ref = weakref.ref(model)  # (the model's cache keeps this function)
+    if fast is None or model.kidnap_prob > 0.0 or not isinstance(plan_, kernels.NumbaPlan):
+        del model
+
+        def advance_generic(states, actions, beliefs, out, rng):
+            m = model_ref()
+            nxt = sample_next(m, states, actions, rng)
+            readings = sample_readings(m, nxt, rng)
+            shape = (-1, *m.belief_shape)
+            step(m, beliefs.reshape(shape), actions, readings, out=out.reshape(shape))
+            return nxt, readings
+
+        return advance_generic
+    weights, keys = d.moves
+    width, layered, n_layers = model.shape[1], d.layered, model.n_layers
+    sample, liks_of = model.sensor.sample, model.sensor.likelihoods
+    w, meta, batch, moves = plan_.w, plan_.meta, fast.batch_update, fast.sample_moves
+    del model
+
+    def advance(states, actions, beliefs, out, rng):
+        n = states.shape[0]
+        nxt = np.empty((n, 3), dtype=np.int64)
+        moves(weights, keys, actions, states, rng.random(n), width, nxt)
+        readings = sample(nxt, rng)
+        z = np.empty(n)
+        batch(beliefs, w, meta, actions, liks_of(readings), layered, out, n_layers, 1, _all(n), z)
+        if not (z > 0.0).all() or not np.isfinite(z).all():
+            _check_z(model_ref(), z, readings)
+        return nxt, readings
+
+    return advance
 
 
 def sample_readings(model: GridModel, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -174,20 +174,25 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
         """One step of the environments ``idx``: moves, readings, beliefs."""
         rng = self.np_random
+        if len(self._groups) == 1:  # one model: one engine call for all (engine.advancer)
+            advance = engine.advancer(self.models[0])
+            n = self.num_envs
+            if idx.size == n:
+                beliefs, out = self._beliefs.reshape(n, -1), self._spare.reshape(n, -1)
+                self._states, self._readings = advance(self._states, actions, beliefs, out, rng)
+                self._beliefs, self._spare = self._spare, self._beliefs
+            else:
+                beliefs = self._beliefs.reshape(n, -1)[idx]
+                out = np.empty_like(beliefs)
+                self._states[idx], self._readings[idx] = advance(self._states[idx], actions[idx], beliefs, out, rng)
+                self._beliefs.reshape(n, -1)[idx] = out
+            self._elapsed[idx] += 1
+            return
         for model, sub in self._by_model(idx):
             self._states[sub] = engine.sample_next(model, self._states[sub], actions[sub], rng)
         for model, sub in self._by_model(idx):
             self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
-            if len(self._groups) > 1:  # as in _restart; with one model, one batch step below
-                self._beliefs[sub] = engine.step(model, self._beliefs[sub], actions[sub], self._readings[sub])[0]
-        if len(self._groups) == 1:
-            mask = None
-            if idx.size != self.num_envs:  # rows of the envs that reset keep their values (overwritten later)
-                mask = np.zeros(self.num_envs, dtype=bool)
-                mask[idx] = True
-                self._spare[...] = self._beliefs
-            engine.step(self.models[0], self._beliefs, actions, self._readings, out=self._spare, mask=mask)
-            self._beliefs, self._spare = self._spare, self._beliefs
+            self._beliefs[sub] = engine.step(model, self._beliefs[sub], actions[sub], self._readings[sub])[0]
         self._elapsed[idx] += 1
 
     # -- observations and infos -------------------------------------------------------------------

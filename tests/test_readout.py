@@ -108,6 +108,30 @@ def test_compiled_sample_next_equals_numpy(env_id, kwargs, monkeypatch):
     assert np.array_equal(top, engine.sample_next(model, states[:7], actions[:7], Near1()))
 
 
+@pytest.mark.parametrize("n", [1, 2, 37])
+@pytest.mark.parametrize("env_id, kwargs", [("WindyMaze-v0", {}), ("DepthMaze-v0", {"map_seed": 3}),
+                                             ("RingSensor8x8-v0", {}), ("ColourGrid-v0", {"kidnap_prob": 0.05})])
+def test_the_advancer_equals_sample_next_sample_readings_and_step(env_id, kwargs, n):
+    """The native vector env's one engine call per step: the same draws, states, readings and
+    beliefs (to the bit) as the three engine functions it stands for (kidnapping: the generic path)."""
+    model = gym.make(env_id, **kwargs).unwrapped.model
+    rng = np.random.default_rng(n)
+    states = engine.sample_initial(model, n, rng)
+    beliefs = engine.first_posterior(model, engine.sample_readings(model, states, rng)).reshape(n, -1)
+    a, b = np.random.default_rng(4), np.random.default_rng(4)
+    for _ in range(5):
+        actions = rng.integers(0, model.n_actions, size=n)
+        out = np.empty_like(beliefs)
+        nxt, readings = engine.advancer(model)(states, actions, beliefs, out, a)
+        ref_states = engine.sample_next(model, states, actions, b)
+        ref_readings = engine.sample_readings(model, ref_states, b)
+        ref, _ = engine.step(model, beliefs.reshape(n, *model.belief_shape), actions, ref_readings)
+        assert np.array_equal(nxt, ref_states) and np.array_equal(readings, ref_readings)
+        assert out.tobytes() == ref.tobytes()
+        states, beliefs = nxt, out
+    assert a.random() == b.random()  # the same number of draws
+
+
 @needs_numba
 @pytest.mark.parametrize("full_state", [False, True])
 def test_compiled_observed_belief_equals_numpy(full_state, monkeypatch):
