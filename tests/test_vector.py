@@ -14,6 +14,7 @@ One generator serves the whole batch (Gymnasium's CartPoleVectorEnv style), so:
 
 from __future__ import annotations
 
+import re
 import warnings
 from collections import Counter
 
@@ -444,3 +445,23 @@ def test_native_vector_env_on_a_256x256_ring_grid():
         obs, rewards, terminated, truncated, info = env.step(np.array([0, 1, 2, 3]))
     assert obs["belief"].shape == (4, 256, 256)
     np.testing.assert_allclose(obs["belief"].sum(axis=(1, 2)), 1.0, atol=1e-4)
+
+
+def test_bench_step_script_compares_and_bounds(capsys):
+    """scripts/bench_step.py on tiny settings: the wrapped and vector comparisons print a ratio
+    and a verdict for each environment, and DepthMaze (a new map per reset) its map-building bound."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "bench_step.py"
+    spec = importlib.util.spec_from_file_location("bench_step", path)
+    bench_step = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench_step)
+    bench_step.main(["--envs", "WindyMaze-v0", "DepthMaze-v0", "--steps", "40", "--rounds", "2",
+                     "--num-envs", "4", "--vector-steps", "20"])
+    out = capsys.readouterr().out
+    for env_id in ("WindyMaze-v0", "DepthMaze-v0"):
+        assert re.search(rf"{env_id}\s+\|\s+[\d.]+us\s+[\d.]+us \|\s+[\d.]+x <= [\d.]+x: (met|NOT met)", out), out
+        assert re.search(rf"{env_id}\s+\|\s+\d+/s\s+\d+/s \|\s+[\d.]+x >= 30x: (met|NOT met)", out), out
+    bound = re.findall(r"([\d.]+) new maps per vector step at ([\d.]+) ms each .*native / sync <= ([\d.]+)x", out)
+    assert len(bound) == 1 and float(bound[0][1]) > 0  # DepthMaze only: WindyMaze keeps its map
