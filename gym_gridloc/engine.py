@@ -354,7 +354,7 @@ def _weighted(model: GridModel, flat: np.ndarray, lik: np.ndarray) -> np.ndarray
 def first_posterior(model: GridModel, readings: Any) -> np.ndarray:
     """The beliefs after the first reading of an episode: the prior conditioned on each of N
     ``readings``, ``(N, L, H, W)`` (what :func:`update` gives on N copies of ``model.prior()``,
-    the same numbers).  From the second call on a model, while (readings x states) is small, the
+    the same numbers).  From the second call on a model, while (readings x cells) is small, the
     posterior of every reading is computed once and each call is a gather."""
     d = _derived(model)
     rs = np.asarray(readings, dtype=np.int64).reshape(-1)
