@@ -2,7 +2,7 @@
 
 For N = 1, 16, 64, 256 environments, random actions, beliefs in the observations:
 
-* ``native``: ``gym.make_vec(ENV, num_envs=N, vectorization_mode="vector_entry_point", belief=True)``;
+* ``native``: ``gym.make_vec(ENV, num_envs=N, vectorization_mode="vector_entry_point", belief="exact")``;
 * ``sync``: ``gym.make_vec(ENV, num_envs=N, vectorization_mode="sync", wrappers=[HMMBeliefWrapper])``
   (Gymnasium's SyncVectorEnv over single wrapped environments).
 
@@ -78,7 +78,7 @@ def main(argv=None) -> None:
 
     rows = []
     for n in tqdm(args.num_envs, desc="N", file=sys.stderr):
-        native = gym.make_vec(args.env, num_envs=n, vectorization_mode="vector_entry_point", belief=True)
+        native = gym.make_vec(args.env, num_envs=n, vectorization_mode="vector_entry_point", belief="exact")
         sync = gym.make_vec(args.env, num_envs=n, vectorization_mode="sync", wrappers=[gym_gridloc.HMMBeliefWrapper])
         rows.append((n, steps_per_second(native, n, args.seconds), steps_per_second(sync, n, args.seconds)))
         native.close()
