@@ -204,6 +204,37 @@ def test_shipped_random_map_models_are_found_by_size_and_act(env_id, size, optio
         obs, *_ = env.step(action)
 
 
+#: The shipped pure-RL models of random maps: (env_id, size, protocol keywords).
+SIZED_PPO = [("DepthMaze-v0", 7, {"episode_length": 15}), ("DepthMaze-v0", 15, {"episode_length": 20}),
+             ("WindyMaze-v0", 9, {})]
+
+
+@pytest.mark.parametrize("env_id,size,protocol", SIZED_PPO)
+def test_shipped_pure_rl_models_of_random_maps_are_found_and_act(env_id, size, protocol):
+    """`ppo` on random maps: found by size, learned from the reward alone (no pretraining, no
+    warm start), small, evaluated during training, and it acts on a held-out map."""
+    import json
+
+    from gym_gridloc.maps import test_set
+
+    path = default_model_path(env_id, "ppo", {"size": size, **protocol})
+    assert path.name == f"{env_id}-size{size}-ppo.zip" and path.stat().st_size < 3_000_000
+    m = json.loads(path.with_suffix(".json").read_text())
+    assert m["env_id"] == env_id and m["algo"] == "ppo" and model_method(m) == "ppo"
+    assert m["env_kwargs"]["size"] == size and m["pretrain"] is None and not m["config"].get("pretrain")
+    assert m["num_timesteps"] >= m["total_timesteps"] and m["evaluations"]
+    held = test_set(env_id, size, 1)[0]
+    env = gym_gridloc.HMMBeliefWrapper(gym.make(env_id, size=size, **protocol))
+    obs, _ = env.reset(seed=0, options={"map": held.grid, "state": held.state})
+    policy = make_policy("ppo", env.unwrapped.model, env_id=env_id, env_kwargs={"size": size, **protocol})
+    assert policy.path == path
+    policy.reset(seed=0, model=env.unwrapped.model)
+    for _ in range(4):
+        action = policy.act(obs["observation"], env.filter.full_belief)
+        assert env.action_space.contains(action)
+        obs, *_ = env.step(action)
+
+
 def test_ppo_for_another_environment_fails_clearly(tmp_path):
     colour = gym_gridloc.colour_grid_model()
     # By metadata: the shipped WindyMaze model named for ColourGrid.
