@@ -69,7 +69,7 @@ class _Derived:
         self._steppers: dict[bool, Any] = {}
         self._sampler: Any = None
         self._first: tuple[np.ndarray, np.ndarray] | None = None
-        self._first_asked = 0
+        self._first_asked = False  # a model used once (a map of one episode) never builds the table
         self._advancer: Any = None
         #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
         #: ``(cumulative probabilities, last possible outcome)`` (one-state draws).
@@ -110,8 +110,8 @@ class _Derived:
         if self._first is None:
             model = self.model()
             R, size = model.sensor.n_readings, int(np.prod(model.belief_shape))
-            if R * size > self.FIRST_TABLE_MAX or self._first_asked == 0:
-                self._first_asked += 1
+            if R * size > self.FIRST_TABLE_MAX or not self._first_asked:
+                self._first_asked = True
                 return None
             flat = np.broadcast_to(model.prior().reshape(1, -1), (R, size)).copy()
             post = _weighted(model, flat, likelihoods(model, np.arange(R)))
@@ -647,7 +647,7 @@ def _make_advancer(model: GridModel, d: _Derived):
         readings = sample(nxt, rng)
         z = np.empty(n)
         batch(beliefs, w, meta, actions, liks_of(readings), layered, out, n_layers, 1, _all(n), z)
-        if not (z > 0.0).all() or not np.isfinite(z).all():
+        if not ((z > 0.0) & (z < math.inf)).all():  # (NaN fails both)
             _check_z(model_ref(), z, readings)
         return nxt, readings
 

@@ -159,7 +159,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         """Start new episodes in the environments ``idx``: maps (if redrawn), states, readings,
         beliefs.  Draws in the single environment's order: maps, then start states, then readings."""
         rng = self.np_random
-        factory = self.template._map_factory
+        factory = self.template.map_factory
         if factory is not None:
             for i in idx:
                 self.models[i] = factory(rng)

@@ -99,7 +99,7 @@ def map_build_bound(native, n: int, sync_rate: float, steps: int = 200, builds: 
     than its maps).  None when the maps are fixed."""
     from gym_gridloc import engine
 
-    factory = native.unwrapped.template._map_factory
+    factory = native.unwrapped.template.map_factory
     if factory is None:
         return None
     rng = np.random.default_rng(1)

@@ -213,6 +213,12 @@ class GridLocEnv(gym.Env):
         return self._state
 
     @property
+    def map_factory(self) -> Callable[[np.random.Generator], GridModel] | None:
+        """What draws a new map's model at every reset (``new_map_each_reset``), or None: the
+        native vector env draws its environments' maps with it."""
+        return self._map_factory
+
+    @property
     def exact_filter(self) -> ForwardFilter:
         """The referee: the exact forward filter of the episode's model, stepped once per step
         with the action and the reading (not part of the observation).  Read its belief

@@ -254,7 +254,7 @@ def bound_main(args) -> int:
     if getattr(u, "episode_length", None):
         env.close()
         return fail("bound", "the bound is on steps to localise; fixed-length episodes (episode_length) have no such count")
-    if getattr(u, "_map_factory", None) is not None:  # the first map's bound is no bound of the environment
+    if getattr(u, "map_factory", None) is not None:  # the first map's bound is no bound of the environment
         env.close()
         return fail("bound", f"{args.env} draws a new map at every reset (new_map_each_reset): the bound is of one map; "
                               "give a fixed map (--env-kwarg map_seed=N or layout=PATH)")

@@ -24,7 +24,7 @@ def evaluation_episodes(env, cfg: dict[str, Any], episodes: int) -> list[tuple[i
     (disjoint from the benchmark's ``0..N-1``); where the environment draws a new map at every
     reset, also the validation maps of :func:`gym_gridloc.maps.validation_set` (never the test set)."""
     unwrapped = env.unwrapped
-    if unwrapped._map_factory is not None and cfg["env_id"] in maps.families():
+    if unwrapped.map_factory is not None and cfg["env_id"] in maps.families():
         held = maps.validation_set(cfg["env_id"], unwrapped.model.shape[0], episodes)
         return [(EVAL_SEED_BASE + m.index, {"map": m.grid, "state": m.state}) for m in held]
     return [(EVAL_SEED_BASE + i, None) for i in range(episodes)]
