@@ -1,6 +1,10 @@
 """The compiled (numba) filter kernels.  Imported only by :mod:`gym_gridloc.kernels`, and only
 when a model small enough for them is first filtered: importing numba costs about 100 MiB of
-resident memory, so a process that only works on large grids never pays it."""
+resident memory, so a process that only works on large grids never pays it.
+
+This module is longer than 400 lines on purpose: every compiled function is here, so that numba is
+imported in one place only and the engine's, the referee's and the vector step's kernels can call
+each other (a compiled function calls another compiled function, not a Python one)."""
 
 from __future__ import annotations
 
@@ -208,35 +212,116 @@ def observed32(flat, n_layers, out):  # pragma: no cover - compiled
 
 # -- a batch of N: the native vector environment's step ---------------------------------------------
 @numba.njit(cache=True, nogil=True)
+def move_one(weights, keys, a, layer, r, c, u, width, cum, out):  # pragma: no cover - compiled
+    """One draw of :func:`sample_moves`: the next state of ``(layer, r, c)`` under action ``a``
+    with the uniform ``u``, written to ``out`` (3,); ``cum`` is scratch (K,)."""
+    K = weights.shape[1]
+    cell = r * width + c
+    total = 0.0
+    last = K - 1
+    for k in range(K):
+        p = weights[a, k, cell] if keys[a, 0, k] == layer else 0.0
+        total += p
+        cum[k] = total
+        if p > 0.0:
+            last = k
+    target = u * total
+    chosen = last
+    for k in range(K):
+        if target < cum[k]:
+            chosen = k
+            break
+    out[0] = keys[a, 1, chosen]
+    out[1] = r + keys[a, 2, chosen]
+    out[2] = c + keys[a, 3, chosen]
+
+
+@numba.njit(cache=True, nogil=True)
 def sample_moves(weights, keys, actions, states, u, width, out):  # pragma: no cover - compiled
     """The engine's draw of N next states (``engine.sample_next`` without kidnapping), with the
     same arithmetic: state ``i`` under action ``actions[i]`` takes the first term whose running
     sum (left to right, as ``np.cumsum``) exceeds ``u[i]`` times the total, or, when the product
     rounds up to the total, the last term of positive weight.  ``weights`` ``(A + 1, K, H*W)`` and
     ``keys`` ``(A + 1, 4, K)`` are the engine's padded tables; ``states``/``out`` ``(N, 3)``."""
-    K = weights.shape[1]
-    cum = np.empty(K)
+    cum = np.empty(weights.shape[1])
     for i in range(states.shape[0]):
-        a = actions[i]
-        layer, r, c = states[i, 0], states[i, 1], states[i, 2]
-        cell = r * width + c
-        total = 0.0
-        last = K - 1
-        for k in range(K):
-            p = weights[a, k, cell] if keys[a, 0, k] == layer else 0.0
-            total += p
-            cum[k] = total
-            if p > 0.0:
-                last = k
-        target = u[i] * total
-        chosen = last
-        for k in range(K):
-            if target < cum[k]:
-                chosen = k
-                break
-        out[i, 0] = keys[a, 1, chosen]
-        out[i, 1] = r + keys[a, 2, chosen]
-        out[i, 2] = c + keys[a, 3, chosen]
+        move_one(weights, keys, actions[i], states[i, 0], states[i, 1], states[i, 2], u[i], width, cum, out[i])
+
+
+@numba.njit(cache=True, nogil=True)
+def draw_reading(kind, cum, total, values, s, u, j):  # pragma: no cover - compiled
+    """One reading of state ``s`` (its row of the sensor's draw table), as the sensor's own
+    ``sample`` draws it.  ``kind`` 0 (categorical, one uniform ``u[j]``): the first column whose
+    running sum ``cum[s]`` exceeds ``u[j] * total[s]`` (at most the last), its ``values``; kind 1
+    (independent bits, one uniform each from ``u[j]`` on): the sum of ``values[s, b]`` over the
+    bits with ``u[j + b] < cum[s, b]``."""
+    K = cum.shape[1]
+    if kind == 1:
+        r = 0
+        for b in range(K):
+            if u[j + b] < cum[s, b]:
+                r += values[s, b]
+        return r
+    x = u[j] * total[s]
+    k = 0
+    while k < K and cum[s, k] <= x:
+        k += 1
+    return values[s, min(k, K - 1)]
+
+
+@numba.njit(cache=True, nogil=True)
+def vector_advance(weights, keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
+                   free_cells, posts, possible, modes, states, actions, beliefs, out, readings, u_move, starts,
+                   u_start):  # pragma: no cover - compiled
+    """A vector step of N robots on one map: row ``i`` with ``modes[i]`` 0 moves under
+    ``actions[i]``, reads and filters (``out[i]`` the normalised posterior of ``beliefs[i]``); 1
+    starts an episode at the state index ``starts[...]`` (uniform over free states, layer-major),
+    reads, and takes the first posterior ``posts[reading]``; 2 keeps its state, reading and
+    belief.  Random numbers as the engine draws them: ``u_move`` holds the moving rows' move
+    uniforms, then their readings' (``per_draw`` each), rows in order; ``u_start`` the starting
+    rows' readings'.  Returns -1, or the first row whose reading is impossible (z not positive and
+    finite: the caller raises)."""
+    n = states.shape[0]
+    n_free = free_cells.shape[0]
+    hw = liks.shape[1] // (n_layers if layered else 1)
+    n_moving = 0
+    for i in range(n):
+        if modes[i] == 0:
+            n_moving += 1
+    scratch = np.empty(weights.shape[1])
+    jm = 0
+    js = 0
+    bad = -1
+    for i in range(n):
+        mode = modes[i]
+        if mode == 0:
+            move_one(weights, keys, actions[i], states[i, 0], states[i, 1], states[i, 2], u_move[jm], width, scratch, states[i])
+            s = (states[i, 0] * hw if layered else 0) + states[i, 1] * width + states[i, 2]
+            rd = draw_reading(kind, cum, total, values, s, u_move, n_moving + jm * per_draw)
+            readings[i] = rd
+            a = actions[i]
+            z = stencil_update(beliefs[i], w[a], meta[a], liks[rd], layered, out[i], n_layers, 1)
+            if not (z > 0.0 and z < np.inf) and bad < 0:
+                bad = i
+            jm += 1
+        elif mode == 1:
+            idx = starts[js]
+            layer = idx // n_free
+            cell = idx - layer * n_free
+            states[i, 0] = layer
+            states[i, 1] = free_cells[cell, 0]
+            states[i, 2] = free_cells[cell, 1]
+            s = (layer * hw if layered else 0) + states[i, 1] * width + states[i, 2]
+            rd = draw_reading(kind, cum, total, values, s, u_start, js * per_draw)
+            readings[i] = rd
+            if possible[rd]:
+                out[i, :] = posts[rd]
+            elif bad < 0:
+                bad = i
+            js += 1
+        else:
+            out[i, :] = beliefs[i]
+    return bad
 
 
 @numba.njit(cache=True, nogil=True)
@@ -245,10 +330,44 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, pos, q, k, con
     ``referee.summarise`` (the same numbers): ``pos``/``q`` (N, H*W) as :func:`readout` fills
     them, then per row the index ``k`` of the largest tested value, its ``confidence``, the
     ``estimate`` (row, column), the Manhattan ``error`` to the true ``states`` (layer, row, col),
-    ``localised`` (confidence >= threshold), ``success`` and the estimated ``layer`` (pose)."""
+    ``localised`` (confidence >= threshold), ``success`` and the estimated ``layer`` (pose).
+    Rows are indexed in place, not sliced (a row's view costs more than its work on small maps)."""
     hw = pos.shape[1]
+    size = flat.shape[1]
     for i in range(flat.shape[0]):
-        j = readout(flat[i], n_layers, pose, pos[i], q[i])
+        for c in range(hw):
+            pos[i, c] = flat[i, c]
+        for lay in range(1, n_layers):  # the layers added in order, as numpy's sum over them
+            base = lay * hw
+            for c in range(hw):
+                pos[i, c] += flat[i, base + c]
+        for c in range(hw):
+            x = pos[i, c]
+            q[i, c] = x + 1.0 if x <= 0.0 else x + 0.0
+        # the first largest value, or the first NaN (numpy's argmax)
+        j = 0
+        if pose:
+            best = flat[i, 0]
+            if best == best:
+                for c in range(1, size):
+                    x = flat[i, c]
+                    if x != x:
+                        j = c
+                        break
+                    if x > best:
+                        best = x
+                        j = c
+        else:
+            best = pos[i, 0]
+            if best == best:
+                for c in range(1, hw):
+                    x = pos[i, c]
+                    if x != x:
+                        j = c
+                        break
+                    if x > best:
+                        best = x
+                        j = c
         conf = flat[i, j] if pose else pos[i, j]
         cell = j % hw if pose and n_layers > 1 else j
         er, ec = cell // width, cell % width
@@ -269,6 +388,38 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, pos, q, k, con
 
 @numba.njit(cache=True, nogil=True)
 def batch_entropy(pos, log2q, out):  # pragma: no cover - compiled
-    """:func:`entropy_sum` of each row: ``out[i] = -np.add.reduce(pos[i] * log2q[i]) + 0.0``."""
+    """:func:`entropy_sum` of each row: ``out[i] = -np.add.reduce(pos[i] * log2q[i]) + 0.0``.
+    Rows of at most 128 (one block of numpy's pairwise sum, :func:`_block_product`) are summed
+    in place, without a row view."""
+    n = pos.shape[1]
     for i in range(pos.shape[0]):
-        out[i] = entropy_sum(pos[i], log2q[i])
+        if n > 128:
+            out[i] = entropy_sum(pos[i], log2q[i])
+            continue
+        if n < 8:
+            res = 0.0
+            for c in range(n):
+                res += pos[i, c] * log2q[i, c]
+        else:
+            r0 = pos[i, 0] * log2q[i, 0]
+            r1 = pos[i, 1] * log2q[i, 1]
+            r2 = pos[i, 2] * log2q[i, 2]
+            r3 = pos[i, 3] * log2q[i, 3]
+            r4 = pos[i, 4] * log2q[i, 4]
+            r5 = pos[i, 5] * log2q[i, 5]
+            r6 = pos[i, 6] * log2q[i, 6]
+            r7 = pos[i, 7] * log2q[i, 7]
+            end = n - n % 8
+            for c in range(8, end, 8):
+                r0 += pos[i, c] * log2q[i, c]
+                r1 += pos[i, c + 1] * log2q[i, c + 1]
+                r2 += pos[i, c + 2] * log2q[i, c + 2]
+                r3 += pos[i, c + 3] * log2q[i, c + 3]
+                r4 += pos[i, c + 4] * log2q[i, c + 4]
+                r5 += pos[i, c + 5] * log2q[i, c + 5]
+                r6 += pos[i, c + 6] * log2q[i, c + 6]
+                r7 += pos[i, c + 7] * log2q[i, c + 7]
+            res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+            for c in range(end, n):
+                res += pos[i, c] * log2q[i, c]
+        out[i] = -(0.0 + res) + 0.0

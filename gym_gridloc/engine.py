@@ -14,8 +14,10 @@ the particle filter, smoothing and Viterbi, and the lookahead policies.
 * :func:`first_posterior` -- an episode's first beliefs: the prior conditioned on N readings.
 * :func:`sample_initial`, :func:`sample_next`, :func:`sample_readings` -- the simulator's side,
   batched: states are ``(N, 3)`` int64 arrays of ``(layer, row, col)``.
-* :func:`stepper`, :func:`sampler`, :func:`advancer` -- bound functions for hot loops: one
-  belief's step, one robot's move and reading, and N robots moved, read and filtered at once.
+* :func:`stepper`, :func:`sampler`, :func:`advancer`, :func:`vector_advancer` -- bound functions
+  for hot loops: one belief's step, one robot's move and reading, N robots moved, read and
+  filtered at once, and a vector step of N robots (moves, new episodes, readings, beliefs) as
+  one compiled call.
 
 Kidnapping (``model.kidnap_prob``: after a move, the robot is teleported to a uniformly chosen free
 state) is mixed in here and nowhere else: :func:`predict` and :func:`backward` mix it into the
@@ -49,7 +51,7 @@ from gym_gridloc.core.validation import whole_numbers
 
 __all__ = [
     "predict", "update", "step", "backward", "kidnapped", "transition_matrix", "likelihood", "likelihoods", "impossible", "plan",
-    "first_posterior", "sample_initial", "sample_next", "sample_readings", "sampler", "stepper", "advancer", "states_of", "simulate", "action_indices", "path", "terms",
+    "first_posterior", "sample_initial", "sample_next", "sample_readings", "sampler", "stepper", "advancer", "vector_advancer", "states_of", "simulate", "action_indices", "path", "terms",
     "checked_model",
 ]
 
@@ -71,6 +73,7 @@ class _Derived:
         self._first: tuple[np.ndarray, np.ndarray] | None = None
         self._first_asked = False  # a model used once (a map of one episode) never builds the table
         self._advancer: Any = None
+        self._vector: Any = None  # vector_advancer's function, or False when the model has none
         #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
         #: ``(cumulative probabilities, last possible outcome)`` (one-state draws).
         self.outcomes: dict[tuple[int, int, int, int], tuple[list[float], int]] = {}
@@ -103,14 +106,14 @@ class _Derived:
     #: :func:`first_posterior` keeps every reading's posterior when (readings x cells) is at most this.
     FIRST_TABLE_MAX = 2**18
 
-    def first_table(self) -> tuple[np.ndarray, np.ndarray] | None:
+    def first_table(self, now: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
         """``(posteriors (R, L*H*W), possible (R,))`` of the prior and each reading, built on the
-        second request (a model used once, e.g. a map of one episode, never builds it); None
-        when too large."""
+        second request (a model used once, e.g. a map of one episode, never builds it) or at once
+        (``now``); None when too large."""
         if self._first is None:
             model = self.model()
             R, size = model.sensor.n_readings, int(np.prod(model.belief_shape))
-            if R * size > self.FIRST_TABLE_MAX or not self._first_asked:
+            if R * size > self.FIRST_TABLE_MAX or not (self._first_asked or now):
                 self._first_asked = True
                 return None
             flat = np.broadcast_to(model.prior().reshape(1, -1), (R, size)).copy()
@@ -650,6 +653,59 @@ def _make_advancer(model: GridModel, d: _Derived):
         if not ((z > 0.0) & (z < math.inf)).all():  # (NaN fails both)
             _check_z(model_ref(), z, readings)
         return nxt, readings
+
+    return advance
+
+
+def vector_advancer(model: GridModel) -> Callable[..., None] | None:
+    """A vector step of N robots on ``model`` as one compiled call, for the native vector
+    environment: ``(states, readings, actions, beliefs, out, modes, rng)``.  Row ``i``
+    with ``modes[i]`` 0 moves under ``actions[i]``, reads, and ``out[i]`` receives its normalised
+    posterior (:func:`sample_next`, :func:`sample_readings`, :func:`step`); 1 starts an episode
+    (:func:`sample_initial`, :func:`sample_readings`, :func:`first_posterior`); 2 keeps its state,
+    reading and belief.  ``states`` ``(N, 3)`` and ``readings`` (N,) int64 are updated in place
+    (``out`` gets the kept beliefs too); ``actions`` N int64 in
+    ``0..A-1`` (not checked: the caller has); ``modes`` N int8; ``beliefs`` and ``out``
+    C-contiguous float64 ``(N, L*H*W)``, apart.  The same random draws and numbers as those
+    functions called in that order (the moving rows, then the starting rows): a test holds them
+    equal.  None when the model has no compiled path (a large grid, kidnapping, a sensor without
+    :meth:`~gym_gridloc.core.sensors.Sensor.draw_table`, or too many readings for the tables)."""
+    d = _derived(model)
+    if d._vector is None:
+        d._vector = _make_vector_advancer(model, d) or False
+    return d._vector or None
+
+
+def _make_vector_advancer(model: GridModel, d: _Derived):
+    fast = kernels.compiled(model.n_layers * model.shape[0] * model.shape[1])
+    if fast is None or model.kidnap_prob > 0.0 or not isinstance(d.plan, kernels.NumbaPlan):
+        return None
+    draw = model.sensor.draw_table()
+    first = d.first_table(now=True)
+    if draw is None or first is None:
+        return None
+    kind, cum, total, values = draw
+    per_draw = cum.shape[1] if kind == 1 else 1
+    posts, possible = first
+    liks = np.ascontiguousarray(likelihoods(model, np.arange(model.sensor.n_readings)))
+    weights, keys = d.moves
+    plan_, width, n_layers, layered = d.plan, model.shape[1], model.n_layers, d.layered
+    n_states, free_cells = model.n_states, np.ascontiguousarray(model.grid.free_cells, dtype=np.int64)
+    kernel, w, meta = fast.vector_advance, plan_.w, plan_.meta
+    model_ref = weakref.ref(model)  # (the model's cache keeps this function)
+    del model
+    none, no_starts = np.empty(0), np.empty(0, dtype=np.int64)
+
+    def advance(states, readings, actions, beliefs, out, modes, rng):
+        n_moving = modes.size - np.count_nonzero(modes)
+        n_starting = 0 if n_moving == modes.size else int(np.count_nonzero(modes == 1))
+        u_move = rng.random(n_moving * (1 + per_draw)) if n_moving else none
+        starts, u_start = (rng.integers(n_states, size=n_starting), rng.random(n_starting * per_draw)) if n_starting else (no_starts, none)
+        bad = kernel(weights, keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
+                     free_cells, posts, possible, modes, states, actions, beliefs, out, readings, u_move, starts, u_start)
+        if bad >= 0:
+            text = model_ref().sensor.observation_text(int(readings[bad]))
+            raise impossible(model_ref(), int(readings[bad]), label=f"observation {text} of belief {bad}")
 
     return advance
 

@@ -11,7 +11,8 @@ import numpy as np
 from gym_gridloc.core.grid import DIRECTIONS, GridMap, parse_rows, read_layout
 from gym_gridloc.core.model import GridModel, Term, move_terms
 from gym_gridloc.core.ring import RingSensor
-from gym_gridloc.core.sensors import ColourSensor, DepthSensor, WallSensor
+from gym_gridloc.core.depth import DepthSensor
+from gym_gridloc.core.sensors import ColourSensor, WallSensor
 from gym_gridloc.core.validation import check_choice, check_probability, check_size
 from gym_gridloc.seeds import COLOUR_GRID_LAYOUT, WINDY_MAZE_LAYOUT
 

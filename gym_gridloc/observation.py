@@ -116,8 +116,8 @@ def observed_belief(full: np.ndarray, full_state: bool) -> np.ndarray:
             fast.observed32(full.reshape(-1), 1 if full_state else full.shape[0], out.reshape(-1))
             return out
     b = full if full_state else full[..., 0, :, :] if full.shape[-3] == 1 else full.sum(axis=-3)
-    out = b.astype(np.float32)
-    return np.minimum(out, 1.0, out=out)  # beliefs are never negative: clip(0, 1) in one pass
+    # beliefs are never negative: clip(0, 1) as min(float32, 1), cast and clipped in one pass
+    return np.minimum(b, np.float32(1.0), dtype=np.float32)
 
 
 class BeliefObservation:
@@ -181,6 +181,8 @@ class BeliefObservation:
         """N observations: the sensor ``observations`` batched (a vector env's batch, or a dict of
         batches), their ``readings`` (N,), the hidden-state beliefs ``(N, L, H, W)`` and the model
         of each (one model for all, or N)."""
+        if self._plain and not isinstance(observations, dict):  # the common case, shortest
+            return {"observation": observations, self.key: observed_belief(full_beliefs, self.full_state)}
         n = full_beliefs.shape[0]
         each = [models] * n if isinstance(models, GridModel) else list(models)
         model = each[0]

@@ -94,11 +94,11 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
     hw = h * w
     flat = beliefs.reshape(n, -1)
     st = np.ascontiguousarray(states, dtype=np.int64)
-    pos, q = np.empty((n, hw)), np.empty((n, hw))
-    k, layer = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    # few allocations (a vector env pays them at every step): blocks whose rows are the arrays
+    pos, q = np.empty((2, n, hw))
+    k, layer, error = np.empty((3, n), dtype=np.int64)
+    localised, success = np.empty((2, n), dtype=bool)
     confidence, estimate = np.empty(n), np.empty((n, 2), dtype=np.int64)
-    error = np.empty(n, dtype=np.int64)
-    localised, success = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
     fast.batch_readout(flat, L, pose, w, st, float(threshold), pos, q, k, confidence, estimate, error, localised, success, layer)
     ent = np.empty(n)
     fast.batch_entropy(pos, np.log2(q, out=q), ent)
@@ -156,8 +156,12 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
     return info
 
 
-def rewards(kind: str, info: dict[str, np.ndarray]) -> np.ndarray:
-    """The reward of each of N steps: -1 (``"step"``), or the referee's confidence (``"belief"``)."""
+def rewards(kind: str, info: dict[str, np.ndarray], stepped: np.ndarray | None = None) -> np.ndarray:
+    """The reward of each of N steps: -1 (``"step"``), or the referee's confidence (``"belief"``);
+    0.0 where ``stepped`` (N booleans, if given) is False (an environment that was reset)."""
     if kind == "belief":
-        return info["confidence"].astype(np.float64)
-    return np.full(info["confidence"].shape[0], -1.0)
+        conf = info["confidence"].astype(np.float64)
+        return conf if stepped is None else np.where(stepped, conf, 0.0)
+    if stepped is None:
+        return np.full(info["confidence"].shape[0], -1.0)
+    return np.where(stepped, -1.0, 0.0)

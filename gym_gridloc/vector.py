@@ -114,6 +114,12 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=bool)
         self._started = False
+        self._vector: Any = None  # engine.vector_advancer of the fixed model (False: none)
+        length = template.episode_length
+        #: The step count that truncates an episode (None: never): the fixed episode length or
+        #: the time limit, whichever comes first.
+        self._limit = self.max_episode_steps if length is None else min(length, self.max_episode_steps or length)
+        self._actions_none = np.zeros(n, dtype=np.int64)
 
     @staticmethod
     def _mode(mode: Any) -> AutoresetMode:
@@ -160,6 +166,14 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         beliefs.  Draws in the single environment's order: maps, then start states, then readings."""
         rng = self.np_random
         factory = self.template.map_factory
+        fused = self._fused()
+        if fused is not None:  # one compiled call; the other rows keep their beliefs
+            n = self.num_envs
+            modes = np.full(n, 2, dtype=np.int8)
+            modes[idx] = 1
+            self._advance(fused, self._actions_none, modes)
+            self._elapsed[idx] = 0
+            return
         if factory is not None:
             for i in idx:
                 self.models[i] = factory(rng)
@@ -170,6 +184,22 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
             self._beliefs[sub] = engine.first_posterior(model, self._readings[sub])
         self._elapsed[idx] = 0
+
+    def _fused(self):
+        """:func:`engine.vector_advancer` of the one fixed model, or None (maps redrawn, or a
+        model without the compiled path)."""
+        if self.template.map_factory is not None:
+            return None
+        if self._vector is None:
+            self._vector = engine.vector_advancer(self.models[0]) or False
+        return self._vector or None
+
+    def _advance(self, fused, actions: np.ndarray, modes: np.ndarray) -> None:
+        """A step of every environment in one engine call: ``modes`` 0 moves, 1 starts an
+        episode, 2 keeps (:func:`engine.vector_advancer`); the caller counts the steps."""
+        n = self.num_envs
+        fused(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1), modes, self.np_random)
+        self._beliefs, self._spare = self._spare, self._beliefs
 
     def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
         """One step of the environments ``idx``: moves, readings, beliefs."""
@@ -247,27 +277,32 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         if not self._started:
             raise RuntimeError("call reset() before step()")
         n = self.num_envs
-        resetting = self._autoreset.copy() if self.autoreset_mode == AutoresetMode.NEXT_STEP else np.zeros(n, dtype=bool)
-        acts = self._actions(actions, resetting)
-        moving = np.flatnonzero(~resetting)
-        if moving.size:
-            self._move(moving, acts)
-        if resetting.any():
-            self._restart(np.flatnonzero(resetting))
-        info = self._infos()
+        same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
+        # (NEXT_STEP: the environments that ended last step start again, ignoring their actions;
+        # self._autoreset is replaced, never changed in place, so no copy)
+        resetting = np.zeros(n, dtype=bool) if same_step else self._autoreset
         stepped = ~resetting
-        length = self.template.episode_length
-        if length is None:
-            terminated = info["localised"] & stepped
-            limit = self.max_episode_steps
-        else:  # a fixed length: truncated there, never terminated
-            terminated = np.zeros(n, dtype=bool)
-            limit = min(length, self.max_episode_steps or length)
-        truncated = stepped & (self._elapsed >= limit) if limit else np.zeros(n, dtype=bool)
-        rewards = np.where(stepped, referee.rewards(self.template.reward_kind, info), 0.0)
+        acts = self._actions(actions, resetting)
+        fused = self._fused()
+        if fused is not None:  # moves and new episodes in one engine call
+            self._advance(fused, acts, resetting.view(np.int8))
+            np.multiply(self._elapsed + 1, stepped, out=self._elapsed)  # +1, or 0 when restarted
+        else:
+            moving = np.flatnonzero(~resetting)
+            if moving.size:
+                self._move(moving, acts)
+            if resetting.any():
+                self._restart(np.flatnonzero(resetting))
+        info = self._infos()
+        length, limit = self.template.episode_length, self._limit
+        # a fixed length ends an episode by truncation only; a restarted environment (elapsed 0)
+        # is never truncated
+        terminated = info["localised"] & stepped if length is None else np.zeros(n, dtype=bool)
+        truncated = self._elapsed >= limit if limit else np.zeros(n, dtype=bool)
+        rewards = referee.rewards(self.template.reward_kind, info, stepped)
         obs = self._observations()
         done = terminated | truncated
-        if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
+        if same_step and done.any():
             ended = np.flatnonzero(done)
             final_obs = np.full(n, None, dtype=object)
             final_info = np.full(n, None, dtype=object)
@@ -284,8 +319,11 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
 
     def _actions(self, actions: Any, resetting: np.ndarray) -> np.ndarray:
         n, k = self.num_envs, self.single_action_space.n
-        if type(actions) is np.ndarray and actions.dtype == np.int64 and actions.shape == (n,) and actions.min() >= 0 and actions.max() < k:
-            return actions * ~resetting  # (the common case: a new array, 0 where resetting)
+        if (type(actions) is np.ndarray and actions.dtype == np.int64 and actions.shape == (n,)
+                and actions.flags.c_contiguous and actions.view(np.uint64).max() < k):
+            # the common case, one pass (a negative action is a huge unsigned one); the engine
+            # never writes the actions and ignores those of restarting environments
+            return actions
         acts = np.asarray(actions)
         if acts.shape != (n,) or not whole_numbers(acts):
             raise ValueError(f"actions must be {n} integers in 0..{k - 1}, got {actions!r}")
@@ -296,9 +334,20 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             raise ValueError(f"action {int(acts[i])} of env {i} is not in the action space {self.single_action_space} ({self.models[i].action_legend})")
         return np.where(resetting, 0, acts)
 
-    @staticmethod
-    def _masked(info: dict, mask: np.ndarray) -> dict:
-        return {**info, **{f"_{key}": mask.copy() for key in info if not key.startswith("_") and f"_{key}" not in info}}
+    _MASK_NAMES: dict[tuple[str, ...], tuple[str, ...]] = {}
+
+    @classmethod
+    def _masked(cls, info: dict, mask: np.ndarray) -> dict:
+        """``info`` with Gymnasium's ``_key`` mask beside each key (one block, a row per key)."""
+        keys = tuple(info)
+        names = cls._MASK_NAMES.get(keys)
+        if names is None:
+            names = cls._MASK_NAMES[keys] = tuple(f"_{k}" for k in keys if not k.startswith("_") and f"_{k}" not in info)
+        rows = np.empty((len(names), mask.size), dtype=bool)
+        rows[:] = mask
+        out = dict(info)
+        out.update(zip(names, rows))
+        return out
 
     # -- exposed for tests and tools ---------------------------------------------------------------
     @property

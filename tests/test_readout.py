@@ -206,3 +206,84 @@ def test_the_single_step_pickles_with_its_environment():
     for a in (0, 2, 3, 1):
         one, two = env.step(a), copy.step(a)
         assert same(one[4], two[4]) and same(one[0]["belief"], two[0]["belief"])
+
+
+SENSOR_ENVS = [("WindyMaze-v0", {}), ("ColourGrid-v0", {}), ("RingSensor8x8-v0", {}), ("DepthMaze-v0", {"map_seed": 3}),
+               ("DepthMaze-v0", {"map_seed": 5, "p_depth_error": 0.2})]
+
+
+@needs_numba
+@pytest.mark.parametrize("env_id, kwargs", SENSOR_ENVS)
+def test_the_sensors_draw_tables_draw_what_sample_draws(env_id, kwargs):
+    """The compiled draw of a reading from a sensor's draw_table: the same readings from the same
+    uniforms as Sensor.sample, for every free state, in batches and one at a time."""
+    from gym_gridloc import _numba_kernels as fast
+
+    model = gym.make(env_id, **kwargs).unwrapped.model
+    sensor = model.sensor
+    kind, cum, total, values = sensor.draw_table()
+    per = cum.shape[1] if kind == 1 else 1
+    h, w = model.shape
+    states = engine.states_of(model, np.arange(model.n_states))
+    for n in (1, 3, len(states)):
+        for start in range(0, len(states), n):
+            batch = states[start:start + n]
+            seed = 1000 + start
+            ref = sensor.sample(batch, np.random.default_rng(seed))
+            u = np.random.default_rng(seed).random(len(batch) * per)
+            rows = (batch[:, 0] * h * w if sensor.layered else 0) + batch[:, 1] * w + batch[:, 2]
+            got = [fast.draw_reading(kind, cum, total, values, s, u, i * per) for i, s in enumerate(rows)]
+            assert got == ref.tolist()
+    # uniforms at the edges: 0 and just below 1
+    for u0 in (0.0, np.nextafter(1.0, 0.0)):
+        u = np.full(len(states) * per, u0)
+
+        class Fixed:
+            def random(self, size=None):
+                return u[: int(np.prod(size))].reshape(size) if size is not None else float(u0)
+
+        ref = sensor.sample(states, Fixed())
+        rows = (states[:, 0] * h * w if sensor.layered else 0) + states[:, 1] * w + states[:, 2]
+        assert [fast.draw_reading(kind, cum, total, values, s, u, i * per) for i, s in enumerate(rows)] == ref.tolist()
+
+
+@needs_numba
+@pytest.mark.parametrize("n", [1, 2, 37])
+@pytest.mark.parametrize("env_id, kwargs", SENSOR_ENVS[:4])
+def test_the_vector_advancer_equals_the_engine_functions(env_id, kwargs, n):
+    """engine.vector_advancer, the native vector env's one call per step: moving rows as
+    sample_next, sample_readings and step; starting rows as sample_initial, sample_readings and
+    first_posterior (moving rows drawn first); kept rows untouched. The same draws, states,
+    readings and beliefs, to the bit."""
+    model = gym.make(env_id, **kwargs).unwrapped.model
+    advance = engine.vector_advancer(model)
+    assert advance is not None
+    rng = np.random.default_rng(n)
+    states = engine.sample_initial(model, n, rng)
+    readings = engine.sample_readings(model, states, rng)
+    beliefs = engine.first_posterior(model, readings).reshape(n, -1)
+    a, b = np.random.default_rng(4), np.random.default_rng(4)
+    for _ in range(8):
+        actions = rng.integers(0, model.n_actions, size=n)
+        modes = rng.integers(0, 3, size=n).astype(np.int8)
+        move, start = np.flatnonzero(modes == 0), np.flatnonzero(modes == 1)
+        ref_states, ref_readings, ref = states.copy(), readings.copy(), beliefs.copy()
+        if move.size:
+            ref_states[move] = engine.sample_next(model, states[move], actions[move], b)
+            ref_readings[move] = engine.sample_readings(model, ref_states[move], b)
+            ref[move] = engine.step(model, beliefs[move].reshape(-1, *model.belief_shape), actions[move],
+                                    ref_readings[move])[0].reshape(move.size, -1)
+        if start.size:
+            ref_states[start] = engine.sample_initial(model, start.size, b)
+            ref_readings[start] = engine.sample_readings(model, ref_states[start], b)
+            ref[start] = engine.first_posterior(model, ref_readings[start]).reshape(start.size, -1)
+        out = np.empty_like(beliefs)
+        advance(states, readings, actions, beliefs, out, modes, a)
+        assert np.array_equal(states, ref_states) and np.array_equal(readings, ref_readings)
+        assert out.tobytes() == ref.tobytes()
+        beliefs = out
+    assert a.random() == b.random()  # the same number of draws
+
+
+def test_the_vector_advancer_is_none_where_there_is_no_compiled_path():
+    assert engine.vector_advancer(gym.make("ColourGrid-v0", kidnap_prob=0.05).unwrapped.model) is None

@@ -90,3 +90,14 @@ def test_rewards():
     assert got.dtype == np.float64
     np.testing.assert_array_equal(got, [0.25, 1.0, 0.5])
     assert referee.REWARDS == ("step", "belief")
+
+
+@pytest.mark.parametrize("kind", referee.REWARDS)
+def test_rewards_of_reset_environments_are_zero(kind):
+    """With ``stepped``, the rewards are those of the steps and 0.0 (not -0.0) where an
+    environment was reset: the vector env's rewards."""
+    info = {"confidence": np.array([0.2, 0.95, 0.5, 1.0])}
+    stepped = np.array([True, False, True, False])
+    got = referee.rewards(kind, info, stepped)
+    want = np.where(stepped, referee.rewards(kind, info), 0.0)
+    assert got.dtype == np.float64 and got.tobytes() == want.tobytes()

@@ -465,3 +465,25 @@ def test_bench_step_script_compares_and_bounds(capsys):
         assert re.search(rf"{env_id}\s+\|\s+\d+/s\s+\d+/s \|\s+[\d.]+x >= 30x: (met|NOT met)", out), out
     bound = re.findall(r"([\d.]+) new maps per vector step at ([\d.]+) ms each .*native / sync <= ([\d.]+)x", out)
     assert len(bound) == 1 and float(bound[0][1]) > 0  # DepthMaze only: WindyMaze keeps its map
+
+
+def test_a_rejected_step_changes_nothing_and_actions_are_never_written():
+    """A bad action (also a negative one, on the fast path of int64 arrays) raises before any
+    draw: the states, beliefs and the generator are as before; the caller's actions array is
+    never written; each ``_key`` mask of the info is an array of its own."""
+    env = gym.make_vec("WindyMaze-v0", num_envs=4, vectorization_mode="vector_entry_point")
+    twin = gym.make_vec("WindyMaze-v0", num_envs=4, vectorization_mode="vector_entry_point")
+    env.reset(seed=5)
+    twin.reset(seed=5)
+    for bad in (np.array([0, 1, -1, 2]), np.array([0, 1, 2, 4]), np.array([0, 1, 2, 3], dtype=np.int32)[[0, 1, 2, 2]] + [0, 0, 0, 9]):
+        with pytest.raises(ValueError, match="is not in the action space"):
+            env.step(bad)
+    actions = np.array([3, 2, 1, 0])
+    for _ in range(30):
+        a, b = env.step(actions), twin.step(actions.copy())
+        assert np.array_equal(a[0]["belief"], b[0]["belief"]) and np.array_equal(a[1], b[1])
+        assert np.array_equal(env.unwrapped.states, twin.unwrapped.states)
+    assert actions.tolist() == [3, 2, 1, 0]
+    info = a[4]
+    info["_entropy"][0] = False
+    assert info["_confidence"].all() and info["_localised"].all()

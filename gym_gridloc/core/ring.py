@@ -153,6 +153,16 @@ class RingSensor(Sensor):
         cell = np.take_along_axis(rr * w + cc, np.minimum(k, 24)[:, None], axis=1)[:, 0]
         return np.where(k == 25, self.nothing, cell)
 
+    def draw_table(self) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        h, w = self.grid.shape
+        rows, cols = np.divmod(np.arange(h * w), w)
+        states = np.stack((np.zeros_like(rows), rows, cols), axis=1)
+        probs, rr, cc = self._window(states)
+        values = np.empty(probs.shape, dtype=np.int64)
+        values[:, :25] = rr * w + cc  # (off the grid: probability 0, never drawn)
+        values[:, 25] = self.nothing
+        return self._categorical_table(probs, values)
+
     def sample_one(self, state: tuple[int, int, int], rng: np.random.Generator) -> int:
         """The same draw as :meth:`gym_gridloc.core.sensors.Sensor.sample`, its probabilities kept per cell."""
         key = state[1:]

@@ -6,7 +6,7 @@ the simulator, the filters and the vector environment call is batched over N rea
 states (``states`` are ``(N, 3)`` int arrays of ``(layer, row, col)``), so no caller needs a
 sensor's inner tables.  The sensors here (and :class:`~gym_gridloc.core.ring.RingSensor`) see the position only
 (``layered = False``): their likelihoods are ``(H, W)`` and the same for every layer of a hidden
-state.
+state; :class:`~gym_gridloc.core.depth.DepthSensor` sees the heading too.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from gym_gridloc.core.grid import DIRECTIONS, GridMap, read_only
+from gym_gridloc.core.grid import GridMap, read_only
 from gym_gridloc.core.validation import check_probability, whole_numbers
 
 
@@ -103,6 +103,21 @@ class Sensor(ABC):
                 rows[key] = found
         cum, total, last = found
         return min(bisect.bisect_right(cum, rng.random() * total), last)
+
+    def draw_table(self) -> tuple[int, np.ndarray, np.ndarray, np.ndarray] | None:
+        """:meth:`sample` as one row per state (cell ``r * W + c``; ``layer * H * W + r * W + c``
+        if layered) for compiled loops, or None: ``(kind, probs, totals, values)``.  Kind 0, one
+        uniform ``u``: ``probs`` the running sums of the reading probabilities, ``totals`` their
+        sums (:meth:`sample`'s numbers); the reading is ``values[s, k]`` for the first ``k`` whose
+        running sum exceeds ``u * totals[s]`` (at most the last).  Kind 1, independent bits of one
+        uniform each: the sum of ``values[s, b]`` over the bits with ``u_b < probs[s, b]``."""
+        return None
+
+    @staticmethod
+    def _categorical_table(probs: np.ndarray, values: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """The kind-0 :meth:`draw_table` of reading probabilities ``probs`` and readings ``values`` (S, K)."""
+        probs = np.ascontiguousarray(probs, dtype=np.float64)
+        return 0, np.cumsum(probs, axis=1), probs.sum(axis=1), np.ascontiguousarray(values, dtype=np.int64)
 
     def __getstate__(self) -> dict:
         return {k: v for k, v in self.__dict__.items() if k != "_rows"}  # (a cache: rebuilt on use)
@@ -217,6 +232,11 @@ class TableSensor(Sensor):
         key = state if self.layered else state[1:]
         return self._draw_one(key, lambda: self.table[(slice(None), *key)], rng)
 
+    def draw_table(self) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        k = self.table.shape[0]
+        probs = self.table.reshape(k, -1).T  # (states, readings), as _columns gives them
+        return self._categorical_table(probs, np.broadcast_to(np.arange(k), probs.shape))
+
     def likelihoods(self, readings: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         flat = self.table.reshape(self.table.shape[0], -1)
         return np.take(flat, np.asarray(readings, dtype=np.int64).reshape(-1), axis=0, out=out)
@@ -280,6 +300,10 @@ class WallSensor(TableSensor):
                 table[reading] *= self.p_bits[i] if (reading >> (3 - i)) & 1 else 1.0 - self.p_bits[i]
         self._set_table(table)
 
+    def draw_table(self) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        p = np.ascontiguousarray(self.p_bits.reshape(4, -1).T)  # (cells, 4): P(bit = 1), (W, N, E, S)
+        return 1, p, np.zeros(p.shape[0]), np.ascontiguousarray(np.broadcast_to(self._BITS, p.shape))
+
     def sample(self, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         if states.shape[0] == 1:
             return np.array([self.sample_one(tuple(states[0].tolist()), rng)])
@@ -314,7 +338,7 @@ class WallSensor(TableSensor):
 
     def observations(self, readings: np.ndarray) -> np.ndarray:
         r = np.asarray(readings, dtype=np.int64).reshape(-1)
-        return ((r[:, None] >> self._SHIFTS) & 1).astype(np.int8)
+        return self._OBSERVATIONS.take(r, axis=0)  # (a new array; a reading outside 0..15 raises)
 
     def readings(self, observations: Any, n: int, *, single: Any = None) -> np.ndarray:
         obs = np.asarray(observations)
@@ -335,55 +359,3 @@ class WallSensor(TableSensor):
     def describe(self, reading: int) -> str:
         bits = self.to_observation(reading)
         return "[" + ", ".join("o" if b else "-" for b in bits) + "]  (W, N, E, S)"
-
-
-class DepthSensor(TableSensor):
-    """The depth to the wall ahead, for a robot with a heading (the Maze2D sensor of Active Neural
-    Localization): ``1 +`` the number of free cells between the robot and the first wall (or the
-    edge) in the direction of its heading (layer ``0 = N, 1 = E, 2 = S, 3 = W``).
-
-    Readings are depths ``1..max_depth`` (0 is never read); the observation space is
-    ``Discrete(max_depth + 1)``, so the reading index is the depth itself.  With
-    ``p_depth_error`` the depth is off by one with that total probability, split evenly between
-    ``d - 1`` and ``d + 1`` where both are in ``1..max_depth`` (all of it to the one that is).
-    """
-
-    layered = True
-
-    def __init__(self, grid: GridMap, max_depth: int, p_depth_error: float = 0.0) -> None:
-        super().__init__(grid)
-        self.p_depth_error = check_probability("p_depth_error", p_depth_error)
-        h, w = grid.shape
-        free = grid.free
-        depth = np.zeros((4, h, w), dtype=np.int64)
-        for d, (dr, dc) in enumerate(DIRECTIONS):
-            # Free cells ahead, by a scan against the heading: one vector step per row (column:
-            # the same scan over the transposed views).
-            run = np.zeros((h, w), dtype=np.int64)
-            ahead, lines, step = (free, run, dr) if dr else (free.T, run.T, dc)
-            n = lines.shape[0]
-            for i in range(n - 1, -1, -1) if step > 0 else range(n):
-                if 0 <= i + step < n:
-                    lines[i] = np.where(ahead[i + step], lines[i + step] + 1, 0)
-            depth[d] = np.where(free, run + 1, 0)
-        if int(depth.max()) > max_depth:
-            raise ValueError(f"max_depth={max_depth} is below the map's largest depth {int(depth.max())}")
-        self.depth = read_only(depth)
-        self.max_depth = int(max_depth)
-        self.n_readings = self.max_depth + 1
-        self.observation_space = spaces.Discrete(self.n_readings)
-        table = np.zeros((self.n_readings, 4, h, w))
-        eps = self.p_depth_error
-        for z in range(1, self.n_readings):
-            table[z] += np.where(depth == z, 1.0 - eps, 0.0)
-            for other in (z - 1, z + 1):
-                # P(read z | true depth `other`): the error that lands on z from `other`
-                if 1 <= other <= self.max_depth:
-                    two_sided = (other - 1 >= 1) & (other + 1 <= self.max_depth)
-                    table[z] += np.where(depth == other, eps / 2 if two_sided else eps, 0.0)
-        if self.max_depth == 1:
-            table[1] = np.where(free, 1.0, 0.0)
-        self._set_table(table)
-
-    def describe(self, reading: int) -> str:
-        return f"depth {reading}"

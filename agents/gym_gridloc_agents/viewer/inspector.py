@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 
 from gym_gridloc.core.ring import RingSensor
-from gym_gridloc.core.sensors import ColourSensor, DepthSensor, WallSensor
+from gym_gridloc.core.depth import DepthSensor
+from gym_gridloc.core.sensors import ColourSensor, WallSensor
 from gym_gridloc.rendering import BELIEF_RGB, COLOUR_RGB, absolute_shade
 from gym_gridloc_agents.viewer.style import DIM, HEADINGS, INK, OFF, Shown, _fmt, _shade
 
