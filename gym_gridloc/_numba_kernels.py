@@ -325,6 +325,23 @@ def vector_advance(weights, keys, w, meta, width, n_layers, layered, liks, kind,
 
 
 @numba.njit(cache=True, nogil=True)
+def _row_argmax(a, i, n):  # pragma: no cover - compiled
+    """numpy's argmax of ``a[i, :n]``: the first largest value, or the first NaN."""
+    j = 0
+    best = a[i, 0]
+    if best != best:
+        return 0
+    for c in range(1, n):
+        x = a[i, c]
+        if x != x:
+            return c
+        if x > best:
+            best = x
+            j = c
+    return j
+
+
+@numba.njit(cache=True, nogil=True)
 def batch_readout(flat, n_layers, pose, width, states, threshold, pos, q, k, confidence, estimate, error, localised, success, layer):  # pragma: no cover - compiled
     """:func:`readout` of N hidden-state beliefs ``flat`` (N, L*H*W) and the referee's arrays of
     ``referee.summarise`` (the same numbers): ``pos``/``q`` (N, H*W) as :func:`readout` fills
@@ -344,30 +361,7 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, pos, q, k, con
         for c in range(hw):
             x = pos[i, c]
             q[i, c] = x + 1.0 if x <= 0.0 else x + 0.0
-        # the first largest value, or the first NaN (numpy's argmax)
-        j = 0
-        if pose:
-            best = flat[i, 0]
-            if best == best:
-                for c in range(1, size):
-                    x = flat[i, c]
-                    if x != x:
-                        j = c
-                        break
-                    if x > best:
-                        best = x
-                        j = c
-        else:
-            best = pos[i, 0]
-            if best == best:
-                for c in range(1, hw):
-                    x = pos[i, c]
-                    if x != x:
-                        j = c
-                        break
-                    if x > best:
-                        best = x
-                        j = c
+        j = _row_argmax(flat, i, size) if pose else _row_argmax(pos, i, hw)
         conf = flat[i, j] if pose else pos[i, j]
         cell = j % hw if pose and n_layers > 1 else j
         er, ec = cell // width, cell % width
