@@ -185,6 +185,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._beliefs[sub] = engine.first_posterior(model, self._readings[sub])
         self._elapsed[idx] = 0
 
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_vector": None}  # (the engine's bound function: rebuilt on use)
+
     def _fused(self):
         """:func:`engine.vector_advancer` of the one fixed model, or None (maps redrawn, or a
         model without the compiled path)."""

@@ -487,3 +487,17 @@ def test_a_rejected_step_changes_nothing_and_actions_are_never_written():
     info = a[4]
     info["_entropy"][0] = False
     assert info["_confidence"].all() and info["_localised"].all()
+
+
+def test_a_vector_env_pickles_and_goes_on_as_the_original():
+    import pickle
+
+    env = gym.make_vec("RingSensor8x8-v0", num_envs=5, vectorization_mode="vector_entry_point").unwrapped
+    env.reset(seed=2)
+    env.step(np.array([0, 1, 2, 3, 0]))
+    twin = pickle.loads(pickle.dumps(env))
+    for t in range(20):
+        a = np.arange(5) % 4
+        (oa, ra, *_), (ob, rb, *_) = env.step(a), twin.step(a)
+        assert np.array_equal(oa["belief"], ob["belief"]) and np.array_equal(ra, rb)
+    assert np.array_equal(env.states, twin.states)
