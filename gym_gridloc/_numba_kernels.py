@@ -342,13 +342,16 @@ def _row_argmax(a, i, n):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def batch_readout(flat, n_layers, pose, width, states, threshold, pos, q, k, confidence, estimate, error, localised, success, layer):  # pragma: no cover - compiled
+def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints, confidence, estimate, flags):  # pragma: no cover - compiled
     """:func:`readout` of N hidden-state beliefs ``flat`` (N, L*H*W) and the referee's arrays of
-    ``referee.summarise`` (the same numbers): ``pos``/``q`` (N, H*W) as :func:`readout` fills
-    them, then per row the index ``k`` of the largest tested value, its ``confidence``, the
-    ``estimate`` (row, column), the Manhattan ``error`` to the true ``states`` (layer, row, col),
-    ``localised`` (confidence >= threshold), ``success`` and the estimated ``layer`` (pose).
-    Rows are indexed in place, not sliced (a row's view costs more than its work on small maps)."""
+    ``referee.summarise`` (the same numbers), in blocks (few arguments and allocations: the vector
+    env pays them at every step): ``scratch`` (2, N, H*W) gets ``pos`` and ``q`` as :func:`readout`
+    fills them; per row, ``ints`` (3, N) the index of the largest tested value, the estimated
+    layer (pose) and the Manhattan error to the true ``states`` (layer, row, col);
+    ``confidence``, the ``estimate`` (row, column); ``flags`` (2, N) localised (confidence >=
+    threshold) and success.  Rows are indexed in place, not sliced (a row's view costs more than
+    its work on small maps)."""
+    pos, q = scratch[0], scratch[1]
     hw = pos.shape[1]
     size = flat.shape[1]
     for i in range(flat.shape[0]):
@@ -367,17 +370,18 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, pos, q, k, con
         er, ec = cell // width, cell % width
         lay = j // hw
         e = abs(er - states[i, 1]) + abs(ec - states[i, 2])
-        k[i] = j
+        ints[0, i] = j
+        ints[1, i] = lay
+        ints[2, i] = e
         confidence[i] = conf
         estimate[i, 0] = er
         estimate[i, 1] = ec
-        error[i] = e
-        localised[i] = conf >= threshold
+        localised = conf >= threshold
         right = e == 0
         if pose:
             right = right and lay == states[i, 0]
-        success[i] = localised[i] and right
-        layer[i] = lay
+        flags[0, i] = localised
+        flags[1, i] = localised and right
 
 
 @numba.njit(cache=True, nogil=True)

@@ -94,14 +94,15 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
     hw = h * w
     flat = beliefs.reshape(n, -1)
     st = np.ascontiguousarray(states, dtype=np.int64)
-    # few allocations (a vector env pays them at every step): blocks whose rows are the arrays
-    pos, q = np.empty((2, n, hw))
-    k, layer, error = np.empty((3, n), dtype=np.int64)
-    localised, success = np.empty((2, n), dtype=bool)
-    confidence, estimate = np.empty(n), np.empty((n, 2), dtype=np.int64)
-    fast.batch_readout(flat, L, pose, w, st, float(threshold), pos, q, k, confidence, estimate, error, localised, success, layer)
-    ent = np.empty(n)
+    # few allocations and arguments (a vector env pays them at every step): blocks whose rows are
+    # the arrays
+    scratch, ints, flags = np.empty((2, n, hw)), np.empty((3, n), dtype=np.int64), np.empty((2, n), dtype=bool)
+    confidence, estimate, ent = np.empty(n), np.empty((n, 2), dtype=np.int64), np.empty(n)
+    fast.batch_readout(flat, L, pose, w, st, float(threshold), scratch, ints, confidence, estimate, flags)
+    pos, q = scratch
     fast.batch_entropy(pos, np.log2(q, out=q), ent)
+    _, layer, error = ints
+    localised, success = flags
     info = {"position": st[:, 1:3].copy(), "estimate": estimate, "confidence": confidence, "error": error,
             "localised": localised, "success": success, "entropy": ent}
     if L > 1:

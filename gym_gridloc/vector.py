@@ -289,7 +289,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         fused = self._fused()
         if fused is not None:  # moves and new episodes in one engine call
             self._advance(fused, acts, resetting.view(np.int8))
-            np.multiply(self._elapsed + 1, stepped, out=self._elapsed)  # +1, or 0 when restarted
+            self._elapsed += 1
+            self._elapsed *= stepped  # +1, or 0 when restarted
         else:
             moving = np.flatnonzero(~resetting)
             if moving.size:
@@ -318,7 +319,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
                     "final_info": final_info, "_final_info": done.copy()}
         else:
             self._autoreset = done
-        return obs, rewards, terminated, truncated, self._masked(info, np.ones(n, dtype=bool))
+        return obs, rewards, terminated, truncated, self._masked(info, None)
 
     def _actions(self, actions: Any, resetting: np.ndarray) -> np.ndarray:
         n, k = self.num_envs, self.single_action_space.n
@@ -340,14 +341,19 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     _MASK_NAMES: dict[tuple[str, ...], tuple[str, ...]] = {}
 
     @classmethod
-    def _masked(cls, info: dict, mask: np.ndarray) -> dict:
-        """``info`` with Gymnasium's ``_key`` mask beside each key (one block, a row per key)."""
+    def _masked(cls, info: dict, mask: np.ndarray | None) -> dict:
+        """``info`` with Gymnasium's ``_key`` mask beside each key (one block, a row per key;
+        ``mask`` None: every environment)."""
         keys = tuple(info)
         names = cls._MASK_NAMES.get(keys)
         if names is None:
             names = cls._MASK_NAMES[keys] = tuple(f"_{k}" for k in keys if not k.startswith("_") and f"_{k}" not in info)
-        rows = np.empty((len(names), mask.size), dtype=bool)
-        rows[:] = mask
+        n = len(next(iter(info.values())))
+        if mask is None:
+            rows = np.ones((len(names), n), dtype=bool)
+        else:
+            rows = np.empty((len(names), n), dtype=bool)
+            rows[:] = mask
         out = dict(info)
         out.update(zip(names, rows))
         return out
