@@ -348,7 +348,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         names = cls._MASK_NAMES.get(keys)
         if names is None:
             names = cls._MASK_NAMES[keys] = tuple(f"_{k}" for k in keys if not k.startswith("_") and f"_{k}" not in info)
-        n = len(next(iter(info.values())))
+        n = info["confidence"].shape[0]
         if mask is None:
             rows = np.ones((len(names), n), dtype=bool)
         else:

@@ -337,7 +337,7 @@ class WallSensor(TableSensor):
         return super().to_reading(observation)
 
     def observations(self, readings: np.ndarray) -> np.ndarray:
-        r = np.asarray(readings, dtype=np.int64).reshape(-1)
+        r = readings if type(readings) is np.ndarray and readings.ndim == 1 and readings.dtype.kind == "i" else np.asarray(readings, dtype=np.int64).reshape(-1)
         return self._OBSERVATIONS.take(r, axis=0)  # (a new array; a reading outside 0..15 raises)
 
     def readings(self, observations: Any, n: int, *, single: Any = None) -> np.ndarray:
