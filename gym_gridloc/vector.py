@@ -189,8 +189,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         return {**self.__dict__, "_vector": None}  # (the engine's bound function: rebuilt on use)
 
     def _fused(self):
-        """:func:`engine.vector_advancer` of the one fixed model, or None (maps redrawn, or a
-        model without the compiled path)."""
+        """:func:`engine.vector_advancer` of the one fixed model, or None (maps redrawn, or no compiled path)."""
         if self.template.map_factory is not None:
             return None
         if self._vector is None:
@@ -198,8 +197,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         return self._vector or None
 
     def _advance(self, fused, actions: np.ndarray, modes: np.ndarray) -> None:
-        """A step of every environment in one engine call: ``modes`` 0 moves, 1 starts an
-        episode, 2 keeps (:func:`engine.vector_advancer`); the caller counts the steps."""
+        """Every environment in one engine call (:func:`engine.vector_advancer`'s ``modes``)."""
         n = self.num_envs
         fused(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1), modes, self.np_random)
         self._beliefs, self._spare = self._spare, self._beliefs
@@ -349,11 +347,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         if names is None:
             names = cls._MASK_NAMES[keys] = tuple(f"_{k}" for k in keys if not k.startswith("_") and f"_{k}" not in info)
         n = info["confidence"].shape[0]
-        if mask is None:
-            rows = np.ones((len(names), n), dtype=bool)
-        else:
-            rows = np.empty((len(names), n), dtype=bool)
-            rows[:] = mask
+        rows = np.ones((len(names), n), dtype=bool) if mask is None else np.repeat(mask[None], len(names), axis=0)
         out = dict(info)
         out.update(zip(names, rows))
         return out
