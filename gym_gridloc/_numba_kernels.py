@@ -89,6 +89,23 @@ def batch_update(beliefs, w, meta, actions, lik, layered, out, n_layers, mode, s
 # differ in the last bit from libm's).
 
 @numba.njit(cache=True, nogil=True)
+def _row_argmax(a, i, n):  # pragma: no cover - compiled
+    """numpy's argmax of ``a[i, :n]``: the first largest value, or the first NaN."""
+    j = 0
+    best = a[i, 0]
+    if best != best:
+        return 0
+    for c in range(1, n):
+        x = a[i, c]
+        if x != x:
+            return c
+        if x > best:
+            best = x
+            j = c
+    return j
+
+
+@numba.njit(cache=True, nogil=True)
 def readout(flat, n_layers, pose, pos, q):  # pragma: no cover - compiled
     """For one hidden-state belief ``flat`` (L*H*W, layer-major): ``pos`` (H*W) = the position
     belief (the layers summed in order), ``q`` (H*W) = ``pos + (pos <= 0)`` (the entropy's log2
@@ -102,18 +119,7 @@ def readout(flat, n_layers, pose, pos, q):  # pragma: no cover - compiled
         pos[i] = x
         q[i] = x + 1.0 if x <= 0.0 else x + 0.0
     tested = flat if pose else pos
-    k = 0
-    best = tested[0]
-    if best != best:
-        return 0
-    for i in range(1, tested.size):
-        x = tested[i]
-        if x != x:
-            return i
-        if x > best:
-            best = x
-            k = i
-    return k
+    return _row_argmax(tested.reshape(1, tested.size), 0, tested.size)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -322,23 +328,6 @@ def vector_advance(weights, keys, w, meta, width, n_layers, layered, liks, kind,
         else:
             out[i, :] = beliefs[i]
     return bad
-
-
-@numba.njit(cache=True, nogil=True)
-def _row_argmax(a, i, n):  # pragma: no cover - compiled
-    """numpy's argmax of ``a[i, :n]``: the first largest value, or the first NaN."""
-    j = 0
-    best = a[i, 0]
-    if best != best:
-        return 0
-    for c in range(1, n):
-        x = a[i, c]
-        if x != x:
-            return c
-        if x > best:
-            best = x
-            j = c
-    return j
 
 
 @numba.njit(cache=True, nogil=True)

@@ -120,7 +120,7 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
     L, h, w = belief.shape
     hw = h * w
     flat = belief.reshape(-1)
-    fast = kernels.compiled(flat.size) if flat.dtype.char == "d" else None
+    fast = kernels.compiled(flat.size) if flat.dtype.char == "d" and flat.flags.c_contiguous else None
     if fast is not None:  # small beliefs: one compiled pass, numpy's log2 (the same numbers)
         q = np.empty(hw)
         pos = flat if L == 1 else np.empty(hw)  # (one layer: the kernel writes the same values back)
