@@ -277,23 +277,19 @@ def draw_reading(kind, cum, total, values, s, u, j):  # pragma: no cover - compi
 
 @numba.njit(cache=True, nogil=True)
 def vector_advance(weights, keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
-                   free_cells, posts, possible, modes, states, actions, beliefs, out, readings, u_move, starts,
-                   u_start):  # pragma: no cover - compiled
+                   free_cells, posts, possible, modes, states, actions, beliefs, out, readings, n_moving, u_move,
+                   starts, u_start):  # pragma: no cover - compiled
     """A vector step of N robots on one map: row ``i`` with ``modes[i]`` 0 moves under
     ``actions[i]``, reads and filters (``out[i]`` the normalised posterior of ``beliefs[i]``); 1
     starts an episode at the state index ``starts[...]`` (uniform over free states, layer-major),
     reads, and takes the first posterior ``posts[reading]``; 2 keeps its state, reading and
-    belief.  Random numbers as the engine draws them: ``u_move`` holds the moving rows' move
-    uniforms, then their readings' (``per_draw`` each), rows in order; ``u_start`` the starting
+    belief.  Random numbers as the engine draws them: ``u_move`` holds the ``n_moving`` moving
+    rows' move uniforms, then their readings' (``per_draw`` each), rows in order; ``u_start`` the starting
     rows' readings'.  Returns -1, or the first row whose reading is impossible (z not positive and
     finite: the caller raises)."""
     n = states.shape[0]
     n_free = free_cells.shape[0]
     hw = liks.shape[1] // (n_layers if layered else 1)
-    n_moving = 0
-    for i in range(n):
-        if modes[i] == 0:
-            n_moving += 1
     scratch = np.empty(weights.shape[1])
     jm = 0
     js = 0

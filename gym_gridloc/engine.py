@@ -702,7 +702,7 @@ def _make_vector_advancer(model: GridModel, d: _Derived):
         u_move = rng.random(n_moving * (1 + per_draw)) if n_moving else none
         starts, u_start = (rng.integers(n_states, size=n_starting), rng.random(n_starting * per_draw)) if n_starting else (no_starts, none)
         bad = kernel(weights, keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
-                     free_cells, posts, possible, modes, states, actions, beliefs, out, readings, u_move, starts, u_start)
+                     free_cells, posts, possible, modes, states, actions, beliefs, out, readings, n_moving, u_move, starts, u_start)
         if bad >= 0:
             text = model_ref().sensor.observation_text(int(readings[bad]))
             raise impossible(model_ref(), int(readings[bad]), label=f"observation {text} of belief {bad}")

@@ -114,12 +114,12 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=bool)
         self._started = False
-        self._vector: Any = None  # engine.vector_advancer of the fixed model (False: none)
+        #: engine.vector_advancer of the one fixed model (None: maps redrawn, or no compiled path).
+        self._vector = self._fused_step()
         length = template.episode_length
         #: The step count that truncates an episode (None: never): the fixed episode length or
         #: the time limit, whichever comes first.
         self._limit = self.max_episode_steps if length is None else min(length, self.max_episode_steps or length)
-        self._actions_none = np.zeros(n, dtype=np.int64)
 
     @staticmethod
     def _mode(mode: Any) -> AutoresetMode:
@@ -166,12 +166,11 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         beliefs.  Draws in the single environment's order: maps, then start states, then readings."""
         rng = self.np_random
         factory = self.template.map_factory
-        fused = self._fused()
-        if fused is not None:  # one compiled call; the other rows keep their beliefs
+        if self._vector is not None:  # one compiled call; the other rows keep their beliefs
             n = self.num_envs
             modes = np.full(n, 2, dtype=np.int8)
             modes[idx] = 1
-            self._advance(fused, self._actions_none, modes)
+            self._advance(np.zeros(n, dtype=np.int64), modes)
             self._elapsed[idx] = 0
             return
         if factory is not None:
@@ -186,20 +185,19 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._elapsed[idx] = 0
 
     def __getstate__(self) -> dict:
-        return {**self.__dict__, "_vector": None}  # (the engine's bound function: rebuilt on use)
+        return {**self.__dict__, "_vector": None}  # (the engine's bound function: rebuilt below)
 
-    def _fused(self):
-        """:func:`engine.vector_advancer` of the one fixed model, or None (maps redrawn, or no compiled path)."""
-        if self.template.map_factory is not None:
-            return None
-        if self._vector is None:
-            self._vector = engine.vector_advancer(self.models[0]) or False
-        return self._vector or None
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._vector = self._fused_step()
 
-    def _advance(self, fused, actions: np.ndarray, modes: np.ndarray) -> None:
+    def _fused_step(self):
+        return None if self.template.map_factory is not None else engine.vector_advancer(self.models[0])
+
+    def _advance(self, actions: np.ndarray, modes: np.ndarray) -> None:
         """Every environment in one engine call (:func:`engine.vector_advancer`'s ``modes``)."""
         n = self.num_envs
-        fused(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1), modes, self.np_random)
+        self._vector(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1), modes, self.np_random)
         self._beliefs, self._spare = self._spare, self._beliefs
 
     def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
@@ -284,9 +282,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         resetting = np.zeros(n, dtype=bool) if same_step else self._autoreset
         stepped = ~resetting
         acts = self._actions(actions, resetting)
-        fused = self._fused()
-        if fused is not None:  # moves and new episodes in one engine call
-            self._advance(fused, acts, resetting.view(np.int8))
+        if self._vector is not None:  # moves and new episodes in one engine call
+            self._advance(acts, resetting.view(np.int8))
             self._elapsed += 1
             self._elapsed *= stepped  # +1, or 0 when restarted
         else:
