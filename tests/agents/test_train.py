@@ -164,6 +164,9 @@ def test_unknown_keys_are_named(tmp_path):
             validate_config(tiny(tmp_path, wrapper={"lookahead": bad}))
     with pytest.raises(ConfigError, match="wrapper.lookahead need wrapper.belief: true"):
         validate_config(tiny(tmp_path, wrapper={"belief": False, "flatten": False, "lookahead": 1}))
+    for algo in ("ppo", "a2c", "dqn"):  # a policy without memory is evaluated on the belief observation
+        with pytest.raises(ConfigError, match=f"wrapper.belief: false .* needs algo: recurrent_ppo.*; {algo} acts on the belief"):
+            validate_config(tiny(tmp_path, algo=algo, wrapper={"belief": False}))
     with pytest.raises(ConfigError, match="missing required key 'env_id'"):
         validate_config({"algo": "ppo"})
     with pytest.raises(ConfigError, match="'Nope-v0' is not a registered"):

@@ -250,6 +250,10 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             raise ConfigError(f"{source}: wrapper.{k} must be true or false, got {v!r}")
     if not wrapper["belief"] and (wrapper["flatten"] or wrapper["full_state"] or wrapper["map"] or wrapper.get("lookahead")):
         raise ConfigError(f"{source}: wrapper.flatten / wrapper.full_state / wrapper.map / wrapper.lookahead need wrapper.belief: true")
+    if not wrapper["belief"] and algo != "recurrent_ppo":
+        raise ConfigError(f"{source}: wrapper.belief: false (the raw readings, no belief) needs algo: recurrent_ppo, "
+                          f"whose memory stands in for the belief; {algo} acts on the belief observation "
+                          "(the evaluations and the benchmark give it one)")
     if cfg.setdefault("vec_env", "dummy") not in ("dummy", "native"):
         raise ConfigError(f"{source}: vec_env must be dummy or native, got {cfg['vec_env']!r}")
     if wrapper.get("previous_action"):
