@@ -23,7 +23,8 @@ with colours or walls: features of every cell from the map alone, pooled over th
 often turns on such small probabilities; it appends ``log(belief + eps)``, scaled to [0, 1], to
 the raw observation (``policy_kwargs: {features_extractor: belief_log,
 features_extractor_kwargs: {readings: 4}}``: the first ``readings`` entries, the encoded sensor
-reading, are passed on raw only).
+reading, are passed on raw only).  :class:`ReadingCellFeatures` is for raw readings that report a
+cell (``recurrent_ppo`` on RingSensor8x8): the reported cell's row and column beside the one-hot.
 """
 
 from __future__ import annotations
@@ -266,6 +267,42 @@ class BeliefLogFeatures(BaseFeaturesExtractor):
         return torch.cat([obs, logs], dim=1)
 
 
+class ReadingCellFeatures(BaseFeaturesExtractor):
+    """For a sensor that reports a cell of an ``height x width`` grid or nothing (RingSensor8x8's
+    ``Discrete(H * W + 1)``: ``r * W + c``, then ``H * W`` for nothing), read raw (no belief, e.g.
+    by ``recurrent_ppo``): the flat observation, one-hot reading first (stable-baselines3 encodes
+    a ``Discrete`` reading so; :class:`gym_gridloc.PreviousActionWrapper` keeps it first),
+    followed by the reported cell's row and column scaled to [0, 1] and a flag for nothing.
+
+    One-hot, each of the ``H * W`` cells is an input of its own that the network learns about
+    separately; the row and column let what it learns about one reported cell carry over to its
+    neighbours (e.g. "reported near the top: go south").  Parameters: ``height``, ``width``.
+    """
+
+    dict_observations = False
+
+    def __init__(self, observation_space: spaces.Box, height: int = 8, width: int = 8) -> None:
+        height = check_int("ReadingCellFeatures: height", height, 2, error=ValueError)
+        width = check_int("ReadingCellFeatures: width", width, 2, error=ValueError)
+        n = get_flattened_obs_dim(observation_space)
+        cells = height * width
+        if n < cells + 1:
+            raise ValueError(f"ReadingCellFeatures: a {height}x{width} grid's reading needs {cells + 1} leading "
+                             f"entries, but the observation {observation_space} has {n}")
+        super().__init__(observation_space, features_dim=n + 3)
+        coords = torch.zeros(cells + 1, 3)
+        k = torch.arange(cells)
+        coords[:cells, 0] = (k // width).float() / (height - 1)
+        coords[:cells, 1] = (k % width).float() / (width - 1)
+        coords[cells, 2] = 1.0
+        self.cells = cells
+        self.register_buffer("coords", coords)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        obs = obs.flatten(1).float()
+        return torch.cat([obs, obs[:, : self.cells + 1] @ self.coords], dim=1)
+
+
 #: Features extractors a config may name.
 EXTRACTORS = {"belief_map_cnn": BeliefMapCNN, "pose_pool_cnn": PosePoolCNN, "cell_pool_cnn": CellPoolCNN,
-              "belief_log": BeliefLogFeatures}
+              "belief_log": BeliefLogFeatures, "reading_cell": ReadingCellFeatures}

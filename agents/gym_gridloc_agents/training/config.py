@@ -97,7 +97,8 @@ POLICY_KWARGS = {
             "features_extractor", "features_extractor_kwargs"},
     "recurrent_ppo": {
         "net_arch", "activation_fn", "ortho_init", "lstm_hidden_size", "n_lstm_layers",
-        "shared_lstm", "enable_critic_lstm", "share_features_extractor",
+        "shared_lstm", "enable_critic_lstm", "share_features_extractor", "features_extractor",
+        "features_extractor_kwargs",
     },
     "a2c": {"net_arch", "activation_fn", "ortho_init", "share_features_extractor", "features_extractor",
             "features_extractor_kwargs"},
