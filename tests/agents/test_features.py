@@ -14,8 +14,10 @@ from gymnasium import spaces
 
 import gym_gridloc
 from gym_gridloc import engine
+from gym_gridloc.wrappers import previous_action_space, with_previous_action
 from gym_gridloc_agents.training.config import ConfigError, validate_config
-from gym_gridloc_agents.features import EXTRACTORS, BeliefLogFeatures, BeliefMapCNN, CellPoolCNN, PosePoolCNN, depth_channels
+from gym_gridloc_agents.features import (EXTRACTORS, BeliefLogFeatures, BeliefMapCNN, CellPoolCNN, PosePoolCNN,
+                                         ReadingCellFeatures, depth_channels)
 from gym_gridloc_agents.loading import load_model
 from gym_gridloc_agents.policies import PPOPolicy
 from gym_gridloc_agents.training.train import train
@@ -176,7 +178,7 @@ def _cfg(**policy_kwargs):
 
 
 def test_configs_name_the_extractors():
-    assert set(EXTRACTORS) == {"belief_map_cnn", "pose_pool_cnn", "cell_pool_cnn", "belief_log"}
+    assert set(EXTRACTORS) == {"belief_map_cnn", "pose_pool_cnn", "cell_pool_cnn", "belief_log", "reading_cell"}
     cfg = validate_config(_cfg(features_extractor="pose_pool_cnn", features_extractor_kwargs={"channels": 8, "max_dilation": 4}))
     assert cfg["pretrain"]["episode_batches"] is True
     with pytest.raises(ConfigError, match="features_extractor must be one of belief_map_cnn, pose_pool_cnn"):
@@ -232,6 +234,26 @@ def test_belief_log_features_refuses_bad_inputs():
         BeliefLogFeatures(spaces.Box(0.0, 1.0, (10,), np.float32), readings=10)
     with pytest.raises(ValueError, match="eps_exponent"):
         BeliefLogFeatures(spaces.Box(0.0, 1.0, (10,), np.float32), eps_exponent=0)
+
+
+def test_reading_cell_features_give_the_reported_cell():
+    # RingSensor8x8's reading (65 one-hot: cell r * 8 + c, or 64 for nothing) with
+    # PreviousActionWrapper's 5 slots after it, as the recurrent config reads it
+    env = gym.make("RingSensor8x8-v0")
+    space = previous_action_space(env.observation_space, env.action_space)
+    ext = ReadingCellFeatures(space, height=8, width=8)
+    assert ext.features_dim == 70 + 3 and EXTRACTORS["reading_cell"] is ReadingCellFeatures
+    assert not ReadingCellFeatures.dict_observations
+    obs = torch.zeros(3, 70)
+    for i, reading in enumerate((0, 2 * 8 + 7, 64)):  # top-left, row 2 column 7, nothing
+        obs[i] = torch.as_tensor(with_previous_action(env.observation_space, 4, reading, 1))
+    out = ext(obs)
+    assert torch.equal(out[:, :70], obs)  # the raw observation first
+    assert torch.allclose(out[:, 70:], torch.tensor([[0.0, 0.0, 0.0], [2 / 7, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+    with pytest.raises(ValueError, match="needs 65 leading entries"):
+        ReadingCellFeatures(spaces.Box(0.0, 1.0, (40,), np.float32), height=8, width=8)
+    with pytest.raises(ValueError, match="width"):
+        ReadingCellFeatures(space, height=8, width=0)
 
 
 def test_extractors_say_which_observations_they_read():
