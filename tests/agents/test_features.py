@@ -5,6 +5,7 @@ values; configs name them, and misnamed or misplaced ones are refused."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -23,6 +24,8 @@ from gym_gridloc_agents.policies import PPOPolicy
 from gym_gridloc_agents.training.train import train
 
 from .test_train import tiny
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _maze(size: int, seed: int):
@@ -254,6 +257,22 @@ def test_reading_cell_features_give_the_reported_cell():
         ReadingCellFeatures(spaces.Box(0.0, 1.0, (40,), np.float32), height=8, width=8)
     with pytest.raises(ValueError, match="width"):
         ReadingCellFeatures(space, height=8, width=0)
+
+
+def test_a_reading_cell_config_must_match_the_sensor(tmp_path):
+    from gym_gridloc_agents.training.config import load_config
+
+    cfg = load_config(ROOT / "configs" / "recurrent_ringsensor.yml")  # the shipped recipe validates
+    assert cfg["policy_kwargs"]["features_extractor"] == "reading_cell"
+    raw = {"algo": "recurrent_ppo", "env_id": "RingSensor8x8-v0", "wrapper": {"belief": False}, "total_timesteps": 64,
+           "output": str(tmp_path / "m.zip"), "policy_kwargs": {"features_extractor": "reading_cell"}}
+    validate_config(raw)
+    for env_kwargs, fek in (({"size": (6, 6)}, {}), ({}, {"height": 6}), ({}, {})):
+        bad = {**raw, "env_kwargs": env_kwargs, "policy_kwargs": {**raw["policy_kwargs"], "features_extractor_kwargs": fek}}
+        if not env_kwargs and not fek:
+            bad["env_id"] = "WindyMaze-v0"  # wall bits, not a cell
+        with pytest.raises(ConfigError, match="reading_cell .* reads raw readings"):
+            validate_config(bad)
 
 
 def test_extractors_say_which_observations_they_read():

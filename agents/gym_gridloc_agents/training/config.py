@@ -302,6 +302,14 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         names = [k for k in inspect.signature(EXTRACTORS[pk["features_extractor"]]).parameters if k != "observation_space"]
         if set(fek) - set(names):
             raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs for {pk['features_extractor']} takes {', '.join(names)}, got {', '.join(sorted(fek))}")
+    if pk.get("features_extractor") == "reading_cell":  # the grid it decodes must be the sensor's
+        h, w = fek.get("height", 8), fek.get("width", 8)
+        raw = gym.make(cfg["env_id"], **cfg["env_kwargs"]).observation_space
+        if wrapper["belief"] or raw != gym.spaces.Discrete(h * w + 1):
+            raise ConfigError(f"{source}: features_extractor reading_cell (height {h}, width {w}) reads raw readings "
+                              f"(wrapper.belief: false) of a sensor reporting a cell, Discrete({h * w + 1}); "
+                              f"{cfg['env_id']} with {cfg['env_kwargs']} reads {raw}"
+                              f"{' behind the belief wrapper' if wrapper['belief'] else ''}")
     if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
         raise ConfigError(f"{source}: policy_kwargs.activation_fn must be one of {', '.join(ACTIVATIONS)}, got {pk['activation_fn']!r}")
     if "net_arch" in pk:
