@@ -20,9 +20,10 @@ from gym_gridloc.envs.base import GridLocEnv
 from gym_gridloc.vector import GridLocVectorEnv
 
 
-def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, error: type[Exception]) -> None:
+def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, error: type[Exception]) -> gym.Space:
     """Build ``gym.make(env_id, **env_kwargs)`` once: a gym_gridloc environment, or ``error``
-    naming ``what`` and the reason (an unknown keyword, a bad value, another package's env)."""
+    naming ``what`` and the reason (an unknown keyword, a bad value, another package's env).
+    Returns its (raw) observation space."""
     if not isinstance(env_id, str) or env_id not in gym.registry:
         raise error(f"{what}: {env_id!r} is not a registered environment (gym_gridloc's: {', '.join(gym_gridloc.ENV_IDS)})")
     known = _keywords(env_id)
@@ -33,7 +34,7 @@ def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, err
         env = gym.make(env_id, **env_kwargs)
     except (TypeError, ValueError, gym.error.Error) as exc:
         raise error(f"{what}: {env_id} does not build with {env_kwargs}: {exc}") from None
-    ok = isinstance(env.unwrapped, GridLocEnv)
+    ok, space = isinstance(env.unwrapped, GridLocEnv), env.observation_space
     length, limit = getattr(env.unwrapped, "episode_length", None), env.spec.max_episode_steps if env.spec else None
     env.close()
     if not ok:
@@ -41,6 +42,7 @@ def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, err
     if length and limit and length > limit:  # the time limit would cut the protocol's episodes short
         raise error(f"{what}: episode_length {length} exceeds {env_id}'s max_episode_steps {limit}: the episodes "
                     f"would be truncated at step {limit}; give episode_length <= {limit}")
+    return space
 
 
 def default_kwargs(env_id: str) -> dict[str, Any]:

@@ -281,11 +281,16 @@ class ReadingCellFeatures(BaseFeaturesExtractor):
 
     dict_observations = False
 
-    def __init__(self, observation_space: spaces.Box, height: int = 8, width: int = 8) -> None:
+    @staticmethod
+    def reading_space(height: int = 8, width: int = 8) -> spaces.Discrete:
+        """The raw reading these sizes decode (a config checks it against the environment's)."""
         height = check_int("ReadingCellFeatures: height", height, 2, error=ValueError)
         width = check_int("ReadingCellFeatures: width", width, 2, error=ValueError)
+        return spaces.Discrete(height * width + 1)
+
+    def __init__(self, observation_space: spaces.Box, height: int = 8, width: int = 8) -> None:
+        cells = int(self.reading_space(height, width).n) - 1
         n = get_flattened_obs_dim(observation_space)
-        cells = height * width
         if n < cells + 1:
             raise ValueError(f"ReadingCellFeatures: a {height}x{width} grid's reading needs {cells + 1} leading "
                              f"entries, but the observation {observation_space} has {n}")

@@ -236,7 +236,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         raise ConfigError(f"{source}: env_kwargs must be a mapping, got {cfg['env_kwargs']!r}")
     from gym_gridloc_agents.envs import check_environment
 
-    check_environment(cfg["env_id"], cfg["env_kwargs"], what=f"{source}: env_id/env_kwargs", error=ConfigError)
+    raw_space = check_environment(cfg["env_id"], cfg["env_kwargs"], what=f"{source}: env_id/env_kwargs", error=ConfigError)
 
     wrapper = cfg.setdefault("wrapper", {})
     _known_keys(source, wrapper, WRAPPER_KEYS, "wrapper")
@@ -303,12 +303,14 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         if set(fek) - set(names):
             raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs for {pk['features_extractor']} takes {', '.join(names)}, got {', '.join(sorted(fek))}")
     if pk.get("features_extractor") == "reading_cell":  # the grid it decodes must be the sensor's
-        h, w = fek.get("height", 8), fek.get("width", 8)
-        raw = gym.make(cfg["env_id"], **cfg["env_kwargs"]).observation_space
-        if wrapper["belief"] or raw != gym.spaces.Discrete(h * w + 1):
-            raise ConfigError(f"{source}: features_extractor reading_cell (height {h}, width {w}) reads raw readings "
-                              f"(wrapper.belief: false) of a sensor reporting a cell, Discrete({h * w + 1}); "
-                              f"{cfg['env_id']} with {cfg['env_kwargs']} reads {raw}"
+        try:
+            decoded = EXTRACTORS["reading_cell"].reading_space(**fek)
+        except ValueError as exc:
+            raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs: {exc}") from None
+        if wrapper["belief"] or raw_space != decoded:
+            raise ConfigError(f"{source}: features_extractor reading_cell ({fek or 'its default sizes'}) reads raw readings "
+                              f"(wrapper.belief: false) of a sensor reporting a cell, {decoded}; "
+                              f"{cfg['env_id']} with {cfg['env_kwargs']} reads {raw_space}"
                               f"{' behind the belief wrapper' if wrapper['belief'] else ''}")
     if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
         raise ConfigError(f"{source}: policy_kwargs.activation_fn must be one of {', '.join(ACTIVATIONS)}, got {pk['activation_fn']!r}")
