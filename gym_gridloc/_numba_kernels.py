@@ -277,32 +277,41 @@ def draw_reading(kind, cum, total, values, s, u, j):  # pragma: no cover - compi
 
 @numba.njit(cache=True, nogil=True)
 def vector_advance(weights, keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
-                   free_cells, posts, possible, modes, states, actions, beliefs, out, readings, n_moving, u_move,
-                   starts, u_start):  # pragma: no cover - compiled
-    """A vector step of N robots on one map: row ``i`` with ``modes[i]`` 0 moves under
-    ``actions[i]``, reads and filters (``out[i]`` the normalised posterior of ``beliefs[i]``); 1
-    starts an episode at the state index ``starts[...]`` (uniform over free states, layer-major),
-    reads, and takes the first posterior ``posts[reading]``; 2 keeps its state, reading and
-    belief.  Random numbers as the engine draws them: ``u_move`` holds the ``n_moving`` moving
-    rows' move uniforms, then their readings' (``per_draw`` each), rows in order; ``u_start`` the starting
-    rows' readings'.  Returns -1, or the first row whose reading is impossible (z not positive and
-    finite: the caller raises)."""
+                   free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, n_moving,
+                   u_move, starts, u_start):  # pragma: no cover - compiled
+    """A vector step of N robots, row ``i`` on the model of slot ``slots[i]`` (every table has
+    a leading slot axis: one model's tables, or a bank of models of the same sizes).  Row ``i``
+    with ``modes[i]`` 0 moves under ``actions[i]``, reads and filters (``out[i]`` the normalised
+    posterior of ``beliefs[i]``); 1 starts an episode at the state index ``starts[...]`` (uniform
+    over free states, layer-major), reads, and takes the first posterior ``posts[reading]``; 2
+    keeps its state, reading and belief.  Random numbers as the engine draws them: ``u_move``
+    holds the ``n_moving`` moving rows' move uniforms, then their readings' (``per_draw`` each),
+    rows in order; ``u_start`` the starting rows' readings'.  Returns -1, or the first row whose
+    reading is impossible (z not positive and finite: the caller raises)."""
     n = states.shape[0]
-    n_free = free_cells.shape[0]
-    hw = liks.shape[1] // (n_layers if layered else 1)
-    scratch = np.empty(weights.shape[1])
+    n_free = free_cells.shape[1]
+    hw = liks.shape[2] // (n_layers if layered else 1)
+    scratch = np.empty(weights.shape[2])
     jm = 0
     js = 0
     bad = -1
+    # The slot's tables, taken again only when the slot changes (one model: once)
+    m = slots[0] if n else 0
+    wm, km, cm, tm, vm, lm, fm, pm, qm, sm = weights[m], keys[m], cum[m], total[m], values[m], liks[m], free_cells[m], posts[m], possible[m], w[m]
+    em = meta[m]
     for i in range(n):
         mode = modes[i]
+        if slots[i] != m:
+            m = slots[i]
+            wm, km, cm, tm, vm, lm, fm, pm, qm, sm = weights[m], keys[m], cum[m], total[m], values[m], liks[m], free_cells[m], posts[m], possible[m], w[m]
+            em = meta[m]
         if mode == 0:
-            move_one(weights, keys, actions[i], states[i, 0], states[i, 1], states[i, 2], u_move[jm], width, scratch, states[i])
+            move_one(wm, km, actions[i], states[i, 0], states[i, 1], states[i, 2], u_move[jm], width, scratch, states[i])
             s = (states[i, 0] * hw if layered else 0) + states[i, 1] * width + states[i, 2]
-            rd = draw_reading(kind, cum, total, values, s, u_move, n_moving + jm * per_draw)
+            rd = draw_reading(kind, cm, tm, vm, s, u_move, n_moving + jm * per_draw)
             readings[i] = rd
             a = actions[i]
-            z = stencil_update(beliefs[i], w[a], meta[a], liks[rd], layered, out[i], n_layers, 1)
+            z = stencil_update(beliefs[i], sm[a], em[a], lm[rd], layered, out[i], n_layers, 1)
             if not (z > 0.0 and z < np.inf) and bad < 0:
                 bad = i
             jm += 1
@@ -311,13 +320,13 @@ def vector_advance(weights, keys, w, meta, width, n_layers, layered, liks, kind,
             layer = idx // n_free
             cell = idx - layer * n_free
             states[i, 0] = layer
-            states[i, 1] = free_cells[cell, 0]
-            states[i, 2] = free_cells[cell, 1]
+            states[i, 1] = fm[cell, 0]
+            states[i, 2] = fm[cell, 1]
             s = (layer * hw if layered else 0) + states[i, 1] * width + states[i, 2]
-            rd = draw_reading(kind, cum, total, values, s, u_start, js * per_draw)
+            rd = draw_reading(kind, cm, tm, vm, s, u_start, js * per_draw)
             readings[i] = rd
-            if possible[rd]:
-                out[i, :] = posts[rd]
+            if qm[rd]:
+                out[i, :] = pm[rd]
             elif bad < 0:
                 bad = i
             js += 1

@@ -51,7 +51,7 @@ from gym_gridloc.core.validation import whole_numbers
 
 __all__ = [
     "predict", "update", "step", "backward", "kidnapped", "transition_matrix", "likelihood", "likelihoods", "impossible", "plan",
-    "first_posterior", "sample_initial", "sample_next", "sample_readings", "sampler", "stepper", "advancer", "vector_advancer", "states_of", "simulate", "action_indices", "path", "terms",
+    "first_posterior", "sample_initial", "sample_next", "sample_readings", "sampler", "stepper", "advancer", "vector_advancer", "vector_bank", "VectorBank", "states_of", "simulate", "action_indices", "path", "terms",
     "checked_model",
 ]
 
@@ -73,7 +73,7 @@ class _Derived:
         self._first: tuple[np.ndarray, np.ndarray] | None = None
         self._first_asked = False  # a model used once (a map of one episode) never builds the table
         self._advancer: Any = None
-        self._vector: Any = None  # vector_advancer's function, or False when the model has none
+        self._tables: Any = None  # vector_tables(), or False when the model has none
         #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
         #: ``(cumulative probabilities, last possible outcome)`` (one-state draws).
         self.outcomes: dict[tuple[int, int, int, int], tuple[list[float], int]] = {}
@@ -123,6 +123,12 @@ class _Derived:
             np.divide(post, np.where(ok, z, 1.0)[:, None], out=post)
             self._first = (read_only(post), read_only(ok))
         return self._first
+
+    def vector_tables(self) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]] | None:
+        """The vector step's tables (:func:`_vector_tables`), or None."""
+        if self._tables is None:
+            self._tables = _vector_tables(self.model(), self) or False
+        return self._tables or None
 
     @functools.cached_property
     def plan(self) -> kernels.NumbaPlan | kernels.NumpyPlan:
@@ -669,14 +675,33 @@ def vector_advancer(model: GridModel) -> Callable[..., None] | None:
     C-contiguous float64 ``(N, L*H*W)``, apart.  The same random draws and numbers as those
     functions called in that order (the moving rows, then the starting rows): a test holds them
     equal.  None when the model has no compiled path (a large grid, kidnapping, a sensor without
-    :meth:`~gym_gridloc.core.sensors.Sensor.draw_table`, or too many readings for the tables)."""
-    d = _derived(model)
-    if d._vector is None:
-        d._vector = _make_vector_advancer(model, d) or False
-    return d._vector or None
+    :meth:`~gym_gridloc.core.sensors.Sensor.draw_table`, or too many readings for the tables).
+    N robots each on its own model: :class:`VectorBank`."""
+    bank = vector_bank(model, 1)
+    if bank is None:
+        return None
+    slots: dict[int, np.ndarray] = {}
+
+    def advance_one_model(states, readings, actions, beliefs, out, modes, rng):
+        n = modes.size
+        zeros = slots.get(n)
+        if zeros is None:
+            zeros = slots[n] = np.zeros(n, dtype=np.int64)
+        bank.advance(states, readings, actions, beliefs, out, modes, rng, zeros)
+
+    return advance_one_model
 
 
-def _make_vector_advancer(model: GridModel, d: _Derived):
+def vector_bank(model: GridModel, n_rows: int) -> "VectorBank | None":
+    """A :class:`VectorBank` for ``n_rows`` robots whose first model is ``model``, or None when
+    ``model`` has no compiled vector step (see :func:`vector_advancer`)."""
+    return VectorBank(model, n_rows) if _derived(model).vector_tables() is not None else None
+
+
+def _vector_tables(model: GridModel, d: _Derived) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]] | None:
+    """``(scalars, arrays)`` of :func:`_numba_kernels.vector_advance` for one model, or None when
+    it has no compiled path: ``scalars`` (width, layers, layered, the draw table's kind, uniforms
+    per reading, states), ``arrays`` (:data:`VECTOR_TABLES`), C-contiguous (a bank copies them)."""
     fast = kernels.compiled(model.n_layers * model.shape[0] * model.shape[1])
     if fast is None or model.kidnap_prob > 0.0 or not isinstance(d.plan, kernels.NumbaPlan):
         return None
@@ -685,29 +710,124 @@ def _make_vector_advancer(model: GridModel, d: _Derived):
     if draw is None or first is None:
         return None
     kind, cum, total, values = draw
-    per_draw = cum.shape[1] if kind == 1 else 1
     posts, possible = first
-    liks = np.ascontiguousarray(likelihoods(model, np.arange(model.sensor.n_readings)))
     weights, keys = d.moves
-    plan_, width, n_layers, layered = d.plan, model.shape[1], model.n_layers, d.layered
-    n_states, free_cells = model.n_states, np.ascontiguousarray(model.grid.free_cells, dtype=np.int64)
-    kernel, w, meta = fast.vector_advance, plan_.w, plan_.meta
-    model_ref = weakref.ref(model)  # (the model's cache keeps this function)
-    del model
+    liks = likelihoods(model, np.arange(model.sensor.n_readings))
+    arrays = (weights, keys, d.plan.w, d.plan.meta, liks, cum, total, values, model.grid.free_cells.astype(np.int64), posts, possible)
+    scalars = (model.shape[1], model.n_layers, d.layered, kind, cum.shape[1] if kind == 1 else 1, model.n_states)
+    return scalars, tuple(np.ascontiguousarray(a) for a in arrays)
+
+
+#: The per-model tables of the vector step, in the compiled kernel's order.
+VECTOR_TABLES = ("weights", "keys", "w", "meta", "liks", "cum", "total", "values", "free_cells", "posts", "possible")
+
+
+def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], model_at: Callable[[int], GridModel]):
+    """The vector step over ``stacked`` tables (a leading slot axis):
+    ``(states, readings, actions, beliefs, out, modes, rng, slots)``; ``model_at(slot)`` names
+    the model in an impossible reading's error."""
+    width, n_layers, layered, kind, per_draw, n_states = scalars
+    weights, keys, w, meta, liks, cum, total, values, free_cells, posts, possible = stacked
+    kernel = kernels.compiled(1).vector_advance
     none, no_starts = np.empty(0), np.empty(0, dtype=np.int64)
 
-    def advance(states, readings, actions, beliefs, out, modes, rng):
+    def advance(states, readings, actions, beliefs, out, modes, rng, slots):
         n_moving = modes.size - np.count_nonzero(modes)
         n_starting = 0 if n_moving == modes.size else int(np.count_nonzero(modes == 1))
         u_move = rng.random(n_moving * (1 + per_draw)) if n_moving else none
         starts, u_start = (rng.integers(n_states, size=n_starting), rng.random(n_starting * per_draw)) if n_starting else (no_starts, none)
         bad = kernel(weights, keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
-                     free_cells, posts, possible, modes, states, actions, beliefs, out, readings, n_moving, u_move, starts, u_start)
+                     free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, n_moving, u_move,
+                     starts, u_start)
         if bad >= 0:
-            text = model_ref().sensor.observation_text(int(readings[bad]))
-            raise impossible(model_ref(), int(readings[bad]), label=f"observation {text} of belief {bad}")
+            model = model_at(int(slots[bad]))
+            text = model.sensor.observation_text(int(readings[bad]))
+            raise impossible(model, int(readings[bad]), label=f"observation {text} of belief {bad}")
 
     return advance
+
+
+class VectorBank:
+    """The vector step of N robots each on its own model, in one compiled call: the tables of
+    models of the same sizes (the first model's) stacked, one slot per model (the native vector
+    environment with maps redrawn at reset).  :meth:`slot` places a model (its tables are copied
+    once; a model already placed keeps its slot); :attr:`advance` is :func:`vector_advancer`'s
+    step with the row's slots last: ``(states, readings, actions, beliefs, out, modes, rng,
+    slots)``, the same draws and numbers as :func:`vector_advancer` of each row's model.
+
+    The bank holds at most ``max(2 N, BYTES / one model's tables)`` models; when it is full, a
+    new model takes the least recently placed slot that no row uses.  It holds its models
+    (strongly: the bank belongs to one vector environment)."""
+
+    #: The bank's tables grow to this many bytes before slots are reused (and beyond, to 2 N slots).
+    BYTES = 32 * 2**20
+
+    def __init__(self, model: GridModel, n_rows: int) -> None:
+        tables = _derived(model).vector_tables()
+        if tables is None:
+            raise ValueError("this model has no compiled vector step (engine.vector_bank(model, n) is None)")
+        self.scalars, arrays = tables
+        self.signature = self._signature(tables)
+        per_model = sum(a.nbytes for a in arrays)
+        self.limit = max(2 * n_rows, min(self.BYTES // max(per_model, 1), 4096))
+        self.models: list[GridModel | None] = []
+        self._slot_of: dict[int, int] = {}
+        self._placed = np.zeros(0, dtype=np.int64)  # when each slot was last placed (its model asked for)
+        self._clock = 0
+        self._stacked = tuple(np.empty((0, *a.shape), dtype=a.dtype) for a in arrays)
+        self.slot(model, np.zeros(0, dtype=np.int64))
+
+    @staticmethod
+    def _signature(tables) -> tuple:
+        scalars, arrays = tables
+        return scalars, tuple((a.shape, a.dtype.str) for a in arrays)
+
+    def slot(self, model: GridModel, in_use: np.ndarray) -> int | None:
+        """The slot of ``model`` (placed now if new), or None when the bank cannot hold it (no
+        compiled path, or other sizes).  ``in_use``: the rows' slots, which are not reused."""
+        self._clock += 1
+        s = self._slot_of.get(id(model))
+        if s is not None and self.models[s] is model:
+            self._placed[s] = self._clock
+            return s
+        tables = _derived(model).vector_tables()
+        if tables is None or self._signature(tables) != self.signature:
+            return None
+        s = self._free_slot(in_use)
+        old = self.models[s]
+        if old is not None:
+            del self._slot_of[id(old)]
+        self.models[s] = model
+        self._slot_of[id(model)] = s
+        self._placed[s] = self._clock
+        for bank, a in zip(self._stacked, tables[1]):
+            bank[s] = a
+        return s
+
+    def _free_slot(self, in_use: np.ndarray) -> int:
+        size = len(self.models)
+        if size < self.limit:  # grow (doubling: copies amortised)
+            if size == self._stacked[0].shape[0]:
+                grown = min(self.limit, max(1, 2 * size))
+                self._stacked = tuple(np.concatenate([a, np.empty((grown - size, *a.shape[1:]), dtype=a.dtype)]) for a in self._stacked)
+                self._placed = np.concatenate([self._placed, np.zeros(grown - size, dtype=np.int64)])
+                self._bind()
+            self.models.append(None)
+            return size
+        placed = self._placed.copy()
+        placed[in_use] = np.iinfo(np.int64).max  # (never a slot a row is on: 2 N slots leave N free)
+        return int(np.argmin(placed))
+
+    def _bind(self) -> None:
+        self.advance = _vector_function(self.scalars, self._stacked, lambda s: self.models[s])
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k not in ("advance", "_slot_of")}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._slot_of = {id(m): s for s, m in enumerate(self.models) if m is not None}
+        self._bind()
 
 
 def sample_readings(model: GridModel, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:

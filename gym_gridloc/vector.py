@@ -114,8 +114,10 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=bool)
         self._started = False
-        #: engine.vector_advancer of the one fixed model (None: maps redrawn, or no compiled path).
-        self._vector = self._fused_step()
+        #: The engine's compiled vector step over each environment's model (engine.VectorBank;
+        #: None: no compiled path, or a redrawn map of other sizes: one engine call per model).
+        self._bank = engine.vector_bank(model, n)
+        self._slots = np.zeros(n, dtype=np.int64)  # each environment's slot in the bank
         length = template.episode_length
         #: The step count that truncates an episode (None: never): the fixed episode length or
         #: the time limit, whichever comes first.
@@ -161,22 +163,36 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         for sub in np.split(idx[order], cuts):
             yield self.models[sub[0]], sub
 
-    def _restart(self, idx: np.ndarray) -> None:
-        """Start new episodes in the environments ``idx``: maps (if redrawn), states, readings,
-        beliefs.  Draws in the single environment's order: maps, then start states, then readings."""
+    def _redraw(self, idx: np.ndarray) -> None:
+        """New maps for the environments ``idx`` (in index order, from the batch's generator),
+        placed in the bank (which is dropped, for the per-model engine calls, when it cannot
+        hold one)."""
+        factory, rng, models = self.template.map_factory, self.np_random, self.models
+        for i in idx.tolist():
+            models[i] = model = factory(rng)
+            if self._bank is not None:
+                slot = self._bank.slot(model, self._slots)
+                if slot is None:
+                    self._bank = None
+                else:
+                    self._slots[i] = slot
+        if self._bank is None:
+            self._regroup()
+
+    def _restart(self, idx: np.ndarray, *, redrawn: bool = False) -> None:
+        """Start new episodes in the environments ``idx``: maps (if redrawn and not ``redrawn``
+        already), states, readings, beliefs.  Draws in the single environment's order: maps, then
+        start states, then readings."""
         rng = self.np_random
-        factory = self.template.map_factory
-        if self._vector is not None:  # one compiled call; the other rows keep their beliefs
+        if self.template.map_factory is not None and not redrawn:
+            self._redraw(idx)
+        if self._bank is not None:  # one compiled call; the other rows keep their beliefs
             n = self.num_envs
             modes = np.full(n, 2, dtype=np.int8)
             modes[idx] = 1
             self._advance(np.zeros(n, dtype=np.int64), modes)
             self._elapsed[idx] = 0
             return
-        if factory is not None:
-            for i in idx:
-                self.models[i] = factory(rng)
-            self._regroup()
         for model, sub in self._by_model(idx):
             self._states[sub] = engine.sample_initial(model, sub.size, rng)
         for model, sub in self._by_model(idx):  # each group's beliefs after its readings (they draw nothing)
@@ -184,20 +200,12 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._beliefs[sub] = engine.first_posterior(model, self._readings[sub])
         self._elapsed[idx] = 0
 
-    def __getstate__(self) -> dict:
-        return {**self.__dict__, "_vector": None}  # (the engine's bound function: rebuilt below)
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        self._vector = self._fused_step()
-
-    def _fused_step(self):
-        return None if self.template.map_factory is not None else engine.vector_advancer(self.models[0])
-
     def _advance(self, actions: np.ndarray, modes: np.ndarray) -> None:
-        """Every environment in one engine call (:func:`engine.vector_advancer`'s ``modes``)."""
+        """Every environment in one engine call (:class:`engine.VectorBank`; ``modes`` as
+        :func:`engine.vector_advancer`'s)."""
         n = self.num_envs
-        self._vector(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1), modes, self.np_random)
+        self._bank.advance(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1),
+                           modes, self.np_random, self._slots)
         self._beliefs, self._spare = self._spare, self._beliefs
 
     def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
@@ -230,7 +238,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         obs = model.sensor.observations(self._readings)
         if self.builder is None:
             return obs
-        return self.builder.encode(model if len(self._groups) == 1 else self.models, obs, self._readings, self._beliefs)
+        return self.builder.encode(model if self.template.map_factory is None else self.models, obs, self._readings, self._beliefs)
 
     def _infos(self) -> dict[str, np.ndarray]:
         t = self.template
@@ -282,7 +290,10 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         resetting = np.zeros(n, dtype=bool) if same_step else self._autoreset
         stepped = ~resetting
         acts = self._actions(actions, resetting)
-        if self._vector is not None:  # moves and new episodes in one engine call
+        redrawn = self._bank is not None and self.template.map_factory is not None and resetting.any()
+        if redrawn:  # maps first, then the one call's draws (moves, starts, readings)
+            self._redraw(np.flatnonzero(resetting))
+        if self._bank is not None:  # moves and new episodes in one engine call
             self._advance(acts, resetting.view(np.int8))
             self._elapsed += 1
             self._elapsed *= stepped  # +1, or 0 when restarted
@@ -291,7 +302,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             if moving.size:
                 self._move(moving, acts)
             if resetting.any():
-                self._restart(np.flatnonzero(resetting))
+                self._restart(np.flatnonzero(resetting), redrawn=redrawn)
         info = self._infos()
         length, limit = self.template.episode_length, self._limit
         # a fixed length ends an episode by truncation only; a restarted environment (elapsed 0)

@@ -546,13 +546,16 @@ def test_compiled_kernel_equals_numpy_stencil_on_large_grids(make, monkeypatch):
 
 def test_the_engine_and_lookahead_caches_let_go_of_a_redrawn_map():
     """The per-model caches (the engine's derived data and stepper, the lookahead features) hold
-    their model weakly: a map redrawn at reset is freed, not kept for the life of the process."""
+    their model weakly: a map redrawn at reset is freed, not kept for the life of the process.
+    (A maze of 17 x 17 cells: larger than the small maps whose models redraw keeps.)"""
     import gymnasium as gym
 
     from gym_gridloc import engine
     from gym_gridloc import lookahead as la
+    from gym_gridloc.envs import base
 
-    env = gym_gridloc.HMMBeliefWrapper(gym.make("DepthMaze-v0", size=7), lookahead=2)
+    assert 17 * 17 > base.REDRAWN_CELLS
+    env = gym_gridloc.HMMBeliefWrapper(gym.make("DepthMaze-v0", size=17), lookahead=2)
     env.reset(seed=0)
     env.step(0)
     first = weakref.ref(env.unwrapped.model)
@@ -562,4 +565,4 @@ def test_the_engine_and_lookahead_caches_let_go_of_a_redrawn_map():
         env.step(0)
     gc.collect()
     assert first() is None
-    assert env.unwrapped.model in la._LOOKAHEADS and len(la._LOOKAHEADS) <= 2
+    assert env.unwrapped.model in la._LOOKAHEADS and sum(m.shape == (17, 17) for m in la._LOOKAHEADS) <= 2

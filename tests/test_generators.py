@@ -142,3 +142,48 @@ def test_new_map_each_reset_follows_the_reset_seed(env_id, kwargs):
 def test_generated_envs_pass_check_env():
     check_env(gym.make("ColourGrid-v0", size=(6, 7), n_colours=3, new_map_each_reset=True).unwrapped, skip_render_check=True)
     check_env(gym.make("WindyMaze-v0", size=(8, 8), map_seed=4).unwrapped, skip_render_check=True)
+
+
+def _kruskal_reference(size, rng):
+    """Kruskal's algorithm as perfect_maze's docstring says it, written plainly: the walls between
+    rooms (east walls row by row, then south walls), shuffled by one permutation, each opened
+    when its two rooms are not yet joined."""
+    k = (size - 1) // 2
+    walls = [((r, c), (r, c + 1)) for r in range(k) for c in range(k - 1)] + \
+            [((r, c), (r + 1, c)) for r in range(k - 1) for c in range(k)]
+    tree = {(r, c): (r, c) for r in range(k) for c in range(k)}
+
+    def root(x):
+        while tree[x] != x:
+            x = tree[x]
+        return x
+
+    free = np.zeros((size, size), dtype=bool)
+    free[1::2, 1::2] = True
+    for w in rng.permutation(len(walls)):
+        a, b = walls[w]
+        if root(a) != root(b):
+            tree[root(a)] = root(b)
+            free[a[0] + b[0] + 1, a[1] + b[1] + 1] = True
+    return free
+
+
+@pytest.mark.parametrize("size", [5, 7, 9, 15, 31])
+def test_perfect_mazes_are_kruskal_on_the_shuffled_walls(size):
+    for seed in range(40):
+        rng, ref = np.random.default_rng(seed), np.random.default_rng(seed)
+        for _ in range(3):  # the same draws from a shared generator, maze after maze
+            assert np.array_equal(perfect_maze(size, seed=rng).free, _kruskal_reference(size, ref))
+        assert rng.random() == ref.random()
+
+
+def test_a_small_perfect_maze_drawn_again_is_the_same_map():
+    """A 7x7 perfect maze is one of 192 (the spanning trees of 3x3 rooms): a maze drawn again is
+    the same (frozen) GridMap, so that what is derived from it can be kept."""
+    rng = np.random.default_rng(0)
+    mazes = {}
+    for _ in range(2000):
+        m = perfect_maze(7, seed=rng)
+        assert mazes.setdefault(m.labels.tobytes(), m) is m
+        assert not m.labels.flags.writeable
+    assert 150 <= len(mazes) <= 192

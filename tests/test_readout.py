@@ -287,3 +287,109 @@ def test_the_vector_advancer_equals_the_engine_functions(env_id, kwargs, n):
 
 def test_the_vector_advancer_is_none_where_there_is_no_compiled_path():
     assert engine.vector_advancer(gym.make("ColourGrid-v0", kidnap_prob=0.05).unwrapped.model) is None
+
+
+class _Replay:
+    """A generator stand-in that hands out given draws: ``random`` and ``integers`` return the
+    next array of their list (what a recorded call drew)."""
+
+    def __init__(self, randoms, integers=()):
+        self.randoms, self.integers_ = list(randoms), list(integers)
+
+    def random(self, size=None):
+        return np.asarray(self.randoms.pop(0), dtype=np.float64)
+
+    def integers(self, high, size=None):
+        return np.asarray(self.integers_.pop(0), dtype=np.int64)
+
+
+class _Recorder:
+    """A generator that records what each call drew."""
+
+    def __init__(self, rng):
+        self.rng, self.calls = rng, []
+
+    def random(self, size=None):
+        out = self.rng.random(size)
+        self.calls.append(("random", out.copy()))
+        return out
+
+    def integers(self, high, size=None):
+        out = self.rng.integers(high, size=size)
+        self.calls.append(("integers", out.copy()))
+        return out
+
+
+@needs_numba
+@pytest.mark.parametrize("kwargs", [{}, {"p_depth_error": 0.2, "p_move_fail": 0.1}])
+def test_a_vector_bank_steps_each_row_on_its_own_model(kwargs):
+    """engine.VectorBank, the native vector step with maps redrawn at reset: every row moves,
+    starts or keeps on its own model as vector_advancer of that model does for that row alone,
+    given the same draws (the bank draws for all rows at once: moves, then readings, in row
+    order), to the bit."""
+    env = gym.make("DepthMaze-v0", **kwargs).unwrapped
+    factory = env.map_factory
+    maze_rng = np.random.default_rng(0)
+    models = [factory(maze_rng) for _ in range(6)]
+    n = 11
+    bank = engine.VectorBank(models[0], n)
+    rng = np.random.default_rng(1)
+    slots = np.array([bank.slot(models[i % 6], np.zeros(0, dtype=np.int64)) for i in range(n)], dtype=np.int64)
+    assert len(set(slots.tolist())) == 6 and bank.slot(models[2], slots) == slots[2]  # placed once
+    states = np.concatenate([engine.sample_initial(models[i % 6], 1, rng) for i in range(n)])
+    readings = np.concatenate([engine.sample_readings(models[i % 6], states[i:i + 1], rng) for i in range(n)])
+    beliefs = np.concatenate([engine.first_posterior(models[i % 6], readings[i:i + 1]).reshape(1, -1) for i in range(n)])
+    per = 1  # DepthSensor: one uniform per reading
+    for _ in range(6):
+        actions = rng.integers(0, 3, size=n)
+        modes = rng.integers(0, 3, size=n).astype(np.int8)
+        rec = _Recorder(np.random.default_rng(int(rng.integers(1000))))
+        new_states, new_readings, out = states.copy(), readings.copy(), np.empty_like(beliefs)
+        bank.advance(new_states, new_readings, actions, beliefs, out, modes, rec, slots)
+        calls = [drawn for _, drawn in rec.calls]  # moves and their readings, starts, their readings
+        u_move = calls.pop(0) if (modes == 0).any() else None
+        starts, u_start = calls if (modes == 1).any() else (None, None)
+        moving = np.flatnonzero(modes == 0)
+        js = 0
+        for i in range(n):
+            if modes[i] == 0:
+                j = int(np.flatnonzero(moving == i)[0])
+                replay = _Replay([np.concatenate([u_move[j:j + 1], u_move[moving.size + j * per: moving.size + (j + 1) * per]])])
+            elif modes[i] == 1:
+                replay = _Replay([u_start[js * per:(js + 1) * per]], [starts[js:js + 1]])
+                js += 1
+            else:
+                replay = _Replay([])
+            s, r, o = states[i:i + 1].copy(), readings[i:i + 1].copy(), np.empty((1, beliefs.shape[1]))
+            engine.vector_advancer(models[i % 6])(s, r, actions[i:i + 1], beliefs[i:i + 1], o, modes[i:i + 1], replay)
+            assert np.array_equal(new_states[i], s[0]) and new_readings[i] == r[0]
+            assert out[i].tobytes() == o[0].tobytes()
+        states, readings, beliefs = new_states, new_readings, out
+
+
+@needs_numba
+def test_a_full_vector_bank_reuses_only_slots_no_row_is_on(monkeypatch):
+    """The bank's size is bounded (at least 2 N slots): when it is full, a new model takes a slot
+    no row uses, the least recently placed, and a model placed again keeps its slot."""
+    monkeypatch.setattr(engine.VectorBank, "BYTES", 1)  # the bound: 2 N slots
+    factory = gym.make("DepthMaze-v0").unwrapped.map_factory
+    maze_rng = np.random.default_rng(0)
+    n = 3
+    first = factory(maze_rng)
+    bank = engine.VectorBank(first, n)
+    assert bank.limit == 2 * n
+    in_use = np.array([0, 0, 0], dtype=np.int64)
+    seen = {id(first)}
+    for k in range(40):
+        model = factory(maze_rng)
+        if id(model) in seen:
+            continue
+        seen.add(id(model))
+        s = bank.slot(model, in_use)
+        assert s not in in_use.tolist() and bank.models[s] is model
+        in_use[k % n] = s
+        assert all(bank.models[t] is not None for t in in_use.tolist())
+        assert len(bank.models) <= 2 * n
+    assert bank.slot(bank.models[in_use[0]], in_use) == in_use[0]
+    # a model of other sizes is not placed
+    assert bank.slot(gym.make("DepthMaze-v0", size=9).unwrapped.model, in_use) is None

@@ -109,3 +109,25 @@ def test_the_pose_referee_and_the_research_protocol():
             assert info["confidence"] == full.max() and reward == info["confidence"]
             assert info["success"] == (info["localised"] and (info["estimate_heading"], *info["estimate"]) == env.state)
             assert terminated is False and truncated is (t == 12)
+
+
+def test_a_maze_drawn_again_reuses_its_model():
+    """A small map redrawn at reset is not built again: the same maze gives the same (frozen)
+    model, shared by every environment with the same arguments, and only by those."""
+    from gym_gridloc.envs import base
+
+    a, b = gym.make("DepthMaze-v0").unwrapped, gym.make("DepthMaze-v0").unwrapped
+    by_maze: dict[bytes, object] = {}
+    for seed in range(400):  # (192 mazes: fewer than the models kept)
+        for env in (a, b):
+            env.reset(seed=seed)
+            assert by_maze.setdefault(env.model.grid.labels.tobytes(), env.model) is env.model
+    assert len(by_maze) < 400  # mazes came again
+    other = gym.make("DepthMaze-v0", p_depth_error=0.1).unwrapped
+    ours = {id(m) for m in by_maze.values()}
+    for seed in range(50):
+        other.reset(seed=seed)
+        assert id(other.model) not in ours and other.model.sensor.p_depth_error == 0.1
+    assert len(base._REDRAWN) <= base.REDRAWN_MODELS
+    big = gym.make("DepthMaze-v0", size=17).unwrapped  # 289 cells: not kept
+    assert base._redraw_key(big.map_factory.keywords["build"], big.model.grid) is None
