@@ -751,7 +751,7 @@ class VectorBank:
     """The vector step of N robots each on its own model, in one compiled call: the tables of
     models of the same sizes (the first model's) stacked, one slot per model (the native vector
     environment with maps redrawn at reset).  :meth:`slot` places a model (its tables are copied
-    once; a model already placed keeps its slot); :attr:`advance` is :func:`vector_advancer`'s
+    once; a model already placed keeps its slot); ``advance`` is :func:`vector_advancer`'s
     step with the row's slots last: ``(states, readings, actions, beliefs, out, modes, rng,
     slots)``, the same draws and numbers as :func:`vector_advancer` of each row's model.
 

@@ -107,20 +107,15 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
 
         self.models = [model] * n
         self._groups = [np.arange(n)]  # env indices per distinct model, in index order
-        self._beliefs = np.zeros((n, *model.belief_shape))
-        self._spare = np.zeros_like(self._beliefs)
-        self._states = np.zeros((n, 3), dtype=np.int64)
-        self._readings = np.zeros(n, dtype=np.int64)
-        self._elapsed = np.zeros(n, dtype=np.int64)
-        self._autoreset = np.zeros(n, dtype=bool)
+        self._beliefs, self._spare = np.zeros((n, *model.belief_shape)), np.zeros((n, *model.belief_shape))
+        self._states, self._readings = np.zeros((n, 3), dtype=np.int64), np.zeros(n, dtype=np.int64)
+        self._elapsed, self._autoreset = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool)
         self._started = False
-        #: The engine's compiled vector step over each environment's model (engine.VectorBank;
-        #: None: no compiled path, or a redrawn map of other sizes: one engine call per model).
+        #: engine.VectorBank of the environments' models (None: no compiled step; one engine call per model)
         self._bank = engine.vector_bank(model, n)
         self._slots = np.zeros(n, dtype=np.int64)  # each environment's slot in the bank
         length = template.episode_length
-        #: The step count that truncates an episode (None: never): the fixed episode length or
-        #: the time limit, whichever comes first.
+        #: The step count that truncates an episode (None: never): episode length or time limit, the first.
         self._limit = self.max_episode_steps if length is None else min(length, self.max_episode_steps or length)
 
     @staticmethod
@@ -164,25 +159,22 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             yield self.models[sub[0]], sub
 
     def _redraw(self, idx: np.ndarray) -> None:
-        """New maps for the environments ``idx`` (in index order, from the batch's generator),
-        placed in the bank (which is dropped, for the per-model engine calls, when it cannot
-        hold one)."""
-        factory, rng, models = self.template.map_factory, self.np_random, self.models
+        """New maps for the environments ``idx`` (in index order, from the batch's generator), each
+        placed in the bank (dropped, for one engine call per model, when it cannot hold one)."""
+        factory, rng, models, bank = self.template.map_factory, self.np_random, self.models, self._bank
         for i in idx.tolist():
-            models[i] = model = factory(rng)
-            if self._bank is not None:
-                slot = self._bank.slot(model, self._slots)
-                if slot is None:
-                    self._bank = None
-                else:
-                    self._slots[i] = slot
-        if self._bank is None:
+            models[i] = factory(rng)
+            slot = None if bank is None else bank.slot(models[i], self._slots)
+            if slot is None:
+                bank = self._bank = None
+            else:
+                self._slots[i] = slot
+        if bank is None:
             self._regroup()
 
     def _restart(self, idx: np.ndarray, *, redrawn: bool = False) -> None:
-        """Start new episodes in the environments ``idx``: maps (if redrawn and not ``redrawn``
-        already), states, readings, beliefs.  Draws in the single environment's order: maps, then
-        start states, then readings."""
+        """Start new episodes in the environments ``idx``: maps (if redrawn, and not ``redrawn``
+        already), states, readings, beliefs, drawn in the single environment's order."""
         rng = self.np_random
         if self.template.map_factory is not None and not redrawn:
             self._redraw(idx)
