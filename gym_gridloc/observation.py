@@ -177,16 +177,21 @@ class BeliefObservation:
         return np.concatenate(parts)
 
     def encode(self, models: GridModel | list[GridModel], observations: Any, readings: np.ndarray,
-               full_beliefs: np.ndarray):
+               full_beliefs: np.ndarray, positions: np.ndarray | None = None):
         """N observations: the sensor ``observations`` batched (a vector env's batch, or a dict of
         batches), their ``readings`` (N,), the hidden-state beliefs ``(N, L, H, W)`` and the model
-        of each (one model for all, or N)."""
+        of each (one model for all, or N).  ``positions``: the position beliefs ``(N, H*W)``
+        when the caller has them (:func:`gym_gridloc.referee.readout`: the same sums)."""
+        if positions is not None and not self.full_state:
+            n, _, h, w = full_beliefs.shape
+            belief = observed_belief(positions.reshape(n, 1, h, w), False)
+        else:
+            belief = observed_belief(full_beliefs, self.full_state)
         if self._plain and not isinstance(observations, dict):  # the common case, shortest
-            return {"observation": observations, self.key: observed_belief(full_beliefs, self.full_state)}
+            return {"observation": observations, self.key: belief}
         n = full_beliefs.shape[0]
         each = [models] * n if isinstance(models, GridModel) else list(models)
         model = each[0]
-        belief = observed_belief(full_beliefs, self.full_state)
         maps = look = None
         if self.map:
             channels = {id(m): _channels(m) for m in each}  # once per distinct map

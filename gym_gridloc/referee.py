@@ -52,6 +52,13 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
     ``success`` when localised on the truth (the true state, with ``pose``); ``entropy`` of the
     position belief in bits.
     """
+    return readout(beliefs, states, threshold, pose=pose)[0]
+
+
+def readout(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose: bool = False) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """:func:`summarise` and the position beliefs ``(N, H*W)`` float64 it read (the layers summed
+    in order, as ``beliefs.sum(axis=1)``; one layer: the beliefs themselves), for a caller that
+    needs them too (the native vector env's observation): one pass over the beliefs, not two."""
     n, L, h, w = beliefs.shape
     fast = kernels.compiled(L * h * w) if beliefs.dtype.char == "d" and beliefs.flags.c_contiguous else None
     if fast is not None and n > 0:
@@ -84,10 +91,10 @@ def summarise(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose
         info["heading"] = states[:, 0].copy()
     if pose:
         info["estimate_heading"] = layer
-    return info
+    return info, pflat
 
 
-def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold: float, pose: bool) -> dict[str, np.ndarray]:
+def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold: float, pose: bool) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """:func:`summarise` on small float64 beliefs: one compiled pass for the readout, numpy's
     log2, one compiled pass for the entropies (the same numbers; ``tests/test_readout.py``)."""
     n, L, h, w = beliefs.shape
@@ -109,7 +116,7 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
         info["heading"] = st[:, 0].copy()
     if pose:
         info["estimate_heading"] = layer
-    return info
+    return info, pos
 
 
 def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bool = False) -> dict[str, Any]:

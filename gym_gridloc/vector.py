@@ -147,8 +147,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._group_of[g] = k
 
     def _by_model(self, idx: np.ndarray):
-        """``(model, indices)`` for the environments ``idx``, one pair per distinct model, in the
-        order of the groups (each model's first environment), indices ascending within each."""
+        """``(model, indices)`` of ``idx`` per distinct model, in group order, indices ascending."""
         if len(self._groups) == 1:
             yield self.models[0], idx
             return
@@ -225,16 +224,16 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._elapsed[idx] += 1
 
     # -- observations and infos -------------------------------------------------------------------
-    def _observations(self):
-        model = self.models[0]
-        obs = model.sensor.observations(self._readings)
-        if self.builder is None:
-            return obs
-        return self.builder.encode(model if self.template.map_factory is None else self.models, obs, self._readings, self._beliefs)
+    def _observations(self, positions: np.ndarray | None = None):
+        """The N observations (``positions``: the position beliefs :meth:`_infos` read)."""
+        obs = self.models[0].sensor.observations(self._readings)
+        models = self.models[0] if self.template.map_factory is None else self.models
+        return obs if self.builder is None else self.builder.encode(models, obs, self._readings, self._beliefs, positions)
 
-    def _infos(self) -> dict[str, np.ndarray]:
+    def _infos(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """The referee's infos and the position beliefs it read (:func:`referee.readout`)."""
         t = self.template
-        return referee.summarise(self._beliefs, self._states, t.localise_threshold, pose=t.referee_pose)
+        return referee.readout(self._beliefs, self._states, t.localise_threshold, pose=t.referee_pose)
 
     # -- Gymnasium API ----------------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
@@ -260,7 +259,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._restart(idx)
         self._autoreset[idx] = False
         self._started = True
-        return self._observations(), self._masked(self._infos(), mask)
+        info, positions = self._infos()
+        return self._observations(positions), self._masked(info, mask)
 
     @staticmethod
     def _seeded(seed: Any) -> tuple[np.random.Generator, int]:
@@ -295,14 +295,14 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
                 self._move(moving, acts)
             if resetting.any():
                 self._restart(np.flatnonzero(resetting), redrawn=redrawn)
-        info = self._infos()
+        info, positions = self._infos()
         length, limit = self.template.episode_length, self._limit
         # a fixed length ends an episode by truncation only; a restarted environment (elapsed 0)
         # is never truncated
         terminated = info["localised"] & stepped if length is None else np.zeros(n, dtype=bool)
         truncated = self._elapsed >= limit if limit else np.zeros(n, dtype=bool)
         rewards = referee.rewards(self.template.reward_kind, info, stepped)
-        obs = self._observations()
+        obs = self._observations(positions)
         done = terminated | truncated
         if same_step and done.any():
             ended = np.flatnonzero(done)
@@ -312,8 +312,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
                 final_obs[i] = {k: v[i].copy() for k, v in obs.items()} if isinstance(obs, dict) else obs[i].copy()
                 final_info[i] = {k: v[i] for k, v in info.items()}
             self._restart(ended)
-            obs = self._observations()
-            info = {**self._infos(), "final_obs": final_obs, "_final_obs": done.copy(),
+            info, positions = self._infos()
+            obs = self._observations(positions)
+            info = {**info, "final_obs": final_obs, "_final_obs": done.copy(),
                     "final_info": final_info, "_final_info": done.copy()}
         else:
             self._autoreset = done
@@ -329,12 +330,11 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         acts = np.asarray(actions)
         if acts.shape != (n,) or not whole_numbers(acts):
             raise ValueError(f"actions must be {n} integers in 0..{k - 1}, got {actions!r}")
-        acts = acts.astype(np.int64)
         bad = ~resetting & ((acts < 0) | (acts >= k))
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise ValueError(f"action {int(acts[i])} of env {i} is not in the action space {self.single_action_space} ({self.models[i].action_legend})")
-        return np.where(resetting, 0, acts)
+        return np.where(resetting, 0, acts).astype(np.int64)
 
     _MASK_NAMES: dict[tuple[str, ...], tuple[str, ...]] = {}
 

@@ -9,6 +9,9 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 import gym_gridloc
 from gym_gridloc import ForwardFilter, engine, kernels, observation, referee
@@ -77,9 +80,15 @@ def test_compiled_summarise_equals_numpy_summarise(pose, monkeypatch):
         states = np.stack([rng.integers(0, d, size=len(group)) for d in shape], axis=1)
         cases.append((batch, states))
     fast = [referee.summarise(b, s, 0.5, pose=pose) for b, s in cases]
+    read = [referee.readout(b, s, 0.5, pose=pose) for b, s in cases]
     numpy_only(monkeypatch)
-    for (b, s), got in zip(cases, fast):
+    for (b, s), got, (info, positions) in zip(cases, fast, read):
         assert same(got, referee.summarise(b, s, 0.5, pose=pose)), b.shape
+        # readout: the same infos, and the position beliefs as numpy sums the layers, to the bit
+        assert same(info, got)
+        assert positions.tobytes() == b.sum(axis=1).reshape(b.shape[0], -1).tobytes()
+        numpy_info, numpy_positions = referee.readout(b, s, 0.5, pose=pose)
+        assert same(numpy_info, got) and numpy_positions.tobytes() == positions.tobytes()
 
 
 @needs_numba
@@ -393,3 +402,36 @@ def test_a_full_vector_bank_reuses_only_slots_no_row_is_on(monkeypatch):
     assert bank.slot(bank.models[in_use[0]], in_use) == in_use[0]
     # a model of other sizes is not placed
     assert bank.slot(gym.make("DepthMaze-v0", size=9).unwrapped.model, in_use) is None
+
+
+@needs_numba
+@settings(max_examples=300, deadline=None)
+@given(hnp.arrays(np.float64, st.integers(1, 23),
+                  elements=st.one_of(st.sampled_from([0.0, -0.0, 0.5, 1.0, np.nan, np.inf, -np.inf]),
+                                     st.floats(-2, 2, allow_nan=False))))
+def test_the_compiled_argmax_is_numpys(row):
+    """The readout's argmax (four running maxima on finite rows, numpy's loop otherwise) is
+    numpy's: the first largest value, the first NaN; ties, signed zeros, infinities."""
+    from gym_gridloc import _numba_kernels as fast
+
+    a = np.stack([row, row[::-1].copy()])
+    for i in range(2):
+        assert fast._row_argmax(a, i, a.shape[1]) == int(np.argmax(a[i]))
+
+
+@pytest.mark.parametrize("options", [{}, {"flatten": True}, {"full_state": True}, {"map": True}])
+def test_an_observation_from_the_referees_positions_is_the_same(options):
+    """BeliefObservation.encode given the position beliefs the referee read (referee.readout, as
+    the native vector env passes them) builds the observation it builds from the beliefs alone."""
+    env = gym.make("DepthMaze-v0", map_seed=2).unwrapped
+    model = env.model
+    rng = np.random.default_rng(3)
+    states = engine.sample_initial(model, 9, rng)
+    readings = engine.sample_readings(model, states, rng)
+    full = engine.first_posterior(model, readings)  # (9, 4, 7, 7): spread over headings and cells
+    builder = observation.BeliefObservation(model, **options)
+    obs = model.sensor.observations(readings)
+    _, positions = referee.readout(full, states, 0.9, pose=True)
+    a, b = builder.encode(model, obs, readings, full), builder.encode(model, obs, readings, full, positions)
+    for x, y in ((a, b),) if not isinstance(a, dict) else ((a[k], b[k]) for k in a):
+        assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
