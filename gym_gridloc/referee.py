@@ -164,6 +164,30 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
     return info
 
 
+def outcomes(kind: str, info: dict[str, np.ndarray], restarted: np.ndarray, elapsed: np.ndarray, limit: int | None,
+             fixed_length: bool, *, count: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """How N steps end, from the referee's ``info`` (:func:`summarise`): ``(rewards, terminated,
+    truncated, done)``.  ``restarted`` (N booleans): the environments that started an episode
+    instead of stepping (reward 0.0, never terminated); ``elapsed`` (N,) int64 the episodes'
+    step counts, advanced here when ``count`` (+1, or 0 where restarted); ``limit``: the count
+    that truncates (None: never); ``fixed_length``: episodes end by truncation only.  Small
+    batches: one compiled pass (the same numbers)."""
+    fast = kernels.compiled(1)
+    if fast is not None:
+        n = elapsed.shape[0]
+        rewards_, flags = np.empty(n), np.empty((3, n), dtype=bool)
+        fast.batch_outcomes(info["localised"], info["confidence"], restarted, elapsed, count, limit or 0, fixed_length,
+                            kind == "belief", rewards_, flags)
+        return rewards_, flags[0], flags[1], flags[2]
+    stepped = ~restarted
+    if count:
+        elapsed += 1
+        elapsed *= stepped  # +1, or 0 when restarted
+    terminated = np.zeros(elapsed.shape[0], dtype=bool) if fixed_length else info["localised"] & stepped
+    truncated = elapsed >= limit if limit else np.zeros(elapsed.shape[0], dtype=bool)
+    return rewards(kind, info, stepped), terminated, truncated, terminated | truncated
+
+
 def rewards(kind: str, info: dict[str, np.ndarray], stepped: np.ndarray | None = None) -> np.ndarray:
     """The reward of each of N steps: -1 (``"step"``), or the referee's confidence (``"belief"``);
     0.0 where ``stepped`` (N booleans, if given) is False (an environment that was reset)."""

@@ -29,7 +29,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from gym_gridloc import engine, referee
+from gym_gridloc import engine, kernels, referee
 from gym_gridloc.core.validation import check_int, is_int, whole_numbers
 from gym_gridloc.envs.base import GridLocEnv
 from gym_gridloc.observation import BeliefObservation, check_lookahead
@@ -114,6 +114,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         #: engine.VectorBank of the environments' models (None: no compiled step; one engine call per model)
         self._bank = engine.vector_bank(model, n)
         self._slots = np.zeros(n, dtype=np.int64)  # each environment's slot in the bank
+        self._below = None if self._bank is None else kernels.compiled(1).all_below  # the actions' check, compiled
         length = template.episode_length
         #: The step count that truncates an episode (None: never): episode length or time limit, the first.
         self._limit = self.max_episode_steps if length is None else min(length, self.max_episode_steps or length)
@@ -280,15 +281,12 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         # (NEXT_STEP: the environments that ended last step start again, ignoring their actions;
         # self._autoreset is replaced, never changed in place, so no copy)
         resetting = np.zeros(n, dtype=bool) if same_step else self._autoreset
-        stepped = ~resetting
         acts = self._actions(actions, resetting)
         redrawn = self._bank is not None and self.template.map_factory is not None and resetting.any()
         if redrawn:  # maps first, then the one call's draws (moves, starts, readings)
             self._redraw(np.flatnonzero(resetting))
-        if self._bank is not None:  # moves and new episodes in one engine call
+        if self._bank is not None:  # moves and new episodes in one engine call (step counts: below)
             self._advance(acts, resetting.view(np.int8))
-            self._elapsed += 1
-            self._elapsed *= stepped  # +1, or 0 when restarted
         else:
             moving = np.flatnonzero(~resetting)
             if moving.size:
@@ -296,14 +294,10 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             if resetting.any():
                 self._restart(np.flatnonzero(resetting), redrawn=redrawn)
         info, positions = self._infos()
-        length, limit = self.template.episode_length, self._limit
-        # a fixed length ends an episode by truncation only; a restarted environment (elapsed 0)
-        # is never truncated
-        terminated = info["localised"] & stepped if length is None else np.zeros(n, dtype=bool)
-        truncated = self._elapsed >= limit if limit else np.zeros(n, dtype=bool)
-        rewards = referee.rewards(self.template.reward_kind, info, stepped)
+        rewards, terminated, truncated, done = referee.outcomes(
+            self.template.reward_kind, info, resetting, self._elapsed, self._limit, self.template.episode_length is not None,
+            count=self._bank is not None)  # (the other path counted the steps as it made them)
         obs = self._observations(positions)
-        done = terminated | truncated
         if same_step and done.any():
             ended = np.flatnonzero(done)
             final_obs = np.full(n, None, dtype=object)
@@ -323,7 +317,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     def _actions(self, actions: Any, resetting: np.ndarray) -> np.ndarray:
         n, k = self.num_envs, self.single_action_space.n
         if (type(actions) is np.ndarray and actions.dtype == np.int64 and actions.shape == (n,)
-                and actions.flags.c_contiguous and actions.view(np.uint64).max() < k):
+                and actions.flags.c_contiguous and (self._below(actions, k) if self._below else actions.view(np.uint64).max() < k)):
             # the common case, one pass (a negative action is a huge unsigned one); the engine
             # never writes the actions and ignores those of restarting environments
             return actions

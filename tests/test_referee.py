@@ -101,3 +101,37 @@ def test_rewards_of_reset_environments_are_zero(kind):
     got = referee.rewards(kind, info, stepped)
     want = np.where(stepped, referee.rewards(kind, info), 0.0)
     assert got.dtype == np.float64 and got.tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("kind", referee.REWARDS)
+@pytest.mark.parametrize("limit, fixed_length", [(None, False), (3, False), (4, True)])
+def test_outcomes_compiled_and_numpy_agree(kind, limit, fixed_length, monkeypatch):
+    """referee.outcomes, the vector env's end of a step: rewards (0.0 where restarted),
+    terminated (localised, on a step, unless the length is fixed), truncated (at the limit) and
+    the step counts (+1, or 0 where restarted), compiled and in numpy, to the bit."""
+    from gym_gridloc import kernels
+
+    rng = np.random.default_rng(1)
+    n = 40
+    info = {"localised": rng.random(n) < 0.3, "confidence": rng.random(n)}
+    restarted = rng.random(n) < 0.2
+    elapsed = rng.integers(0, 5, size=n)
+    results = []
+    for available in (True, False):
+        if kernels.compiled(1) is None and available:
+            continue
+        monkeypatch.setattr(kernels, "AVAILABLE", available)
+        for count in (True, False):
+            e = elapsed.copy()
+            out = referee.outcomes(kind, info, restarted, e, limit, fixed_length, count=count)
+            results.append((available, count, [x.tobytes() for x in out], e.tobytes()))
+            rewards, terminated, truncated, done = out
+            after = np.where(restarted, 0, elapsed + 1) if count else elapsed
+            assert np.array_equal(e, after)
+            assert rewards.tobytes() == np.where(restarted, 0.0, info["confidence"] if kind == "belief" else -1.0).tobytes()
+            assert np.array_equal(terminated, info["localised"] & ~restarted & (not fixed_length))
+            assert np.array_equal(truncated, after >= limit if limit else np.zeros(n, dtype=bool))
+            assert np.array_equal(done, terminated | truncated)
+    by_count = {}
+    for _, count, arrays, e in results:
+        assert by_count.setdefault(count, (arrays, e)) == (arrays, e)
