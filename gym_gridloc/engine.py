@@ -17,7 +17,7 @@ the particle filter, smoothing and Viterbi, and the lookahead policies.
 * :func:`stepper`, :func:`sampler`, :func:`advancer`, :func:`vector_advancer` -- bound functions
   for hot loops: one belief's step, one robot's move and reading, N robots moved, read and
   filtered at once, and a vector step of N robots (moves, new episodes, readings, beliefs) as
-  one compiled call.
+  one compiled call; :class:`VectorBank`, the same step with each robot on its own model.
 
 Kidnapping (``model.kidnap_prob``: after a move, the robot is teleported to a uniformly chosen free
 state) is mixed in here and nowhere else: :func:`predict` and :func:`backward` mix it into the

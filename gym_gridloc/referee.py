@@ -165,14 +165,15 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
 
 
 def outcomes(kind: str, info: dict[str, np.ndarray], restarted: np.ndarray, elapsed: np.ndarray, limit: int | None,
-             fixed_length: bool, *, count: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+             fixed_length: bool, *, count: bool = True, cells: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """How N steps end, from the referee's ``info`` (:func:`summarise`): ``(rewards, terminated,
     truncated, done)``.  ``restarted`` (N booleans): the environments that started an episode
     instead of stepping (reward 0.0, never terminated); ``elapsed`` (N,) int64 the episodes'
     step counts, advanced here when ``count`` (+1, or 0 where restarted); ``limit``: the count
-    that truncates (None: never); ``fixed_length``: episodes end by truncation only.  Small
-    batches: one compiled pass (the same numbers)."""
-    fast = kernels.compiled(1)
+    that truncates (None: never); ``fixed_length``: episodes end by truncation only.  ``cells``:
+    the size of a belief (L*H*W), which decides, as for :func:`summarise`, whether one compiled
+    pass does it (the same numbers)."""
+    fast = None if cells is None else kernels.compiled(cells)
     if fast is not None:
         n = elapsed.shape[0]
         rewards_, flags = np.empty(n), np.empty((3, n), dtype=bool)

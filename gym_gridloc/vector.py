@@ -114,7 +114,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         #: engine.VectorBank of the environments' models (None: no compiled step; one engine call per model)
         self._bank = engine.vector_bank(model, n)
         self._slots = np.zeros(n, dtype=np.int64)  # each environment's slot in the bank
-        self._below = None if self._bank is None else kernels.compiled(1).all_below  # the actions' check, compiled
+        fast = kernels.compiled(self._beliefs[0].size)  # (None: numpy, as the referee and the filter)
+        self._below = None if fast is None else fast.all_below  # the actions' range check
         length = template.episode_length
         #: The step count that truncates an episode (None: never): episode length or time limit, the first.
         self._limit = self.max_episode_steps if length is None else min(length, self.max_episode_steps or length)
@@ -296,7 +297,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         info, positions = self._infos()
         rewards, terminated, truncated, done = referee.outcomes(
             self.template.reward_kind, info, resetting, self._elapsed, self._limit, self.template.episode_length is not None,
-            count=self._bank is not None)  # (the other path counted the steps as it made them)
+            count=self._bank is not None, cells=self._beliefs[0].size)  # (the other path counted its steps)
         obs = self._observations(positions)
         if same_step and done.any():
             ended = np.flatnonzero(done)

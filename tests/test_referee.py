@@ -121,9 +121,10 @@ def test_outcomes_compiled_and_numpy_agree(kind, limit, fixed_length, monkeypatc
         if kernels.compiled(1) is None and available:
             continue
         monkeypatch.setattr(kernels, "AVAILABLE", available)
+        assert (kernels.compiled(49) is not None) is available  # (each path taken)
         for count in (True, False):
             e = elapsed.copy()
-            out = referee.outcomes(kind, info, restarted, e, limit, fixed_length, count=count)
+            out = referee.outcomes(kind, info, restarted, e, limit, fixed_length, count=count, cells=49)
             results.append((available, count, [x.tobytes() for x in out], e.tobytes()))
             rewards, terminated, truncated, done = out
             after = np.where(restarted, 0, elapsed + 1) if count else elapsed
