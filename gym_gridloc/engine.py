@@ -701,7 +701,10 @@ def vector_bank(model: GridModel, n_rows: int) -> "VectorBank | None":
 def _vector_tables(model: GridModel, d: _Derived) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]] | None:
     """``(scalars, arrays)`` of :func:`_numba_kernels.vector_advance` for one model, or None when
     it has no compiled path: ``scalars`` (width, layers, layered, the draw table's kind, uniforms
-    per reading, states), ``arrays`` (:data:`VECTOR_TABLES`), C-contiguous (a bank copies them)."""
+    per reading, states), ``arrays`` in the kernel's order (the moves' weights and keys, the
+    filter plan's weights and meta, every reading's likelihood, the sensor's draw table, the free
+    cells, every reading's first posterior and whether it is possible), C-contiguous (a bank
+    copies them)."""
     fast = kernels.compiled(model.n_layers * model.shape[0] * model.shape[1])
     if fast is None or model.kidnap_prob > 0.0 or not isinstance(d.plan, kernels.NumbaPlan):
         return None
@@ -716,10 +719,6 @@ def _vector_tables(model: GridModel, d: _Derived) -> tuple[tuple[int, ...], tupl
     arrays = (weights, keys, d.plan.w, d.plan.meta, liks, cum, total, values, model.grid.free_cells.astype(np.int64), posts, possible)
     scalars = (model.shape[1], model.n_layers, d.layered, kind, cum.shape[1] if kind == 1 else 1, model.n_states)
     return scalars, tuple(np.ascontiguousarray(a) for a in arrays)
-
-
-#: The per-model tables of the vector step, in the compiled kernel's order.
-VECTOR_TABLES = ("weights", "keys", "w", "meta", "liks", "cum", "total", "values", "free_cells", "posts", "possible")
 
 
 def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], model_at: Callable[[int], GridModel]):
