@@ -73,7 +73,6 @@ class _Derived:
         self._first: tuple[np.ndarray, np.ndarray] | None = None
         self._first_asked = False  # a model used once (a map of one episode) never builds the table
         self._advancer: Any = None
-        self._tables: Any = None  # vector_tables(), or False when the model has none
         #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
         #: ``(cumulative probabilities, last possible outcome)`` (one-state draws).
         self.outcomes: dict[tuple[int, int, int, int], tuple[list[float], int]] = {}
@@ -123,12 +122,6 @@ class _Derived:
             np.divide(post, np.where(ok, z, 1.0)[:, None], out=post)
             self._first = (read_only(post), read_only(ok))
         return self._first
-
-    def vector_tables(self) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]] | None:
-        """The vector step's tables (:func:`_vector_tables`), or None."""
-        if self._tables is None:
-            self._tables = _vector_tables(self.model(), self) or False
-        return self._tables or None
 
     @functools.cached_property
     def plan(self) -> kernels.NumbaPlan | kernels.NumpyPlan:
@@ -695,16 +688,18 @@ def vector_advancer(model: GridModel) -> Callable[..., None] | None:
 def vector_bank(model: GridModel, n_rows: int) -> "VectorBank | None":
     """A :class:`VectorBank` for ``n_rows`` robots whose first model is ``model``, or None when
     ``model`` has no compiled vector step (see :func:`vector_advancer`)."""
-    return VectorBank(model, n_rows) if _derived(model).vector_tables() is not None else None
+    tables = _vector_tables(model)
+    return None if tables is None else VectorBank(model, n_rows, tables)
 
 
-def _vector_tables(model: GridModel, d: _Derived) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]] | None:
+def _vector_tables(model: GridModel) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]] | None:
     """``(scalars, arrays)`` of :func:`_numba_kernels.vector_advance` for one model, or None when
     it has no compiled path: ``scalars`` (width, layers, layered, the draw table's kind, uniforms
     per reading, states), ``arrays`` in the kernel's order (the moves' weights and keys, the
     filter plan's weights and meta, every reading's likelihood, the sensor's draw table, the free
     cells, every reading's first posterior and whether it is possible), C-contiguous (a bank
-    copies them)."""
+    copies them; they are not kept: a bank of maps that never come again keeps one copy)."""
+    d = _derived(model)
     fast = kernels.compiled(model.n_layers * model.shape[0] * model.shape[1])
     if fast is None or model.kidnap_prob > 0.0 or not isinstance(d.plan, kernels.NumbaPlan):
         return None
@@ -749,32 +744,29 @@ def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], 
 class VectorBank:
     """The vector step of N robots each on its own model, in one compiled call: the tables of
     models of the same sizes (the first model's) stacked, one slot per model (the native vector
-    environment with maps redrawn at reset).  :meth:`slot` places a model (its tables are copied
+    environment with maps redrawn at reset); :func:`vector_bank` makes one.  :meth:`slot` places a model (its tables are copied
     once; a model already placed keeps its slot); ``advance`` is :func:`vector_advancer`'s
     step with the row's slots last: ``(states, readings, actions, beliefs, out, modes, rng,
     slots)``, the same draws and numbers as :func:`vector_advancer` of each row's model.
 
-    The bank holds at most ``max(2 N, BYTES / one model's tables)`` models; when it is full, a
-    new model takes the least recently placed slot that no row uses.  It holds its models
-    (strongly: the bank belongs to one vector environment)."""
+    The bank holds at most ``max(N + 1, BYTES / one model's tables)`` models; when it is full, a
+    new model takes the least recently placed slot that no row uses (N rows use at most N).  It
+    holds its models (strongly: the bank belongs to one vector environment)."""
 
-    #: The bank's tables grow to this many bytes before slots are reused (and beyond, to 2 N slots).
+    #: The bank's tables grow to this many bytes before slots are reused (and beyond, to N + 1 slots).
     BYTES = 32 * 2**20
 
-    def __init__(self, model: GridModel, n_rows: int) -> None:
-        tables = _derived(model).vector_tables()
-        if tables is None:
-            raise ValueError("this model has no compiled vector step (engine.vector_bank(model, n) is None)")
+    def __init__(self, model: GridModel, n_rows: int, tables: tuple[tuple[int, ...], tuple[np.ndarray, ...]]) -> None:
         self.scalars, arrays = tables
         self.signature = self._signature(tables)
         per_model = sum(a.nbytes for a in arrays)
-        self.limit = max(2 * n_rows, min(self.BYTES // max(per_model, 1), 4096))
+        self.limit = max(n_rows + 1, min(self.BYTES // max(per_model, 1), 4096))
         self.models: list[GridModel | None] = []
         self._slot_of: dict[int, int] = {}
         self._placed = np.zeros(0, dtype=np.int64)  # when each slot was last placed (its model asked for)
         self._clock = 0
         self._stacked = tuple(np.empty((0, *a.shape), dtype=a.dtype) for a in arrays)
-        self.slot(model, np.zeros(0, dtype=np.int64))
+        self._place(model, tables, np.zeros(0, dtype=np.int64))
 
     @staticmethod
     def _signature(tables) -> tuple:
@@ -789,9 +781,12 @@ class VectorBank:
         if s is not None and self.models[s] is model:
             self._placed[s] = self._clock
             return s
-        tables = _derived(model).vector_tables()
+        tables = _vector_tables(model)
         if tables is None or self._signature(tables) != self.signature:
             return None
+        return self._place(model, tables, in_use)
+
+    def _place(self, model: GridModel, tables, in_use: np.ndarray) -> int:
         s = self._free_slot(in_use)
         old = self.models[s]
         if old is not None:
@@ -814,7 +809,7 @@ class VectorBank:
             self.models.append(None)
             return size
         placed = self._placed.copy()
-        placed[in_use] = np.iinfo(np.int64).max  # (never a slot a row is on: 2 N slots leave N free)
+        placed[in_use] = np.iinfo(np.int64).max  # (never a slot a row is on: N rows leave one free)
         return int(np.argmin(placed))
 
     def _bind(self) -> None:

@@ -341,7 +341,7 @@ def test_a_vector_bank_steps_each_row_on_its_own_model(kwargs):
     maze_rng = np.random.default_rng(0)
     models = [factory(maze_rng) for _ in range(6)]
     n = 11
-    bank = engine.VectorBank(models[0], n)
+    bank = engine.vector_bank(models[0], n)
     rng = np.random.default_rng(1)
     slots = np.array([bank.slot(models[i % 6], np.zeros(0, dtype=np.int64)) for i in range(n)], dtype=np.int64)
     assert len(set(slots.tolist())) == 6 and bank.slot(models[2], slots) == slots[2]  # placed once
@@ -378,15 +378,15 @@ def test_a_vector_bank_steps_each_row_on_its_own_model(kwargs):
 
 @needs_numba
 def test_a_full_vector_bank_reuses_only_slots_no_row_is_on(monkeypatch):
-    """The bank's size is bounded (at least 2 N slots): when it is full, a new model takes a slot
-    no row uses, the least recently placed, and a model placed again keeps its slot."""
-    monkeypatch.setattr(engine.VectorBank, "BYTES", 1)  # the bound: 2 N slots
+    """The bank's size is bounded (at least N + 1 slots): when it is full, a new model takes a
+    slot no row uses, the least recently placed, and a model placed again keeps its slot."""
+    monkeypatch.setattr(engine.VectorBank, "BYTES", 1)  # the bound: N + 1 slots
     factory = gym.make("DepthMaze-v0").unwrapped.map_factory
     maze_rng = np.random.default_rng(0)
     n = 3
     first = factory(maze_rng)
-    bank = engine.VectorBank(first, n)
-    assert bank.limit == 2 * n
+    bank = engine.vector_bank(first, n)
+    assert bank.limit == n + 1
     in_use = np.array([0, 0, 0], dtype=np.int64)
     seen = {id(first)}
     for k in range(40):
@@ -398,7 +398,7 @@ def test_a_full_vector_bank_reuses_only_slots_no_row_is_on(monkeypatch):
         assert s not in in_use.tolist() and bank.models[s] is model
         in_use[k % n] = s
         assert all(bank.models[t] is not None for t in in_use.tolist())
-        assert len(bank.models) <= 2 * n
+        assert len(bank.models) <= n + 1
     assert bank.slot(bank.models[in_use[0]], in_use) == in_use[0]
     # a model of other sizes is not placed
     assert bank.slot(gym.make("DepthMaze-v0", size=9).unwrapped.model, in_use) is None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import collections
 import functools
 import threading
+import weakref
 from typing import Any, Callable
 
 import gymnasium as gym
@@ -244,12 +245,14 @@ def redraw(rng: np.random.Generator, *, build: Callable[[Any], GridModel], draw:
     """``build(draw(rng))``: the model on a newly drawn map.  Bound with ``functools.partial`` to
     module-level ``build`` and ``draw`` functions, a map factory pickles with its environment.
 
-    A small map drawn again is not built again: the models of the last :data:`REDRAWN_MODELS`
-    small maps (at most :data:`REDRAWN_CELLS` cells) are kept, keyed by the map and ``build``'s
-    function and keywords, and shared by every environment of this process (a model is frozen
-    data).  A 7x7 ``DepthMaze`` has only 192 mazes: after a few hundred resets a new episode's
-    model, and the engine's tables for it, are already there (a build costs about 0.5 ms, a
-    maze's draw about 5 µs)."""
+    A small map drawn again is not built again: a map (of at most :data:`REDRAWN_CELLS` cells)
+    drawn for the second time among the last :data:`REDRAWN_SEEN` keeps its model, the last
+    :data:`REDRAWN_MODELS` of them, keyed by the map and ``build``'s function and keywords, shared
+    by every environment of this process (a model is frozen data); until then it is held weakly
+    (reused while something else holds it).  A 7x7 ``DepthMaze`` has only 192 mazes: after a
+    few hundred resets a new episode's model, and the engine's tables for it, are already there (a
+    build costs about 0.5 ms, a maze's draw about 5 µs); mazes that do not come again (15x15: more
+    than 10^20 of them) keep nothing."""
     grid = draw(rng)
     key = _redraw_key(build, grid)
     if key is None:
@@ -259,19 +262,29 @@ def redraw(rng: np.random.Generator, *, build: Callable[[Any], GridModel], draw:
         if model is not None:
             _REDRAWN.move_to_end(key)
             return model
-    model = build(grid)
+        seen = _SEEN.pop(key, None)
+        model = None if seen is None else seen()
+    if model is None:
+        model = build(grid)
     with _REDRAWN_LOCK:
-        _REDRAWN[key] = model
-        while len(_REDRAWN) > REDRAWN_MODELS:
-            _REDRAWN.popitem(last=False)
+        if seen is None:  # the first time: held weakly
+            _SEEN[key] = weakref.ref(model)
+            while len(_SEEN) > REDRAWN_SEEN:
+                _SEEN.popitem(last=False)
+        else:  # drawn again: kept
+            _REDRAWN[key] = model
+            while len(_REDRAWN) > REDRAWN_MODELS:
+                _REDRAWN.popitem(last=False)
     return model
 
 
 #: :func:`redraw` keeps the models of this many maps (the most recently drawn) ...
 REDRAWN_MODELS = 256
-#: ... of at most this many cells each.
+#: ... of at most this many cells each, drawn at least twice among the last ``REDRAWN_SEEN`` maps.
 REDRAWN_CELLS = 256
+REDRAWN_SEEN = 1024
 _REDRAWN: "collections.OrderedDict[tuple, GridModel]" = collections.OrderedDict()
+_SEEN: "collections.OrderedDict[tuple, weakref.ref]" = collections.OrderedDict()  # maps drawn once, their models weakly
 _REDRAWN_LOCK = threading.Lock()
 
 

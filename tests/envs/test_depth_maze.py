@@ -131,3 +131,28 @@ def test_a_maze_drawn_again_reuses_its_model():
     assert len(base._REDRAWN) <= base.REDRAWN_MODELS
     big = gym.make("DepthMaze-v0", size=17).unwrapped  # 289 cells: not kept
     assert base._redraw_key(big.map_factory.keywords["build"], big.model.grid) is None
+
+
+def test_a_maze_drawn_once_keeps_nothing():
+    """Mazes that do not come again (15x15) keep no model: a map's model is kept from its second
+    draw on; the first is held weakly, so it is freed with the last environment on it."""
+    import gc
+    import weakref
+
+    from gym_gridloc.envs import base
+
+    env = gym.make("DepthMaze-v0", size=15).unwrapped
+    kept = set(map(id, base._REDRAWN.values()))
+    refs = []
+    for seed in range(30):
+        env.reset(seed=1000 + seed)
+        refs.append(weakref.ref(env.model))
+    del env
+    gc.collect()
+    assert all(r() is None for r in refs)
+    assert not any(m.shape == (15, 15) and id(m) not in kept for m in base._REDRAWN.values())
+    # drawn twice (two environments, one seed): kept, and the same model
+    a, b = gym.make("DepthMaze-v0", size=15).unwrapped, gym.make("DepthMaze-v0", size=15).unwrapped
+    a.reset(seed=5)
+    b.reset(seed=5)
+    assert a.model is b.model and any(m is a.model for m in base._REDRAWN.values())
