@@ -75,7 +75,7 @@ class _Derived:
         self._advancer: Any = None
         #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
         #: ``(cumulative probabilities, last possible outcome)`` (one-state draws).
-        self.outcomes: dict[tuple[int, int, int, int], tuple[list[float], int]] = {}
+        self.outcomes: dict[tuple[int, int, int, int], tuple[tuple[float, ...], int]] = {}
 
     def lik(self, reading: int) -> np.ndarray:
         """The flat likelihood of one reading (cached while the cache is small)."""
@@ -566,7 +566,7 @@ def _next_one(ts: tuple[Term, ...], state: np.ndarray, rng: np.random.Generator,
     found = None if cache is None else cache.get(key)
     if found is None:
         p = [float(t.weight[r, c]) if t.src == layer else 0.0 for t in ts]
-        cum = list(itertools.accumulate(p))  # summed left to right, as np.cumsum does
+        cum = tuple(itertools.accumulate(p))  # summed left to right, as np.cumsum does (a tuple of floats: not tracked by the GC)
         found = cum, max(j for j, q in enumerate(p) if q > 0.0)
         if cache is not None and len(cache) < OUTCOMES_CACHED:
             cache[key] = found
