@@ -11,6 +11,9 @@ and the native vector env against ``SyncVectorEnv`` over the wrapper.
   sync env does a tenth of the vector steps).  With maps redrawn at reset (``DepthMaze-v0``),
   ``--warmup`` untimed vector steps come first, so that both are timed with the models of the
   small maps kept (as they run for the hours of a training); both share what is kept.
+* Each timed round runs without the garbage collector, after a full collection (as ``timeit``
+  times): a full collection of the process's objects (tens of ms) falling in one env's rounds and
+  not the other's would decide a ratio.
 
 Targets (issue 22): a wrapped step at most 2.5 x FrozenLake for WindyMaze-v0 and ColourGrid-v0,
 at most 4 x for RingSensor8x8-v0 and DepthMaze-v0 (7x7); the native vector env at least 30 x
@@ -23,6 +26,8 @@ SyncVectorEnv at 64 envs.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import gc
 import time
 
 import gymnasium as gym
@@ -31,6 +36,21 @@ import numpy as np
 import gym_gridloc
 
 TARGETS = {"WindyMaze-v0": 2.5, "ColourGrid-v0": 2.5, "RingSensor8x8-v0": 4.0, "DepthMaze-v0": 4.0}
+
+
+@contextlib.contextmanager
+def no_gc():
+    """A timed section without the garbage collector (as ``timeit`` times): one full collection
+    of the process's objects (tens of ms) falling inside one env's timed rounds and not the
+    other's would decide a ratio."""
+    gc.collect()
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 def step_seconds(env, steps: int, rng: np.random.Generator, seed: int) -> float:
@@ -62,8 +82,10 @@ def wrapped_ratios(env_ids, steps: int, rounds: int) -> list[tuple[str, float, f
         ours = theirs = 0.0
         per = max(1, steps // rounds)
         for r in range(rounds):
-            ours += step_seconds(env, per, rng, 1000 * r)
-            theirs += step_seconds(lake, per, rng, 1000 * r)
+            with no_gc():
+                ours += step_seconds(env, per, rng, 1000 * r)
+            with no_gc():
+                theirs += step_seconds(lake, per, rng, 1000 * r)
         out.append((env_id, 1e6 * ours / (per * rounds), 1e6 * theirs / (per * rounds)))
         env.close()
     return out
@@ -91,7 +113,8 @@ def vector_rates(native, sync, n: int, steps: int, rounds: int, seed: int = 0, w
         vector_seconds(env, actions, warmup if k == 0 else max(1, warmup // 10), 0)  # warm up (compilation, kept models)
     for r in range(rounds):
         for k, env in enumerate((native, sync)):
-            spent[k] += vector_seconds(env, actions, counts[k], r * counts[k])
+            with no_gc():
+                spent[k] += vector_seconds(env, actions, counts[k], r * counts[k])
     return counts[0] * rounds * n / spent[0], counts[1] * rounds * n / spent[1]
 
 
