@@ -439,16 +439,15 @@ def batch_entropy(pos, log2q, out):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def batch_outcomes(localised, confidence, restarted, elapsed, count, limit, fixed_length, belief_reward, rewards, flags):  # pragma: no cover - compiled
-    """The vector step's end of N steps, as the referee's numpy code computes it: with ``count``,
-    ``elapsed`` (N,) is advanced in place (+1, or 0 where ``restarted``); ``rewards`` (N,) gets
+def batch_outcomes(localised, confidence, restarted, elapsed, limit, fixed_length, belief_reward, rewards, flags):  # pragma: no cover - compiled
+    """The vector step's end of N steps, as the referee's numpy code computes it: ``elapsed``
+    (N,) is advanced in place (+1, or 0 where ``restarted``); ``rewards`` (N,) gets
     -1.0 or the ``confidence`` (``belief_reward``), 0.0 where restarted; ``flags`` (3, N)
     terminated (localised, on a step, unless ``fixed_length``), truncated (``elapsed >= limit``,
     ``limit`` > 0) and their or."""
     for i in range(elapsed.shape[0]):
         r = restarted[i]
-        if count:
-            elapsed[i] = 0 if r else elapsed[i] + 1
+        elapsed[i] = 0 if r else elapsed[i] + 1
         rewards[i] = 0.0 if r else (confidence[i] if belief_reward else -1.0)
         term = localised[i] and not r and not fixed_length
         trunc = limit > 0 and elapsed[i] >= limit

@@ -673,14 +673,9 @@ def vector_advancer(model: GridModel) -> Callable[..., None] | None:
     bank = vector_bank(model, 1)
     if bank is None:
         return None
-    slots: dict[int, np.ndarray] = {}
 
     def advance_one_model(states, readings, actions, beliefs, out, modes, rng):
-        n = modes.size
-        zeros = slots.get(n)
-        if zeros is None:
-            zeros = slots[n] = np.zeros(n, dtype=np.int64)
-        bank.advance(states, readings, actions, beliefs, out, modes, rng, zeros)
+        bank.advance(states, readings, actions, beliefs, out, modes, rng, np.zeros(modes.size, dtype=np.int64))
 
     return advance_one_model
 

@@ -165,11 +165,11 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
 
 
 def outcomes(kind: str, info: dict[str, np.ndarray], restarted: np.ndarray, elapsed: np.ndarray, limit: int | None,
-             fixed_length: bool, *, count: bool = True, cells: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+             fixed_length: bool, *, cells: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """How N steps end, from the referee's ``info`` (:func:`summarise`): ``(rewards, terminated,
     truncated, done)``.  ``restarted`` (N booleans): the environments that started an episode
     instead of stepping (reward 0.0, never terminated); ``elapsed`` (N,) int64 the episodes'
-    step counts, advanced here when ``count`` (+1, or 0 where restarted); ``limit``: the count
+    step counts, advanced here (+1, or 0 where restarted); ``limit``: the count
     that truncates (None: never); ``fixed_length``: episodes end by truncation only.  ``cells``:
     the size of a belief (L*H*W), which decides, as for :func:`summarise`, whether one compiled
     pass does it (the same numbers)."""
@@ -177,13 +177,12 @@ def outcomes(kind: str, info: dict[str, np.ndarray], restarted: np.ndarray, elap
     if fast is not None:
         n = elapsed.shape[0]
         rewards_, flags = np.empty(n), np.empty((3, n), dtype=bool)
-        fast.batch_outcomes(info["localised"], info["confidence"], restarted, elapsed, count, limit or 0, fixed_length,
+        fast.batch_outcomes(info["localised"], info["confidence"], restarted, elapsed, limit or 0, fixed_length,
                             kind == "belief", rewards_, flags)
         return rewards_, flags[0], flags[1], flags[2]
     stepped = ~restarted
-    if count:
-        elapsed += 1
-        elapsed *= stepped  # +1, or 0 when restarted
+    elapsed += 1
+    elapsed *= stepped  # +1, or 0 when restarted
     terminated = np.zeros(elapsed.shape[0], dtype=bool) if fixed_length else info["localised"] & stepped
     truncated = elapsed >= limit if limit else np.zeros(elapsed.shape[0], dtype=bool)
     return rewards(kind, info, stepped), terminated, truncated, terminated | truncated

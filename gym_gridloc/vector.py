@@ -216,14 +216,12 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
                 out = np.empty_like(beliefs)
                 self._states[idx], self._readings[idx] = advance(self._states[idx], actions[idx], beliefs, out, rng)
                 self._beliefs.reshape(n, -1)[idx] = out
-            self._elapsed[idx] += 1
             return
         for model, sub in self._by_model(idx):
             self._states[sub] = engine.sample_next(model, self._states[sub], actions[sub], rng)
         for model, sub in self._by_model(idx):
             self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
             self._beliefs[sub] = engine.step(model, self._beliefs[sub], actions[sub], self._readings[sub])[0]
-        self._elapsed[idx] += 1
 
     # -- observations and infos -------------------------------------------------------------------
     def _observations(self, positions: np.ndarray | None = None):
@@ -286,7 +284,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         redrawn = self._bank is not None and self.template.map_factory is not None and resetting.any()
         if redrawn:  # maps first, then the one call's draws (moves, starts, readings)
             self._redraw(np.flatnonzero(resetting))
-        if self._bank is not None:  # moves and new episodes in one engine call (step counts: below)
+        if self._bank is not None:  # moves and new episodes in one engine call
             self._advance(acts, resetting.view(np.int8))
         else:
             moving = np.flatnonzero(~resetting)
@@ -297,7 +295,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         info, positions = self._infos()
         rewards, terminated, truncated, done = referee.outcomes(
             self.template.reward_kind, info, resetting, self._elapsed, self._limit, self.template.episode_length is not None,
-            count=self._bank is not None, cells=self._beliefs[0].size)  # (the other path counted its steps)
+            cells=self._beliefs[0].size)  # (and the step counts: +1, or 0 where restarted)
         obs = self._observations(positions)
         if same_step and done.any():
             ended = np.flatnonzero(done)

@@ -122,17 +122,14 @@ def test_outcomes_compiled_and_numpy_agree(kind, limit, fixed_length, monkeypatc
             continue
         monkeypatch.setattr(kernels, "AVAILABLE", available)
         assert (kernels.compiled(49) is not None) is available  # (each path taken)
-        for count in (True, False):
-            e = elapsed.copy()
-            out = referee.outcomes(kind, info, restarted, e, limit, fixed_length, count=count, cells=49)
-            results.append((available, count, [x.tobytes() for x in out], e.tobytes()))
-            rewards, terminated, truncated, done = out
-            after = np.where(restarted, 0, elapsed + 1) if count else elapsed
-            assert np.array_equal(e, after)
-            assert rewards.tobytes() == np.where(restarted, 0.0, info["confidence"] if kind == "belief" else -1.0).tobytes()
-            assert np.array_equal(terminated, info["localised"] & ~restarted & (not fixed_length))
-            assert np.array_equal(truncated, after >= limit if limit else np.zeros(n, dtype=bool))
-            assert np.array_equal(done, terminated | truncated)
-    by_count = {}
-    for _, count, arrays, e in results:
-        assert by_count.setdefault(count, (arrays, e)) == (arrays, e)
+        e = elapsed.copy()
+        out = referee.outcomes(kind, info, restarted, e, limit, fixed_length, cells=49)
+        results.append(([x.tobytes() for x in out], e.tobytes()))
+        rewards, terminated, truncated, done = out
+        after = np.where(restarted, 0, elapsed + 1)
+        assert np.array_equal(e, after)
+        assert rewards.tobytes() == np.where(restarted, 0.0, info["confidence"] if kind == "belief" else -1.0).tobytes()
+        assert np.array_equal(terminated, info["localised"] & ~restarted & (not fixed_length))
+        assert np.array_equal(truncated, after >= limit if limit else np.zeros(n, dtype=bool))
+        assert np.array_equal(done, terminated | truncated)
+    assert all(r == results[0] for r in results)  # compiled and numpy: the same bits
