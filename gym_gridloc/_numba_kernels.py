@@ -12,72 +12,88 @@ import numba
 import numpy as np
 
 _CHUNK = 2048
+_U = np.uint64  # Offsets and indices are unsigned: numba then emits no negative-index checks, and
+# flat arrays with offsets need no per-row views (a view, or a reshape, costs more than a small
+# belief's arithmetic: tables and beliefs are flattened once per call and addressed by offset).
 
 
 @numba.njit(cache=True, nogil=True)
-def stencil_update(b, w, meta, lik, layered, out, n_layers, mode):  # pragma: no cover - compiled
-    """``out = T^T b`` over flat arrays in cache-sized chunks (one pass over memory); mode 0:
-    predict only; 1: times ``lik``, normalised; 2: times ``lik``.  Returns the sum (modes 1, 2).
-    ``lik`` holds one (H*W) likelihood, or one per layer when ``layered`` is 1.  ``b`` and ``out``
-    may be (L, H, W): C-contiguous arrays are read flat (no reshape in Python)."""
-    b = b.reshape(b.size)
-    out = out.reshape(out.size)
-    K = w.shape[0]
-    hw = out.shape[0] // n_layers
-    src, dst, off, lo, hi = meta[0], meta[1], meta[2], meta[3], meta[4]
+def _stencil(b, bo, w, wo, meta, mo, K, lik, lo, out, oo, n_layers, hw, layered, mode):  # pragma: no cover - compiled
+    """``out = T^T b`` over flat arrays, the belief at ``b[bo:]`` into ``out[oo:]`` (``L*hw``
+    values), the action's ``(K, hw)`` weights at ``w[wo:]`` and its ``(5, K)`` meta at
+    ``meta[mo:]`` (see :func:`stencil_update`), the likelihood (``hw``, or ``L*hw`` when
+    ``layered`` is 1) at ``lik[lo:]``; in cache-sized chunks (one pass over memory)."""
     z0 = z1 = z2 = z3 = 0.0
     for layer in range(n_layers):
-        base = layer * hw
-        lbase = base * layered
+        base = oo + _U(layer * hw)
+        lbase = lo + _U(layer * hw * layered)
         for c0 in range(0, hw, _CHUNK):
             c1 = min(hw, c0 + _CHUNK)
-            oc = out[base + c0 : base + c1]
-            for i in range(c1 - c0):
-                oc[i] = 0.0
+            cb = base + _U(c0)
+            for i in range(_U(c1 - c0)):
+                out[cb + i] = 0.0
             for k in range(K):
-                if dst[k] != layer:
+                if meta[mo + _U(K + k)] != layer:
                     continue
-                a = max(c0, lo[k])
-                e = min(c1, hi[k])
+                a = max(c0, meta[mo + _U(3 * K + k)])
+                e = min(c1, meta[mo + _U(4 * K + k)])
                 if e <= a:
                     continue
-                o = off[k]
-                # Slices indexed from 0: no negative-index checks, so the loop vectorises.
-                wv = w[k, a - o : e - o]
-                bv = b[src[k] * hw + a - o : src[k] * hw + e - o]
-                ov = out[base + a : base + e]
-                for i in range(e - a):
-                    ov[i] += wv[i] * bv[i]
+                o = meta[mo + _U(2 * K + k)]
+                wk = wo + _U(k * hw + a - o)
+                bk = bo + _U(meta[mo + _U(k)] * hw + a - o)
+                ok = base + _U(a)
+                for i in range(_U(e - a)):
+                    out[ok + i] += w[wk + i] * b[bk + i]
             if mode > 0:
-                lv = lik[lbase + c0 : lbase + c1]
                 n = c1 - c0
-                for i in range(n):
-                    oc[i] *= lv[i]
+                lb = lbase + _U(c0)
+                for i in range(_U(n)):
+                    out[cb + i] *= lik[lb + i]
                 # Four running sums: the additions overlap instead of waiting on each other.
                 n4 = n - n % 4
                 for i in range(0, n4, 4):
-                    z0 += oc[i]
-                    z1 += oc[i + 1]
-                    z2 += oc[i + 2]
-                    z3 += oc[i + 3]
+                    j = cb + _U(i)
+                    z0 += out[j]
+                    z1 += out[j + _U(1)]
+                    z2 += out[j + _U(2)]
+                    z3 += out[j + _U(3)]
                 for i in range(n4, n):
-                    z0 += oc[i]
+                    z0 += out[cb + _U(i)]
     z = (z0 + z1) + (z2 + z3)
     if mode == 1 and z > 0.0 and np.isfinite(z):
         inv = 1.0 / z
-        for i in range(n_layers * hw):
-            out[i] *= inv
+        for i in range(_U(n_layers * hw)):
+            out[oo + i] *= inv
     return z
 
 
 @numba.njit(cache=True, nogil=True)
+def stencil_update(b, w, meta, lik, layered, out, n_layers, mode):  # pragma: no cover - compiled
+    """``out = T^T b`` for one belief; mode 0: predict only; 1: times ``lik``, normalised; 2:
+    times ``lik``.  Returns the sum (modes 1, 2).  ``w`` is one action's ``(K, H*W)`` weights and
+    ``meta`` its ``(5, K)`` table (source layer, destination layer, flat offset, first and end
+    destination cell), both flat (``w[a].reshape(-1)``); ``lik`` holds one (H*W) likelihood, or
+    one per layer when ``layered`` is 1.  ``b`` and ``out`` may be (L, H, W): C-contiguous arrays
+    are read flat (no reshape in Python)."""
+    K = meta.size // 5
+    return _stencil(b.reshape(b.size), _U(0), w, _U(0), meta, _U(0), K, lik, _U(0), out.reshape(out.size), _U(0),
+                    n_layers, w.size // K, layered, mode)
+
+
+@numba.njit(cache=True, nogil=True)
 def batch_update(beliefs, w, meta, actions, lik, layered, out, n_layers, mode, sel, z):  # pragma: no cover - compiled
-    """:func:`stencil_update` on each selected row of ``beliefs`` with its action (row ``i`` of
-    ``lik`` is its likelihood; unused in mode 0)."""
+    """:func:`stencil_update` on each selected row of ``beliefs`` ``(N, L*H*W)`` with its action
+    (``w`` ``(A, K, H*W)`` and ``meta`` ``(A, 5, K)`` every action's; row ``i`` of ``lik`` is its
+    likelihood, unused in mode 0)."""
+    K, hw, size = w.shape[1], w.shape[2], beliefs.shape[1]
+    bf, of, lf = beliefs.reshape(beliefs.size), out.reshape(out.size), lik.reshape(lik.size)
+    wf, mf = w.reshape(w.size), meta.reshape(meta.size)
     for i in range(beliefs.shape[0]):
         if sel[i]:
             a = actions[i]
-            z[i] = stencil_update(beliefs[i], w[a], meta[a], lik[i], layered, out[i], n_layers, mode)
+            z[i] = _stencil(bf, _U(i * size), wf, _U(a * K * hw), mf, _U(a * 5 * K), K, lf, _U(i * lik.shape[1]),
+                            of, _U(i * size), n_layers, hw, layered, mode)
         else:
             z[i] = 1.0
 
@@ -239,15 +255,15 @@ def observed32(flat, n_layers, out):  # pragma: no cover - compiled
 
 # -- a batch of N: the native vector environment's step ---------------------------------------------
 @numba.njit(cache=True, nogil=True)
-def move_one(weights, keys, a, layer, r, c, u, width, cum, out):  # pragma: no cover - compiled
-    """One draw of :func:`sample_moves`: the next state of ``(layer, r, c)`` under action ``a``
-    with the uniform ``u``, written to ``out`` (3,); ``cum`` is scratch (K,)."""
-    K = weights.shape[1]
+def _move(weights, wo, keys, ko, K, hw, layer, r, c, u, width, cum, states, i):  # pragma: no cover - compiled
+    """One draw of :func:`sample_moves`: the next state of ``(layer, r, c)`` with the uniform
+    ``u``, written to ``states[i]``; the action's ``(K, H*W)`` weights at ``weights[wo:]`` and
+    its ``(4, K)`` keys at ``keys[ko:]`` (flat); ``cum`` is scratch (K,)."""
     cell = r * width + c
     total = 0.0
     last = K - 1
     for k in range(K):
-        p = weights[a, k, cell] if keys[a, 0, k] == layer else 0.0
+        p = weights[wo + _U(k * hw + cell)] if keys[ko + _U(k)] == layer else 0.0
         total += p
         cum[k] = total
         if p > 0.0:
@@ -258,9 +274,9 @@ def move_one(weights, keys, a, layer, r, c, u, width, cum, out):  # pragma: no c
         if target < cum[k]:
             chosen = k
             break
-    out[0] = keys[a, 1, chosen]
-    out[1] = r + keys[a, 2, chosen]
-    out[2] = c + keys[a, 3, chosen]
+    states[i, 0] = keys[ko + _U(K + chosen)]
+    states[i, 1] = r + keys[ko + _U(2 * K + chosen)]
+    states[i, 2] = c + keys[ko + _U(3 * K + chosen)]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -270,30 +286,34 @@ def sample_moves(weights, keys, actions, states, u, width, out):  # pragma: no c
     sum (left to right, as ``np.cumsum``) exceeds ``u[i]`` times the total, or, when the product
     rounds up to the total, the last term of positive weight.  ``weights`` ``(A + 1, K, H*W)`` and
     ``keys`` ``(A + 1, 4, K)`` are the engine's padded tables; ``states``/``out`` ``(N, 3)``."""
-    cum = np.empty(weights.shape[1])
+    K, hw = weights.shape[1], weights.shape[2]
+    cum = np.empty(K)
+    wf, kf = weights.reshape(weights.size), keys.reshape(keys.size)
     for i in range(states.shape[0]):
-        move_one(weights, keys, actions[i], states[i, 0], states[i, 1], states[i, 2], u[i], width, cum, out[i])
+        a = actions[i]
+        _move(wf, _U(a * K * hw), kf, _U(a * 4 * K), K, hw, states[i, 0], states[i, 1], states[i, 2], u[i], width, cum, out, i)
 
 
 @numba.njit(cache=True, nogil=True)
-def draw_reading(kind, cum, total, values, s, u, j):  # pragma: no cover - compiled
-    """One reading of state ``s`` (its row of the sensor's draw table), as the sensor's own
-    ``sample`` draws it.  ``kind`` 0 (categorical, one uniform ``u[j]``): the first column whose
-    running sum ``cum[s]`` exceeds ``u[j] * total[s]`` (at most the last), its ``values``; kind 1
-    (independent bits, one uniform each from ``u[j]`` on): the sum of ``values[s, b]`` over the
-    bits with ``u[j + b] < cum[s, b]``."""
-    K = cum.shape[1]
+def draw_reading(kind, cum, total, values, R, s, u, j):  # pragma: no cover - compiled
+    """One reading of state ``s``, as the sensor's own ``sample`` draws it, from the sensor's
+    draw table (``R`` columns): ``cum`` and ``values`` flat ``(S, R)`` and ``total`` ``(S,)``
+    (a bank's tables: ``s`` is then ``slot * S + state``).  ``kind`` 0 (categorical, one uniform ``u[j]``):
+    the first column whose running sum ``cum[s]`` exceeds ``u[j] * total[s]`` (at most the
+    last), its ``values``; kind 1 (independent bits, one uniform each from ``u[j]`` on): the sum
+    of ``values[s, b]`` over the bits with ``u[j + b] < cum[s, b]``."""
+    row = _U(s * R)
     if kind == 1:
         r = 0
-        for b in range(K):
-            if u[j + b] < cum[s, b]:
-                r += values[s, b]
+        for b in range(R):
+            if u[j + b] < cum[row + _U(b)]:
+                r += values[row + _U(b)]
         return r
-    x = u[j] * total[s]
+    x = u[j] * total[_U(s)]
     k = 0
-    while k < K and cum[s, k] <= x:
+    while k < R and cum[row + _U(k)] <= x:
         k += 1
-    return values[s, min(k, K - 1)]
+    return values[row + _U(min(k, R - 1))]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -308,31 +328,35 @@ def vector_advance(weights, keys, w, meta, width, n_layers, layered, liks, kind,
     keeps its state, reading and belief.  Random numbers as the engine draws them: ``u_move``
     holds the ``n_moving`` moving rows' move uniforms, then their readings' (``per_draw`` each),
     rows in order; ``u_start`` the starting rows' readings'.  Returns -1, or the first row whose
-    reading is impossible (z not positive and finite: the caller raises)."""
+    reading is impossible (z not positive and finite: the caller raises).  The tables are read
+    flat, each row's at its slot's offset."""
     n = states.shape[0]
     n_free = free_cells.shape[1]
-    hw = liks.shape[2] // (n_layers if layered else 1)
-    scratch = np.empty(weights.shape[2])
+    A1, K = weights.shape[1], weights.shape[2]
+    A, Kw, hw = w.shape[1], w.shape[2], w.shape[3]
+    n_read, lsize = liks.shape[1], liks.shape[2]
+    S, R = cum.shape[1], cum.shape[2]
+    size = beliefs.shape[1]
+    wf, kf, sf, mf = weights.reshape(weights.size), keys.reshape(keys.size), w.reshape(w.size), meta.reshape(meta.size)
+    lf, pf, bf, of = liks.reshape(liks.size), posts.reshape(posts.size), beliefs.reshape(beliefs.size), out.reshape(out.size)
+    cf, tf, vf = cum.reshape(cum.size), total.reshape(total.size), values.reshape(values.size)
+    scratch = np.empty(K)
     jm = 0
     js = 0
     bad = -1
-    # The slot's tables, taken again only when the slot changes (one model: once)
-    m = slots[0] if n else 0
-    wm, km, cm, tm, vm, lm, fm, pm, qm, sm = weights[m], keys[m], cum[m], total[m], values[m], liks[m], free_cells[m], posts[m], possible[m], w[m]
-    em = meta[m]
     for i in range(n):
         mode = modes[i]
-        if slots[i] != m:
-            m = slots[i]
-            wm, km, cm, tm, vm, lm, fm, pm, qm, sm = weights[m], keys[m], cum[m], total[m], values[m], liks[m], free_cells[m], posts[m], possible[m], w[m]
-            em = meta[m]
+        m = slots[i]
+        oi = _U(i * size)
         if mode == 0:
-            move_one(wm, km, actions[i], states[i, 0], states[i, 1], states[i, 2], u_move[jm], width, scratch, states[i])
-            s = (states[i, 0] * hw if layered else 0) + states[i, 1] * width + states[i, 2]
-            rd = draw_reading(kind, cm, tm, vm, s, u_move, n_moving + jm * per_draw)
-            readings[i] = rd
             a = actions[i]
-            z = stencil_update(beliefs[i], sm[a], em[a], lm[rd], layered, out[i], n_layers, 1)
+            _move(wf, _U((m * A1 + a) * K * hw), kf, _U((m * A1 + a) * 4 * K), K, hw, states[i, 0], states[i, 1],
+                  states[i, 2], u_move[jm], width, scratch, states, i)
+            s = (states[i, 0] * hw if layered else 0) + states[i, 1] * width + states[i, 2]
+            rd = draw_reading(kind, cf, tf, vf, R, m * S + s, u_move, n_moving + jm * per_draw)
+            readings[i] = rd
+            z = _stencil(bf, oi, sf, _U((m * A + a) * Kw * hw), mf, _U((m * A + a) * 5 * Kw), Kw,
+                         lf, _U((m * n_read + rd) * lsize), of, oi, n_layers, hw, layered, 1)
             if not (z > 0.0 and z < np.inf) and bad < 0:
                 bad = i
             jm += 1
@@ -341,18 +365,21 @@ def vector_advance(weights, keys, w, meta, width, n_layers, layered, liks, kind,
             layer = idx // n_free
             cell = idx - layer * n_free
             states[i, 0] = layer
-            states[i, 1] = fm[cell, 0]
-            states[i, 2] = fm[cell, 1]
+            states[i, 1] = free_cells[m, cell, 0]
+            states[i, 2] = free_cells[m, cell, 1]
             s = (layer * hw if layered else 0) + states[i, 1] * width + states[i, 2]
-            rd = draw_reading(kind, cm, tm, vm, s, u_start, js * per_draw)
+            rd = draw_reading(kind, cf, tf, vf, R, m * S + s, u_start, js * per_draw)
             readings[i] = rd
-            if qm[rd]:
-                out[i, :] = pm[rd]
+            if possible[m, rd]:
+                po = _U((m * n_read + rd) * size)
+                for c in range(_U(size)):
+                    of[oi + c] = pf[po + c]
             elif bad < 0:
                 bad = i
             js += 1
         else:
-            out[i, :] = beliefs[i]
+            for c in range(_U(size)):
+                of[oi + c] = bf[oi + c]
     return bad
 
 

@@ -138,7 +138,7 @@ class NumbaPlan:
         kernels = _compiled()
         self.batch = kernels.batch_update
         one, n = kernels.stencil_update, n_layers
-        per_action = [(self.w[a], self.meta[a]) for a in range(len(transitions))]
+        per_action = [(self.w[a].reshape(-1), self.meta[a].reshape(-1)) for a in range(len(transitions))]  # (flat views)
 
         def run_one(belief, action: int, lik, layered: int, out, mode: int) -> float:
             """One belief (flat, or C-contiguous (L, H, W)) with one action (see the module docstring)."""
@@ -150,7 +150,7 @@ class NumbaPlan:
     def run(self, beliefs, actions, liks, layered: int, out, mode: int, sel) -> np.ndarray:
         """N flat beliefs ``(N, L*H*W)`` with N actions; rows where ``sel`` is False untouched."""
         z = np.empty(beliefs.shape[0])
-        self.batch(beliefs, self.w, self.meta, actions, liks, layered, out, self.n_layers, mode, sel, z)
+        self.batch(beliefs, self.w, self.meta, actions, np.ascontiguousarray(liks), layered, out, self.n_layers, mode, sel, z)
         return z
 
 

@@ -232,6 +232,7 @@ def test_the_sensors_draw_tables_draw_what_sample_draws(env_id, kwargs):
     sensor = model.sensor
     kind, cum, total, values = sensor.draw_table()
     per = cum.shape[1] if kind == 1 else 1
+    R, cum, values = cum.shape[1], cum.reshape(-1), values.reshape(-1)  # (the kernel reads them flat)
     h, w = model.shape
     states = engine.states_of(model, np.arange(model.n_states))
     for n in (1, 3, len(states)):
@@ -241,7 +242,7 @@ def test_the_sensors_draw_tables_draw_what_sample_draws(env_id, kwargs):
             ref = sensor.sample(batch, np.random.default_rng(seed))
             u = np.random.default_rng(seed).random(len(batch) * per)
             rows = (batch[:, 0] * h * w if sensor.layered else 0) + batch[:, 1] * w + batch[:, 2]
-            got = [fast.draw_reading(kind, cum, total, values, s, u, i * per) for i, s in enumerate(rows)]
+            got = [fast.draw_reading(kind, cum, total, values, R, s, u, i * per) for i, s in enumerate(rows)]
             assert got == ref.tolist()
     # uniforms at the edges: 0 and just below 1
     for u0 in (0.0, np.nextafter(1.0, 0.0)):
@@ -253,7 +254,7 @@ def test_the_sensors_draw_tables_draw_what_sample_draws(env_id, kwargs):
 
         ref = sensor.sample(states, Fixed())
         rows = (states[:, 0] * h * w if sensor.layered else 0) + states[:, 1] * w + states[:, 2]
-        assert [fast.draw_reading(kind, cum, total, values, s, u, i * per) for i, s in enumerate(rows)] == ref.tolist()
+        assert [fast.draw_reading(kind, cum, total, values, R, s, u, i * per) for i, s in enumerate(rows)] == ref.tolist()
 
 
 @needs_numba
