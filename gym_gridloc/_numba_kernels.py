@@ -105,35 +105,37 @@ def batch_update(beliefs, w, meta, actions, lik, layered, out, n_layers, mode, s
 # differ in the last bit from libm's).
 
 @numba.njit(cache=True, nogil=True)
-def _row_argmax(a, i, n):  # pragma: no cover - compiled
-    """numpy's argmax of ``a[i, :n]``: the first largest value, or the first NaN.  Finite rows (a
-    belief's): the largest value over four running maxima (no branch per value), then its first
-    index; a row with a NaN or an infinity: numpy's loop itself."""
-    b0 = b1 = b2 = b3 = a[i, 0]
+def _argmax(a, o, n):  # pragma: no cover - compiled
+    """numpy's argmax of ``a[o:o+n]`` (``a`` flat, ``o`` unsigned): the first largest value, or
+    the first NaN.  Finite rows (a belief's): the largest value over four running maxima (no
+    branch per value), then its first index; a row with a NaN or an infinity: numpy's loop
+    itself."""
+    b0 = b1 = b2 = b3 = a[o]
     bad = 0.0  # x - x: NaN for a NaN or an infinity, else 0
     n4 = n - n % 4
     for c in range(0, n4, 4):
-        x0, x1, x2, x3 = a[i, c], a[i, c + 1], a[i, c + 2], a[i, c + 3]
+        j = o + _U(c)
+        x0, x1, x2, x3 = a[j], a[j + _U(1)], a[j + _U(2)], a[j + _U(3)]
         b0 = x0 if x0 > b0 else b0
         b1 = x1 if x1 > b1 else b1
         b2 = x2 if x2 > b2 else b2
         b3 = x3 if x3 > b3 else b3
         bad += (x0 - x0) + (x1 - x1) + (x2 - x2) + (x3 - x3)
     for c in range(n4, n):
-        x0 = a[i, c]
+        x0 = a[o + _U(c)]
         b0 = x0 if x0 > b0 else b0
         bad += x0 - x0
     if bad == 0.0:
         best = max(max(b0, b1), max(b2, b3))
         for c in range(n):
-            if a[i, c] == best:
+            if a[o + _U(c)] == best:
                 return c
     j = 0
-    best = a[i, 0]
+    best = a[o]
     if best != best:
         return 0
     for c in range(1, n):
-        x = a[i, c]
+        x = a[o + _U(c)]
         if x != x:
             return c
         if x > best:
@@ -156,43 +158,41 @@ def readout(flat, n_layers, pose, pos, q):  # pragma: no cover - compiled
         pos[i] = x
         q[i] = x + 1.0 if x <= 0.0 else x + 0.0
     tested = flat if pose else pos
-    return _row_argmax(tested.reshape(1, tested.size), 0, tested.size)
+    return _argmax(tested, _U(0), tested.size)
 
 
 @numba.njit(cache=True, nogil=True)
 def _block_product(p, q, lo, n):  # pragma: no cover - compiled
     """numpy's pairwise sum of ``p[lo:lo+n] * q[lo:lo+n]`` for ``n <= 128`` (one block: eight
     running sums, then the rest in order)."""
+    o = _U(lo)
     if n < 8:
         res = 0.0
-        for i in range(lo, lo + n):
-            res += p[i] * q[i]
+        for i in range(_U(n)):
+            res += p[o + i] * q[o + i]
         return res
-    r0 = p[lo] * q[lo]
-    r1 = p[lo + 1] * q[lo + 1]
-    r2 = p[lo + 2] * q[lo + 2]
-    r3 = p[lo + 3] * q[lo + 3]
-    r4 = p[lo + 4] * q[lo + 4]
-    r5 = p[lo + 5] * q[lo + 5]
-    r6 = p[lo + 6] * q[lo + 6]
-    r7 = p[lo + 7] * q[lo + 7]
-    i = 8
+    r0 = p[o] * q[o]
+    r1 = p[o + _U(1)] * q[o + _U(1)]
+    r2 = p[o + _U(2)] * q[o + _U(2)]
+    r3 = p[o + _U(3)] * q[o + _U(3)]
+    r4 = p[o + _U(4)] * q[o + _U(4)]
+    r5 = p[o + _U(5)] * q[o + _U(5)]
+    r6 = p[o + _U(6)] * q[o + _U(6)]
+    r7 = p[o + _U(7)] * q[o + _U(7)]
     end = n - n % 8
-    while i < end:
-        j = lo + i
+    for i in range(8, end, 8):
+        j = o + _U(i)
         r0 += p[j] * q[j]
-        r1 += p[j + 1] * q[j + 1]
-        r2 += p[j + 2] * q[j + 2]
-        r3 += p[j + 3] * q[j + 3]
-        r4 += p[j + 4] * q[j + 4]
-        r5 += p[j + 5] * q[j + 5]
-        r6 += p[j + 6] * q[j + 6]
-        r7 += p[j + 7] * q[j + 7]
-        i += 8
+        r1 += p[j + _U(1)] * q[j + _U(1)]
+        r2 += p[j + _U(2)] * q[j + _U(2)]
+        r3 += p[j + _U(3)] * q[j + _U(3)]
+        r4 += p[j + _U(4)] * q[j + _U(4)]
+        r5 += p[j + _U(5)] * q[j + _U(5)]
+        r6 += p[j + _U(6)] * q[j + _U(6)]
+        r7 += p[j + _U(7)] * q[j + _U(7)]
     res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += p[lo + i] * q[lo + i]
-        i += 1
+    for i in range(end, n):
+        res += p[o + _U(i)] * q[o + _U(i)]
     return res
 
 
@@ -392,22 +392,24 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints,
     layer (pose) and the Manhattan error to the true ``states`` (layer, row, col);
     ``confidence``, the ``estimate`` (row, column); ``flags`` (2, N) localised (confidence >=
     threshold) and success.  Rows are indexed in place, not sliced (a row's view costs more than
-    its work on small maps)."""
-    pos, q = scratch[0], scratch[1]
-    hw = pos.shape[1]
-    size = flat.shape[1]
-    for i in range(flat.shape[0]):
-        for c in range(hw):
-            pos[i, c] = flat[i, c]
+    its work on small maps): the arrays are read flat."""
+    n, size = flat.shape[0], flat.shape[1]
+    hw = scratch.shape[2]
+    ff, sc = flat.reshape(flat.size), scratch.reshape(scratch.size)
+    qo = _U(n * hw)  # q's block, after pos's
+    for i in range(n):
+        fo, po = _U(i * size), _U(i * hw)
+        for c in range(_U(hw)):
+            sc[po + c] = ff[fo + c]
         for lay in range(1, n_layers):  # the layers added in order, as numpy's sum over them
-            base = lay * hw
-            for c in range(hw):
-                pos[i, c] += flat[i, base + c]
-        for c in range(hw):
-            x = pos[i, c]
-            q[i, c] = x + 1.0 if x <= 0.0 else x + 0.0
-        j = _row_argmax(flat, i, size) if pose else _row_argmax(pos, i, hw)
-        conf = flat[i, j] if pose else pos[i, j]
+            lo = fo + _U(lay * hw)
+            for c in range(_U(hw)):
+                sc[po + c] += ff[lo + c]
+        for c in range(_U(hw)):
+            x = sc[po + c]
+            sc[qo + po + c] = x + 1.0 if x <= 0.0 else x + 0.0
+        j = _argmax(ff, fo, size) if pose else _argmax(sc, po, hw)
+        conf = ff[fo + _U(j)] if pose else sc[po + _U(j)]
         cell = j % hw if pose and n_layers > 1 else j
         er, ec = cell // width, cell % width
         lay = j // hw
@@ -428,40 +430,12 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints,
 
 @numba.njit(cache=True, nogil=True)
 def batch_entropy(pos, log2q, out):  # pragma: no cover - compiled
-    """:func:`entropy_sum` of each row: ``out[i] = -np.add.reduce(pos[i] * log2q[i]) + 0.0``.
-    Rows of at most 128 (one block of numpy's pairwise sum, :func:`_block_product`) are summed
-    in place, without a row view."""
+    """:func:`entropy_sum` of each row: ``out[i] = -np.add.reduce(pos[i] * log2q[i]) + 0.0``
+    (C-contiguous ``(N, n)`` arrays, read flat: no row views)."""
     n = pos.shape[1]
+    pf, lf = pos.reshape(pos.size), log2q.reshape(log2q.size)
     for i in range(pos.shape[0]):
-        if n > 128:
-            out[i] = entropy_sum(pos[i], log2q[i])
-            continue
-        if n < 8:
-            res = 0.0
-            for c in range(n):
-                res += pos[i, c] * log2q[i, c]
-        else:
-            r0 = pos[i, 0] * log2q[i, 0]
-            r1 = pos[i, 1] * log2q[i, 1]
-            r2 = pos[i, 2] * log2q[i, 2]
-            r3 = pos[i, 3] * log2q[i, 3]
-            r4 = pos[i, 4] * log2q[i, 4]
-            r5 = pos[i, 5] * log2q[i, 5]
-            r6 = pos[i, 6] * log2q[i, 6]
-            r7 = pos[i, 7] * log2q[i, 7]
-            end = n - n % 8
-            for c in range(8, end, 8):
-                r0 += pos[i, c] * log2q[i, c]
-                r1 += pos[i, c + 1] * log2q[i, c + 1]
-                r2 += pos[i, c + 2] * log2q[i, c + 2]
-                r3 += pos[i, c + 3] * log2q[i, c + 3]
-                r4 += pos[i, c + 4] * log2q[i, c + 4]
-                r5 += pos[i, c + 5] * log2q[i, c + 5]
-                r6 += pos[i, c + 6] * log2q[i, c + 6]
-                r7 += pos[i, c + 7] * log2q[i, c + 7]
-            res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-            for c in range(end, n):
-                res += pos[i, c] * log2q[i, c]
+        res = _block_product(pf, lf, i * n, n) if n <= 128 else _pairwise_product(pf, lf, i * n, n)
         out[i] = -(0.0 + res) + 0.0
 
 

@@ -416,8 +416,9 @@ def test_the_compiled_argmax_is_numpys(row):
     from gym_gridloc import _numba_kernels as fast
 
     a = np.stack([row, row[::-1].copy()])
+    flat, n = a.reshape(-1), a.shape[1]
     for i in range(2):
-        assert fast._row_argmax(a, i, a.shape[1]) == int(np.argmax(a[i]))
+        assert fast._argmax(flat, np.uint64(i * n), n) == int(np.argmax(a[i]))
 
 
 @pytest.mark.parametrize("options", [{}, {"flatten": True}, {"full_state": True}, {"map": True}])
