@@ -36,10 +36,10 @@ def test_the_first_two_lines_are_the_two_commands_and_they_are_reachable():
     assert "-m venv .venv" in setup and '-e ".[' in setup and "dev" in setup  # pytest, xdist come with [dev]
     # the benchmark's arguments parse and name real policies
     pytest.importorskip("gym_gridloc_agents.cli")
-    from gym_gridloc_agents.cli import _parser
+    from gym_gridloc_agents.cli import build_parser
     from gym_gridloc_agents.policies import POLICY_NAMES
 
-    args = _parser().parse_args(shlex.split(bench.split("&&")[1])[1:])
+    args = build_parser().parse_args(shlex.split(bench.split("&&")[1])[1:])
     assert args.command == "bench" and set(args.policies.split(",")) <= set(POLICY_NAMES)
 
 
@@ -52,9 +52,9 @@ def test_the_activate_hint_comes_before_any_bare_gridloc_command():
 
 def test_every_gridloc_command_in_the_readme_is_a_real_subcommand():
     pytest.importorskip("gym_gridloc_agents.cli")
-    from gym_gridloc_agents.cli import _parser
+    from gym_gridloc_agents.cli import build_parser
 
-    parser = _parser()
+    parser = build_parser()
     subs = next(a for a in parser._actions if a.dest == "command").choices
     used = set(re.findall(r"(?:^|[\s`/])gridloc (\w+)", README, re.M))
     assert used and used <= set(subs), used - set(subs)

@@ -30,7 +30,8 @@ from gym_gridloc_agents.files import OutputError
 from gym_gridloc_agents.policies import DEFAULT_POLICIES
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
+    """The ``gridloc`` command line: its sub-commands and their arguments."""
     p = argparse.ArgumentParser(prog="gridloc", description="gym_gridloc agents: training and the localisation benchmark")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -316,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
         from gym_gridloc_agents import viewer
 
         return (viewer.view_main if argv[0] == "view" else viewer.play_main)(argv[1:])
-    args = _parser().parse_args(argv)
+    args = build_parser().parse_args(argv)
     missing = missing_modules(args.command)
     if missing:  # sweep: its own extra too, without the note on torch
         sweep = args.command == "sweep"

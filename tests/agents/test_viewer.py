@@ -13,7 +13,7 @@ from gym_gridloc import rendering
 from gym_gridloc.filter import ForwardFilter
 
 viewer = pytest.importorskip("gym_gridloc_agents.viewer")
-from gym_gridloc_agents.viewer.style import _fmt  # noqa: E402
+from gym_gridloc_agents.viewer.style import fmt_prob  # noqa: E402
 
 
 @pytest.fixture
@@ -151,14 +151,14 @@ def test_inspector_shows_the_models_numbers_for_a_clicked_cell(pg, env_id):
             want[key] = want.get(key, 0.0) + p
         assert data["transitions"][a] == pytest.approx(want)
         for p in want.values():
-            assert _fmt(p) in texts
+            assert fmt_prob(p) in texts
     zs, ps = model.sensor.distribution(r, c, layer)
     assert data["readings"] == pytest.approx({int(z): float(p) for z, p in zip(zs, ps)})
     assert sum(data["readings"].values()) == pytest.approx(1.0)
     shown = " ".join(app.texts)
     for p in data["readings"].values():
         if p > 0:
-            assert _fmt(p) in shown
+            assert fmt_prob(p) in shown
     # the clicked cell is framed, a right click goes back to following the robot
     click(pg, loop, app, r, c, button=3)
     assert app.pinned is None and app.inspected() == app.shown().state

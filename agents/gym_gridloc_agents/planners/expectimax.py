@@ -11,7 +11,7 @@ import numpy as np
 from gym_gridloc.core.validation import check_int
 from gym_gridloc_agents.planners.base import PlannerPolicy
 from gym_gridloc_agents.planners.leaves import ConstantLeaf, Leaf, load_leaf
-from gym_gridloc_agents.planners.ops import BeliefOps, _dedupe, initial_beliefs
+from gym_gridloc_agents.planners.ops import BeliefOps, dedupe, initial_beliefs
 
 
 def expectimax_q(ops: BeliefOps, root: np.ndarray, depth: int, leaf: Leaf, *, prune: float = 0.0,
@@ -74,7 +74,7 @@ def _q_values(ops, nodes, depth, leaf, prune, renormalise, memo, slack, stats, m
             open_idx.append(s + op)
     if depth > 1 and opens:
         children = np.concatenate(opens)
-        uniq, inv = _dedupe(children) if memo else (children, np.arange(len(children)))
+        uniq, inv = dedupe(children) if memo else (children, np.arange(len(children)))
         vals = _q_values(ops, uniq, depth - 1, leaf, prune, renormalise, memo, slack, stats, max_pairs).min(axis=1)
         v[np.concatenate(open_idx)] = vals[inv]
     return 1.0 + np.bincount(ii, weights=w * v, minlength=n * A).reshape(n, A)

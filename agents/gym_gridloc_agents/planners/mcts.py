@@ -22,14 +22,6 @@ def _sample(rng: np.random.Generator, p: np.ndarray) -> int:
     return int(min(np.searchsorted(np.cumsum(p), rng.random() * p.sum(), side="right"), len(p) - 1))
 
 
-def _choose(policy: PlannerPolicy, n: int, na: np.ndarray, q: np.ndarray, c: float) -> int:
-    """An untried action (drawn among several), else ``argmin_a q(a) - c * sqrt(ln n / na(a))``."""
-    untried = np.flatnonzero(na == 0)
-    if len(untried):
-        return policy._one_of(untried)
-    return policy._break_ties(q - c * np.sqrt(math.log(n) / na))
-
-
 class _TreeSearch(PlannerPolicy):
     """What both searches share: the budget (``simulations`` per decision, or ``time_ms``), the
     exploration constant ``c``, the ``leaf`` and the ``max_depth``."""
@@ -43,6 +35,13 @@ class _TreeSearch(PlannerPolicy):
         self.leaf = load_leaf(leaf)
         self.max_depth = int(max_depth)
         self.sims_done = 0
+
+    def _choose(self, n: int, na: np.ndarray, q: np.ndarray, c: float) -> int:
+        """An untried action (drawn among several), else ``argmin_a q(a) - c * sqrt(ln n / na(a))``."""
+        untried = np.flatnonzero(na == 0)
+        if len(untried):
+            return self._one_of(untried)
+        return self._break_ties(q - c * np.sqrt(math.log(n) / na))
 
     def _budget(self, min_sims: int = 1):
         """Yields once per simulation, the number made before it, until the budget is spent (a time
@@ -136,7 +135,7 @@ class MCTSPolicy(_TreeSearch):
     def _simulate(self, node: _Node, depth: int, root_scale: float) -> float:
         if node.preds is None:
             self._expand(node)
-        a = _choose(self, node.n, node.na, node.qa, self.c * root_scale)
+        a = self._choose(node.n, node.na, node.qa, self.c * root_scale)
         z = _sample(self.rng, node.pz[a])
         key = (a, z)
         child = node.children.get(key)
@@ -245,7 +244,7 @@ class ExpectedMCTSPolicy(_TreeSearch):
                     break
                 if depth == self.max_depth:
                     break
-                a = _choose(self, node.n, node.na, node.q, self.c)
+                a = self._choose(node.n, node.na, node.q, self.c)
                 w, kids = node.kids[a]
                 open_ = [i for i, k in enumerate(kids) if k is not None]
                 path.append((node, a))

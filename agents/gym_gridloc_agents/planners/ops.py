@@ -80,7 +80,7 @@ class BeliefOps:
         return referee.entropy(self.position(beliefs).reshape(beliefs.shape[0], -1))
 
 
-def _dedupe(beliefs: np.ndarray, decimals: int = 10) -> tuple[np.ndarray, np.ndarray]:
+def dedupe(beliefs: np.ndarray, decimals: int = 10) -> tuple[np.ndarray, np.ndarray]:
     """Unique beliefs and the inverse index.  Two beliefs are merged when their projections on two
     fixed random directions agree after rounding to ``decimals`` (a hash of the rounded belief;
     unequal beliefs colliding on both is vanishingly unlikely, and equal ones always merge unless

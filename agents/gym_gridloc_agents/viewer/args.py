@@ -51,7 +51,7 @@ def _cell(text: str, what: str) -> tuple[int, int]:
     return value
 
 
-def _parser(prog: str, description: str) -> _Parser:
+def viewer_parser(prog: str, description: str) -> _Parser:
     """The parser of ``prog`` with the arguments both commands take."""
     p = _Parser(prog=prog, description=description)
     p.add_argument("env", help="environment id, e.g. WindyMaze-v0")
@@ -70,7 +70,9 @@ def _parser(prog: str, description: str) -> _Parser:
     return p
 
 
-def _checked(args: argparse.Namespace) -> None:
+def check_args(args: argparse.Namespace) -> None:
+    """Check the parsed arguments both commands take (a :class:`UsageError` names the bad one) and
+    convert ``--keys`` and ``--inspect``."""
     from gym_gridloc.core.validation import check_int
 
     if args.steps is not None:
@@ -104,7 +106,8 @@ def _checked(args: argparse.Namespace) -> None:
     args.inspect = None if args.inspect is None else _cell(args.inspect, "--inspect")
 
 
-def _env_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+def env_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """The environment keywords of ``--kw`` and ``--layout``."""
     kwargs = parse_kw(args.kw)
     if args.layout is not None:
         if "layout" in kwargs:

@@ -12,16 +12,16 @@ import numpy as np
 from gym_gridloc.wrappers import HMMBeliefWrapper
 from gym_gridloc_agents.viewer.app import App
 from gym_gridloc_agents.viewer.apps import PlayApp, ViewApp
-from gym_gridloc_agents.viewer.args import UsageError, _checked, _env_kwargs, _parser, build_env, import_pygame
+from gym_gridloc_agents.viewer.args import UsageError, build_env, check_args, env_kwargs, import_pygame, viewer_parser
 from gym_gridloc_agents.viewer.loop import Loop
 
 def play_app(argv: Sequence[str]) -> tuple[PlayApp, argparse.Namespace]:
     """Parse ``gridloc play``'s arguments and build the app (raises :class:`UsageError`)."""
-    parser = _parser("gridloc play", "drive the robot with the arrow keys and watch the exact belief")
+    parser = viewer_parser("gridloc play", "drive the robot with the arrow keys and watch the exact belief")
     args = parser.parse_args(list(argv))
-    _checked(args)
+    check_args(args)
     pg = import_pygame("gridloc play")
-    env = HMMBeliefWrapper(build_env(args.env, _env_kwargs(args)))  # its filter: the headings' belief
+    env = HMMBeliefWrapper(build_env(args.env, env_kwargs(args)))  # its filter: the headings' belief
     app = PlayApp(pg, env, args.env, seed=args.seed, max_steps=args.steps, tile=args.tile, inspect=args.inspect)
     _check_inspect(app, args)
     return app, args
@@ -31,19 +31,19 @@ def view_app(argv: Sequence[str]) -> tuple[ViewApp, argparse.Namespace]:
     """Parse ``gridloc view``'s arguments, run the episode and build the app (raises :class:`UsageError`)."""
     from gym_gridloc_agents.policies import POLICY_NAMES, make_policy
 
-    p = _parser("gridloc view", "step through an episode of a policy: belief, smoothing, Viterbi, inspector")
+    p = viewer_parser("gridloc view", "step through an episode of a policy: belief, smoothing, Viterbi, inspector")
     p.add_argument("--policy", default="greedy", choices=POLICY_NAMES, help="the policy (default greedy)")
     p.add_argument("--ppo-model", metavar="PATH",
                    help="the model file of --policy ppo, distilled or recurrent (default: the shipped one for ENV)")
     p.add_argument("--smooth", action="store_true", help="start with the smoothed belief shown (key s)")
     p.add_argument("--viterbi", action="store_true", help="start with the Viterbi path shown (key v)")
     args = p.parse_args(list(argv))
-    _checked(args)
+    check_args(args)
     if args.ppo_model is not None and args.policy not in ("ppo", "distilled", "recurrent"):
         raise UsageError(f"--ppo-model is the model of --policy ppo, distilled or recurrent, not of --policy {args.policy}")
     if args.ppo_model is not None and not Path(args.ppo_model).is_file():
         raise UsageError(f"--ppo-model: {args.ppo_model} is not a file")
-    kwargs = _env_kwargs(args)
+    kwargs = env_kwargs(args)
     pg = import_pygame("gridloc view")
     env = HMMBeliefWrapper(build_env(args.env, kwargs))
     try:

@@ -11,7 +11,7 @@ from gym_gridloc.core.ring import RingSensor
 from gym_gridloc.core.depth import DepthSensor
 from gym_gridloc.core.sensors import ColourSensor, WallSensor
 from gym_gridloc.rendering import BELIEF_RGB, COLOUR_RGB, absolute_shade
-from gym_gridloc_agents.viewer.style import DIM, HEADINGS, INK, OFF, Shown, _fmt, _shade
+from gym_gridloc_agents.viewer.style import DIM, HEADINGS, INK, OFF, Shown, fmt_prob, shade
 
 
 class Inspector:
@@ -80,7 +80,7 @@ class Inspector:
         _, tr, tc = s.state
         pg.draw.rect(surf, (255, 140, 0), (x0 + tc * px - 1, y + tr * px - 1, px + 2, px + 2), width=2)
         free = lik[model.grid.free]
-        notes = [f"largest {_fmt(float(free.max()))}", f"smallest {_fmt(float(free.min()))}",
+        notes = [f"largest {fmt_prob(float(free.max()))}", f"smallest {fmt_prob(float(free.min()))}",
                  "white 0, navy 1 (absolute)", "orange: the robot"]
         for i, note in enumerate(notes):
             self._text(surf, note, x0 + w * px + 10, y + i * self.small.get_linesize(), self.small, DIM)
@@ -100,7 +100,7 @@ class Inspector:
             return self._text(surf, "an obstacle: no robot is ever there", x0, y + 4, self.font, DIM)
         if model.n_layers > 1 and s.full is not None:
             names = HEADINGS if model.n_layers == 4 else [str(i) for i in range(model.n_layers)]
-            probs = "  ".join(f"{n} {_fmt(float(s.full[i, r, c]))}" for i, n in enumerate(names))
+            probs = "  ".join(f"{n} {fmt_prob(float(s.full[i, r, c]))}" for i, n in enumerate(names))
             y = self._text(surf, f"belief here by heading: {probs}", x0, y + 2, self.font)
         y += 4
         note = f"  (then kidnapped w.p. {model.kidnap_prob:g})" if model.kidnap_prob > 0 else ""
@@ -131,7 +131,7 @@ class Inspector:
             if model.n_layers > 1:  # the next headings, as text
                 for (l2, r2, c2), p in sorted(data["transitions"][a].items(), key=lambda kv: -kv[1])[:3]:
                     head = HEADINGS[l2] if model.n_layers == 4 else str(l2)
-                    yy = self._text(surf, f"{head} ({r2},{c2}) {_fmt(p)}", x, yy, self.small, INK)
+                    yy = self._text(surf, f"{head} ({r2},{c2}) {fmt_prob(p)}", x, yy, self.small, INK)
             bottom = max(bottom, yy)
         return bottom
 
@@ -154,20 +154,20 @@ class Inspector:
                 self.pg.draw.rect(surf, COLOUR_RGB.get(sensor.colours[z], (128, 128, 128)), (x, yy, 20, 20))
                 if z == current:
                     self.pg.draw.rect(surf, INK, (x - 2, yy - 2, 24, 24), width=2)
-                self._text(surf, f"{sensor.colours[z]} {_fmt(p)}", x + 24, yy + 2, self.font)
+                self._text(surf, f"{sensor.colours[z]} {fmt_prob(p)}", x + 24, yy + 2, self.font)
             return y + 2 + 26 * -(-len(readings) // per_row)
         # Wall bits (all 16 readings, 4 a row), depth and any other sensor: shaded boxes in columns.
         items = list(readings.items())
         if isinstance(sensor, WallSensor):
             y = self._text(surf, "bits W N E S (o = obstacle sensed):", x0, y, self.small, DIM)
             per_row, colw = 4, min(110, width // 4)
-            texts = ["".join("o" if b else "-" for b in sensor.to_observation(z)) + f" {_fmt(p)}" for z, p in items]
+            texts = ["".join("o" if b else "-" for b in sensor.to_observation(z)) + f" {fmt_prob(p)}" for z, p in items]
         else:  # reading: probability
             label = (lambda z: f"d={z}") if isinstance(sensor, DepthSensor) else sensor.describe
             if len(items) > 24:
                 items = [(z, p) for z, p in items if p > 0][:24]
             per_row, colw = max(1, width // 110), 110
-            texts = [f"{label(z)}: {_fmt(p)}" for z, p in items]
+            texts = [f"{label(z)}: {fmt_prob(p)}" for z, p in items]
         for k, ((z, p), text) in enumerate(zip(items, texts)):
             i, j = divmod(k, per_row)
             self._box(surf, x0 + j * colw, y + i * 24, colw - 6, p, z == current, text)
@@ -175,7 +175,7 @@ class Inspector:
 
     def _box(self, surf, x: int, y: int, width: int, p: float, framed: bool, text: str) -> None:
         """A box shaded by the probability ``p`` (framed: the reading received) with ``text`` on it."""
-        self.pg.draw.rect(surf, _shade(p), (x, y, width, 21))
+        self.pg.draw.rect(surf, shade(p), (x, y, width, 21))
         if framed:
             self.pg.draw.rect(surf, (0, 200, 220), (x, y, width, 21), width=2)
         self.texts.append(text)
@@ -189,9 +189,9 @@ class Inspector:
             for j in range(values.shape[1]):
                 rect = (x + j * px, y + i * px, px - 1, px - 1)
                 v = values[i, j]
-                pg.draw.rect(surf, OFF if np.isnan(v) else _shade(v), rect)
+                pg.draw.rect(surf, OFF if np.isnan(v) else shade(v), rect)
                 if v > 0:  # False for NaN too
-                    text = _fmt(v)
+                    text = fmt_prob(v)
                     img = self.small.render(text, True, (255, 255, 255) if np.sqrt(v) * 0.85 > 0.5 else INK)
                     self.texts.append(text)
                     surf.blit(img, (rect[0] + (px - 1 - img.get_width()) // 2, rect[1] + (px - 1 - img.get_height()) // 2))

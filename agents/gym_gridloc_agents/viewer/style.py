@@ -57,7 +57,7 @@ def _font(pg, size: int, bold: bool = False):
     return font
 
 
-def _fmt(p: float) -> str:
+def fmt_prob(p: float) -> str:
     """A probability in a few characters: ``1``, ``.925``, ``0``."""
     if p == 0.0:
         return "0"
@@ -76,7 +76,8 @@ def percent(p: float) -> str:
     return f"{q:.1f}" if q >= 0.05 else "<0.1"
 
 
-def _shade(p: float) -> tuple[int, int, int]:
+def shade(p: float) -> tuple[int, int, int]:
+    """The belief colour of probability ``p`` on white (square-root scale)."""
     from gym_gridloc.rendering import BELIEF_RGB
 
     a = float(np.sqrt(np.clip(p, 0.0, 1.0))) * 0.85
