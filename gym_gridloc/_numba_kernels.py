@@ -317,7 +317,7 @@ def draw_reading(kind, cum, total, values, R, s, u, j):  # pragma: no cover - co
 
 
 @numba.njit(cache=True, nogil=True)
-def vector_advance(weights, keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
+def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
                    free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, n_moving,
                    u_move, starts, u_start):  # pragma: no cover - compiled
     """A vector step of N robots, row ``i`` on the model of slot ``slots[i]`` (every table has
@@ -328,16 +328,16 @@ def vector_advance(weights, keys, w, meta, width, n_layers, layered, liks, kind,
     keeps its state, reading and belief.  Random numbers as the engine draws them: ``u_move``
     holds the ``n_moving`` moving rows' move uniforms, then their readings' (``per_draw`` each),
     rows in order; ``u_start`` the starting rows' readings'.  Returns -1, or the first row whose
-    reading is impossible (z not positive and finite: the caller raises).  The tables are read
-    flat, each row's at its slot's offset."""
+    reading is impossible (z not positive and finite: the caller raises).  Moves are drawn from
+    the filter's own weights ``w`` with the ``keys`` (as :func:`sample_moves` draws them).  The
+    tables are read flat, each row's at its slot's offset."""
     n = states.shape[0]
     n_free = free_cells.shape[1]
-    A1, K = weights.shape[1], weights.shape[2]
-    A, Kw, hw = w.shape[1], w.shape[2], w.shape[3]
+    A, K, hw = w.shape[1], w.shape[2], w.shape[3]
     n_read, lsize = liks.shape[1], liks.shape[2]
     S, R = cum.shape[1], cum.shape[2]
     size = beliefs.shape[1]
-    wf, kf, sf, mf = weights.reshape(weights.size), keys.reshape(keys.size), w.reshape(w.size), meta.reshape(meta.size)
+    kf, wf, mf = keys.reshape(keys.size), w.reshape(w.size), meta.reshape(meta.size)
     lf, pf, bf, of = liks.reshape(liks.size), posts.reshape(posts.size), beliefs.reshape(beliefs.size), out.reshape(out.size)
     cf, tf, vf = cum.reshape(cum.size), total.reshape(total.size), values.reshape(values.size)
     scratch = np.empty(K)
@@ -350,12 +350,12 @@ def vector_advance(weights, keys, w, meta, width, n_layers, layered, liks, kind,
         oi = _U(i * size)
         if mode == 0:
             a = actions[i]
-            _move(wf, _U((m * A1 + a) * K * hw), kf, _U((m * A1 + a) * 4 * K), K, hw, states[i, 0], states[i, 1],
+            _move(wf, _U((m * A + a) * K * hw), kf, _U((m * A + a) * 4 * K), K, hw, states[i, 0], states[i, 1],
                   states[i, 2], u_move[jm], width, scratch, states, i)
             s = (states[i, 0] * hw if layered else 0) + states[i, 1] * width + states[i, 2]
             rd = draw_reading(kind, cf, tf, vf, R, m * S + s, u_move, n_moving + jm * per_draw)
             readings[i] = rd
-            z = _stencil(bf, oi, sf, _U((m * A + a) * Kw * hw), mf, _U((m * A + a) * 5 * Kw), Kw,
+            z = _stencil(bf, oi, wf, _U((m * A + a) * K * hw), mf, _U((m * A + a) * 5 * K), K,
                          lf, _U((m * n_read + rd) * lsize), of, oi, n_layers, hw, layered, 1)
             if not (z > 0.0 and z < np.inf) and bad < 0:
                 bad = i

@@ -98,8 +98,13 @@ class _Derived:
     def moves(self) -> tuple[np.ndarray, np.ndarray]:
         """The sampler's tables, every action's terms in their order padded to ``K`` (zero weight):
         ``weights`` ``(A + 1, K, H*W)`` and ``keys`` ``(A + 1, 4, K)`` (source layer, destination
-        layer, row shift, column shift; a padding term's source is -1): :func:`kernels.padded`."""
-        weights, keys = kernels.padded(self.transitions, self.model().shape)
+        layer, row shift, column shift; a padding term's source is -1): :func:`kernels.padded`.
+        With the compiled filter they are its plan's (one copy: the filter's weights are these)."""
+        model = self.model()
+        if kernels.uses_numba(model.n_layers * model.shape[0] * model.shape[1]):
+            plan = self.plan
+            return plan.w, plan.keys
+        weights, keys = kernels.padded(self.transitions, model.shape)
         return weights, np.ascontiguousarray(keys[:, :4])
 
     #: :func:`first_posterior` keeps every reading's posterior when (readings x cells) is at most this.
@@ -690,8 +695,8 @@ def vector_bank(model: GridModel, n_rows: int) -> "VectorBank | None":
 def _vector_tables(model: GridModel) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]] | None:
     """``(scalars, arrays)`` of :func:`_numba_kernels.vector_advance` for one model, or None when
     it has no compiled path: ``scalars`` (width, layers, layered, the draw table's kind, uniforms
-    per reading, states), ``arrays`` in the kernel's order (the moves' weights and keys, the
-    filter plan's weights and meta, every reading's likelihood, the sensor's draw table, the free
+    per reading, states), ``arrays`` in the kernel's order (the moves' keys, the filter plan's
+    weights, from which the moves are drawn too, and meta, every reading's likelihood, the sensor's draw table, the free
     cells, every reading's first posterior and whether it is possible), C-contiguous (a bank
     copies them; they are not kept: a bank of maps that never come again keeps one copy)."""
     d = _derived(model)
@@ -704,9 +709,8 @@ def _vector_tables(model: GridModel) -> tuple[tuple[int, ...], tuple[np.ndarray,
         return None
     kind, cum, total, values = draw
     posts, possible = first
-    weights, keys = d.moves
     liks = likelihoods(model, np.arange(model.sensor.n_readings))
-    arrays = (weights, keys, d.plan.w, d.plan.meta, liks, cum, total, values, model.grid.free_cells.astype(np.int64), posts, possible)
+    arrays = (d.plan.keys, d.plan.w, d.plan.meta, liks, cum, total, values, model.grid.free_cells.astype(np.int64), posts, possible)
     scalars = (model.shape[1], model.n_layers, d.layered, kind, cum.shape[1] if kind == 1 else 1, model.n_states)
     return scalars, tuple(np.ascontiguousarray(a) for a in arrays)
 
@@ -716,7 +720,7 @@ def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], 
     ``(states, readings, actions, beliefs, out, modes, rng, slots)``; ``model_at(slot)`` names
     the model in an impossible reading's error."""
     width, n_layers, layered, kind, per_draw, n_states = scalars
-    weights, keys, w, meta, liks, cum, total, values, free_cells, posts, possible = stacked
+    keys, w, meta, liks, cum, total, values, free_cells, posts, possible = stacked
     kernel = kernels.compiled(1).vector_advance
     none, no_starts = np.empty(0), np.empty(0, dtype=np.int64)
 
@@ -725,7 +729,7 @@ def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], 
         n_starting = 0 if n_moving == modes.size else int(np.count_nonzero(modes == 1))
         u_move = rng.random(n_moving * (1 + per_draw)) if n_moving else none
         starts, u_start = (rng.integers(n_states, size=n_starting), rng.random(n_starting * per_draw)) if n_starting else (no_starts, none)
-        bad = kernel(weights, keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
+        bad = kernel(keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
                      free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, n_moving, u_move,
                      starts, u_start)
         if bad >= 0:
