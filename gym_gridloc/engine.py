@@ -696,9 +696,10 @@ def _vector_tables(model: GridModel) -> tuple[tuple[int, ...], tuple[np.ndarray,
     """``(scalars, arrays)`` of :func:`_numba_kernels.vector_advance` for one model, or None when
     it has no compiled path: ``scalars`` (width, layers, layered, the draw table's kind, uniforms
     per reading, states), ``arrays`` in the kernel's order (the moves' keys, the filter plan's
-    weights, from which the moves are drawn too, and meta, every reading's likelihood, the sensor's draw table, the free
-    cells, every reading's first posterior and whether it is possible), C-contiguous (a bank
-    copies them; they are not kept: a bank of maps that never come again keeps one copy)."""
+    weights, from which the moves are drawn too, and meta, every reading's likelihood, the
+    sensor's draw table, the free cells, every reading's first posterior and whether it is
+    possible), C-contiguous (a bank copies them; they are not kept: a bank of maps that never
+    come again keeps one copy)."""
     d = _derived(model)
     fast = kernels.compiled(model.n_layers * model.shape[0] * model.shape[1])
     if fast is None or model.kidnap_prob > 0.0 or not isinstance(d.plan, kernels.NumbaPlan):
