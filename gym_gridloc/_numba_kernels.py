@@ -22,44 +22,47 @@ def _stencil(b, bo, w, wo, meta, mo, K, lik, lo, out, oo, n_layers, hw, layered,
     """``out = T^T b`` over flat arrays, the belief at ``b[bo:]`` into ``out[oo:]`` (``L*hw``
     values), the action's ``(K, hw)`` weights at ``w[wo:]`` and its ``(5, K)`` meta at
     ``meta[mo:]`` (see :func:`stencil_update`), the likelihood (``hw``, or ``L*hw`` when
-    ``layered`` is 1) at ``lik[lo:]``; in cache-sized chunks (one pass over memory)."""
+    ``layered`` is 1) at ``lik[lo:]``.  Each term is added over its whole destination layer, the
+    terms in order (each cell sums its terms in that order), then each layer is weighed and
+    summed in cache-sized chunks."""
+    for i in range(_U(n_layers * hw)):
+        out[oo + i] = 0.0
+    for k in range(K):
+        dst = meta[mo + _U(K + k)]
+        if dst < 0:  # padding
+            continue
+        a = meta[mo + _U(3 * K + k)]
+        e = meta[mo + _U(4 * K + k)]
+        if e <= a:
+            continue
+        o = meta[mo + _U(2 * K + k)]
+        wk = wo + _U(k * hw + a - o)
+        bk = bo + _U(meta[mo + _U(k)] * hw + a - o)
+        ok = oo + _U(dst * hw + a)
+        for i in range(_U(e - a)):
+            out[ok + i] += w[wk + i] * b[bk + i]
+    if mode == 0:
+        return 0.0
     z0 = z1 = z2 = z3 = 0.0
     for layer in range(n_layers):
         base = oo + _U(layer * hw)
         lbase = lo + _U(layer * hw * layered)
         for c0 in range(0, hw, _CHUNK):
-            c1 = min(hw, c0 + _CHUNK)
+            n = min(hw, c0 + _CHUNK) - c0
             cb = base + _U(c0)
-            for i in range(_U(c1 - c0)):
-                out[cb + i] = 0.0
-            for k in range(K):
-                if meta[mo + _U(K + k)] != layer:
-                    continue
-                a = max(c0, meta[mo + _U(3 * K + k)])
-                e = min(c1, meta[mo + _U(4 * K + k)])
-                if e <= a:
-                    continue
-                o = meta[mo + _U(2 * K + k)]
-                wk = wo + _U(k * hw + a - o)
-                bk = bo + _U(meta[mo + _U(k)] * hw + a - o)
-                ok = base + _U(a)
-                for i in range(_U(e - a)):
-                    out[ok + i] += w[wk + i] * b[bk + i]
-            if mode > 0:
-                n = c1 - c0
-                lb = lbase + _U(c0)
-                for i in range(_U(n)):
-                    out[cb + i] *= lik[lb + i]
-                # Four running sums: the additions overlap instead of waiting on each other.
-                n4 = n - n % 4
-                for i in range(0, n4, 4):
-                    j = cb + _U(i)
-                    z0 += out[j]
-                    z1 += out[j + _U(1)]
-                    z2 += out[j + _U(2)]
-                    z3 += out[j + _U(3)]
-                for i in range(n4, n):
-                    z0 += out[cb + _U(i)]
+            lb = lbase + _U(c0)
+            for i in range(_U(n)):
+                out[cb + i] *= lik[lb + i]
+            # Four running sums: the additions overlap instead of waiting on each other.
+            n4 = n - n % 4
+            for i in range(0, n4, 4):
+                j = cb + _U(i)
+                z0 += out[j]
+                z1 += out[j + _U(1)]
+                z2 += out[j + _U(2)]
+                z3 += out[j + _U(3)]
+            for i in range(n4, n):
+                z0 += out[cb + _U(i)]
     z = (z0 + z1) + (z2 + z3)
     if mode == 1 and z > 0.0 and np.isfinite(z):
         inv = 1.0 / z
