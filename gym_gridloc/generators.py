@@ -158,6 +158,7 @@ def perfect_maze(size: int, *, seed: Any = None) -> GridMap:
     walls, cells = _maze_walls(k)
     parent = list(range(k * k))
     opened = []
+    last = k * k - 1  # the walls a spanning tree of the k * k rooms opens
     # (Python ints and lists: about 5x faster than numpy scalars on a maze of a few rooms; the
     # same draw, the same mazes)
     for w in rng.permutation(len(walls)).tolist():
@@ -171,6 +172,8 @@ def perfect_maze(size: int, *, seed: Any = None) -> GridMap:
         if a != b:
             parent[a] = b
             opened.append(cells[w])
+            if len(opened) == last:  # a spanning tree: no later wall joins two trees
+                break
     opened.sort()
     return _maze_map(n, tuple(opened))
 
