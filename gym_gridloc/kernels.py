@@ -123,8 +123,8 @@ def diagonal_add(w, x, y, offset: int, tmp) -> None:
 
 
 class NumbaPlan:
-    """Every action's terms padded to one ``(A, K, H*W)`` weight array :attr:`w` and ``(A, 5, K)``
-    table :attr:`meta` of (source layer, destination layer, flat offset, first and end destination
+    """Every action's terms padded to one ``(A, K, H*W)`` weight array ``w`` and ``(A, 5, K)``
+    table ``meta`` of (source layer, destination layer, flat offset, first and end destination
     cell): one compiled call steps one belief or N beliefs, each with its own action."""
 
     path = "numba"
@@ -134,7 +134,7 @@ class NumbaPlan:
         self.n_layers = n_layers
         self.w, keys = padded(transitions, shape)  # a copy: this path is for small models only
         #: The sampler's keys (source layer, destination layer, row shift, column shift) ``(A, 4, K)``
-        #: beside :attr:`w`: the engine draws moves from these same tables.
+        #: beside ``w``: the engine draws moves from these same tables.
         self.keys = np.ascontiguousarray(keys[:, :4])
         off = keys[:, 4]  # padding terms feed no layer (destination -1)
         self.meta = np.stack((keys[:, 0], keys[:, 1], off, np.maximum(off, 0), np.minimum(hw + off, hw)), axis=1)
