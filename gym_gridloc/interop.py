@@ -59,7 +59,9 @@ __all__ = ["INSTALL_HINT", "PomdpPy", "to_pomdp_py"]
 INSTALL_HINT = "pip install 'gym_gridloc[planning]'"
 
 
-def _import_pomdp_py():
+def import_pomdp_py():
+    """The optional ``pomdp_py`` module, or an ImportError that says how to install it (the POMCP
+    planner of the agents package imports it the same way)."""
     try:
         import pomdp_py
     except ImportError as exc:  # pragma: no cover - exercised without the extra
@@ -98,7 +100,7 @@ class _Immutable:
 @functools.cache
 def _classes() -> dict[str, type]:
     """pomdp_py's subclasses for our models, defined once pomdp_py is importable."""
-    pomdp_py = _import_pomdp_py()
+    pomdp_py = import_pomdp_py()
 
     class State(_Immutable, pomdp_py.State):
         """A hidden state ``(layer, row, col)`` (hashable, immutable)."""
@@ -424,7 +426,7 @@ class PomdpPy:
         """A ``pomdp_py.Agent`` whose belief is ``n_particles`` particles drawn from the exact
         belief ``(L, H, W)``.  ``plan`` (default): on the planning model (the blackbox that ends at
         the referee's test); ``plan=False``: on the plain POMDP's explicit models."""
-        pomdp_py = _import_pomdp_py()
+        pomdp_py = import_pomdp_py()
         check_int("n_particles", n_particles, what="a whole number >= 1", error=ValueError)
         init = self.particles(belief, n_particles, plan=plan)
         models = ({"blackbox_model": self.blackbox_model} if plan

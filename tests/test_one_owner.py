@@ -290,3 +290,36 @@ def test_entropy_in_one_place():
     b = rng.random((5, *model.belief_shape)) * model.state_mask
     b /= b.reshape(5, -1).sum(axis=1)[:, None, None, None]
     np.testing.assert_array_equal(BeliefOps(model, 0.9).entropy(b), referee.entropy(b.sum(axis=1).reshape(5, -1)))
+
+
+def _private_imports(tree: ast.AST) -> list[ast.ImportFrom]:
+    """``from package.module import _name``: a private name used outside its module."""
+    return [n for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module and n.module.split(".")[0] in
+            ("gym_gridloc", "gym_gridloc_agents") and any(a.name.startswith("_") for a in n.names)]
+
+
+def test_no_module_imports_another_modules_private_names():
+    """Private names stay in their module: what another module uses is public (the package's
+    ``_numba_kernels`` module is private as a whole and imported as a module, not its names)."""
+    found = []
+    for path in SOURCES:
+        found += [_where(path, n) for n in _private_imports(ast.parse(path.read_text(encoding="utf-8")))]
+    # the compiled kernels' module, imported by its one importer
+    assert found == ["gym_gridloc/kernels.py:101: from gym_gridloc import _numba_kernels as _COMPILED"]
+    assert _private_imports(ast.parse("from gym_gridloc_agents.planners.ops import BeliefOps, _dedupe"))  # the check sees one
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_one_padded_transition_table(env_id):
+    """The engine draws moves from the compiled filter's own padded weights (one table per model,
+    not two), and the vector bank stores it once."""
+    from gym_gridloc import kernels
+
+    model = gym.make(env_id).unwrapped.model
+    if not kernels.uses_numba(int(np.prod(model.belief_shape))):
+        pytest.skip("numba is not installed (or switched off)")
+    weights, keys = engine._derived(model).moves
+    plan = engine.plan(model)
+    assert weights is plan.w and keys is plan.keys
+    _, arrays = engine._vector_tables(model)
+    assert sum(a.shape == plan.w.shape and np.array_equal(a, plan.w) for a in arrays) == 1

@@ -62,9 +62,9 @@ class PomcpPolicy(Policy):
                  planning_time: float | None = None, max_depth: int = MAX_DEPTH, discount: float = 1.0,
                  exploration_const: float = EXPLORATION, n_particles: int = N_PARTICLES,
                  threshold: float = 0.9, pose: bool = False) -> None:
-        from gym_gridloc.interop import _import_pomdp_py
+        from gym_gridloc.interop import import_pomdp_py
 
-        _import_pomdp_py()  # the clear ImportError, before anything else
+        import_pomdp_py()  # the clear ImportError, before anything else
         super().__init__(model, seed=seed)
         positive = {"whole": True, "what": "a positive integer", "error": ValueError}
         if planning_time is None:

@@ -16,7 +16,7 @@ from typing import Any
 from gym_gridloc_agents.evaluation import stats
 from gym_gridloc_agents.files import atomic_path, atomic_write_json, atomic_write_text, read_metadata
 from gym_gridloc_agents.sweeps.sweep_spec import (
-    _canonical,
+    canonical,
     config_label,
     configurations,
     trial_config,
@@ -32,7 +32,7 @@ BEST_RULE = "the configuration with the best (lowest) mean score across seeds, a
 
 # -- one trial's model -----------------------------------------------------------------------------
 def _comparable(cfg: dict[str, Any]) -> str:
-    return _canonical({k: v for k, v in cfg.items() if k not in ("output", "checkpoint_dir", "tensorboard_log")})
+    return canonical({k: v for k, v in cfg.items() if k not in ("output", "checkpoint_dir", "tensorboard_log")})
 
 
 def completed_metadata(cfg: dict[str, Any]) -> dict[str, Any] | None:
@@ -117,9 +117,9 @@ def summarise(spec: dict[str, Any], records: list[dict[str, Any]]) -> dict[str, 
     out = Path(spec["output"])
     keys = list(spec["grid"])
     order = configurations(spec["grid"]) if spec["search"] != "optuna" else []
-    groups: dict[str, dict[str, Any]] = {_canonical(o): {"overrides": o, "seeds": {}} for o in order}
+    groups: dict[str, dict[str, Any]] = {canonical(o): {"overrides": o, "seeds": {}} for o in order}
     for r in sorted(records, key=lambda r: (_PRIORITY[r["status"]], str(r["trial_id"]))):
-        g = groups.setdefault(_canonical(r["overrides"]), {"overrides": r["overrides"], "seeds": {}})
+        g = groups.setdefault(canonical(r["overrides"]), {"overrides": r["overrides"], "seeds": {}})
         g["seeds"].setdefault(r["index"], r)  # one record per seed: a finished one first (Optuna may repeat a configuration)
     configs = []
     for g in groups.values():

@@ -69,7 +69,7 @@ def parse_grid(items: Sequence[str] | None) -> dict[str, list[Any]]:
             values = [parse_value(t) for t in texts]
         except SweepError as exc:
             raise SweepError(f"--grid {item!r}: {exc}") from None
-        if len({_canonical(v) for v in values}) != len(values):
+        if len({canonical(v) for v in values}) != len(values):
             raise SweepError(f"--grid {item!r}: {key} repeats a value")
         grid[key] = values
     return grid
@@ -88,7 +88,8 @@ def set_dotted(cfg: dict[str, Any], key: str, value: Any) -> None:
     d[parts[-1]] = copy.deepcopy(value)
 
 
-def _canonical(value: Any) -> str:
+def canonical(value: Any) -> str:
+    """``value`` as canonical JSON (sorted keys, no spaces): equal values, equal texts."""
     return json.dumps(value, sort_keys=True, separators=(",", ":"))
 
 
@@ -116,7 +117,7 @@ def config_label(overrides: dict[str, Any], keys: Sequence[str]) -> str:
     label = "_".join(f"{names[k]}={t if _SAFE.match(t) else re.sub(r'[^A-Za-z0-9._+-]+', '_', t).strip('_') or 'x'}"
                      for k, t in texts.items())
     if not all(map(_SAFE.match, texts.values())) or len(label) > 80:
-        digest = hashlib.sha1(_canonical({k: overrides[k] for k in present}).encode()).hexdigest()[:6]
+        digest = hashlib.sha1(canonical({k: overrides[k] for k in present}).encode()).hexdigest()[:6]
         label = f"{label[:72]}-{digest}"
     return label
 
@@ -233,7 +234,7 @@ def trial_config(spec: dict[str, Any], overrides: dict[str, Any], index: int) ->
 
 def check_resume(spec: dict[str, Any], stored: dict[str, Any], directory: Path) -> None:
     for key in SPEC_KEYS:
-        if _canonical(stored.get(key)) != _canonical(spec.get(key)):
+        if canonical(stored.get(key)) != canonical(spec.get(key)):
             raise SweepError(
                 f"--resume: the sweep in {directory} was started with another {key} "
                 f"({'config file contents' if key == 'config' else json.dumps(stored.get(key))}); "

@@ -11,7 +11,7 @@ from gym_gridloc.core.ring import RingSensor
 from gym_gridloc.core.sensors import ColourSensor, WallSensor
 from gym_gridloc_agents.viewer.inspector import Inspector
 from gym_gridloc_agents.viewer.style import (BAD, BG, BUTTON, BUTTON_ON, DIM, GOOD, GRID_PX, HEADINGS, INK, MIN_H, PAD,
-                                             PANEL_W, Shown, _font, percent)
+                                             PANEL_W, Shown, load_font, percent)
 
 class App(Inspector):
     """What both commands share: the grid picture, the side panel, the inspector, the events.
@@ -36,9 +36,9 @@ class App(Inspector):
         self.texts: list[str] = []
         self.show_numbers = False  # each cell's probability in percent on the grid (key p)
         self.button_rects: list[tuple[tuple[int, int, int, int], str]] = []  # the last draw's buttons: rect, key
-        self.font = _font(pg, 14)
-        self.small = _font(pg, 12)
-        self.bold = _font(pg, 15, bold=True)
+        self.font = load_font(pg, 14)
+        self.small = load_font(pg, 12)
+        self.bold = load_font(pg, 15, bold=True)
 
     # -- to be given by the commands ---------------------------------------------------------------
     def shown(self) -> Shown:

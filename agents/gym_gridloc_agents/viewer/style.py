@@ -39,7 +39,7 @@ class Shown:
     full: np.ndarray | None = None  # (L, H, W) hidden-state belief, for the headings
 
 
-def _font(pg, size: int, bold: bool = False):
+def load_font(pg, size: int, bold: bool = False):
     """DejaVu Sans (matplotlib's copy, so every install draws the same text), else a system
     DejaVu, else pygame's default font."""
     import importlib.util
