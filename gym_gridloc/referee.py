@@ -14,6 +14,12 @@ import numpy as np
 from gym_gridloc import kernels
 from gym_gridloc.core.sensors import xlogx
 
+#: The compiled readout sums the entropy of a position belief of at most this many cells itself
+#: (numpy's pairwise summation); a longer one is summed by numpy: numpy 2.0 and older reduce a row
+#: longer than their buffer (8192 values by default) buffer by buffer, numpy 2.4 in one piece, and
+#: only numpy's own sum is the same number in every version.
+COMPILED_ENTROPY_CELLS = 8192
+
 #: Reward kinds: ``"step"`` is -1 per step; ``"belief"`` is the referee's confidence (the largest
 #: posterior probability it tests: the research protocol's reward).
 REWARDS = ("step", "belief")
@@ -96,7 +102,8 @@ def readout(beliefs: np.ndarray, states: np.ndarray, threshold: float, *, pose: 
 
 def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold: float, pose: bool) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """:func:`summarise` on small float64 beliefs: one compiled pass for the readout, numpy's
-    log2, one compiled pass for the entropies (the same numbers; ``tests/test_readout.py``)."""
+    log2, one compiled pass for the entropies (of at most :data:`COMPILED_ENTROPY_CELLS` cells;
+    numpy sums longer ones): the same numbers (``tests/test_readout.py``)."""
     n, L, h, w = beliefs.shape
     hw = h * w
     flat = beliefs.reshape(n, -1)
@@ -107,7 +114,10 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
     confidence, estimate, ent = np.empty(n), np.empty((n, 2), dtype=np.int64), np.empty(n)
     fast.batch_readout(flat, L, pose, w, st, float(threshold), scratch, ints, confidence, estimate, flags)
     pos, q = scratch
-    fast.batch_entropy(pos, np.log2(q, out=q), ent)
+    if hw <= COMPILED_ENTROPY_CELLS:
+        fast.batch_entropy(pos, np.log2(q, out=q), ent)
+    else:
+        ent = entropy(pos)
     _, layer, error = ints
     localised, success = flags
     info = {"position": st[:, 1:3].copy(), "estimate": estimate, "confidence": confidence, "error": error,
@@ -133,7 +143,7 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
         pos = flat if L == 1 else np.empty(hw)  # (one layer: the kernel writes the same values back)
         k = fast.readout(flat, L, pose, pos, q)
         confidence = flat.item(k) if pose else pos.item(k)
-        ent = fast.entropy_sum(pos, np.log2(q, out=q))
+        ent = fast.entropy_sum(pos, np.log2(q, out=q)) if hw <= COMPILED_ENTROPY_CELLS else float(entropy(pos))
     else:
         pos = flat if L == 1 else belief.sum(axis=0).reshape(-1)
         tested = flat if pose else pos

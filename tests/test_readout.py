@@ -54,6 +54,21 @@ def same(a, b) -> bool:
     return type(a) is type(b) and repr(a) == repr(b)
 
 
+def test_the_compiled_entropy_sums_only_rows_numpy_sums_in_one_piece():
+    """numpy 2.0 and older reduce a row longer than their buffer buffer by buffer (numpy 2.4 in one
+    piece): the compiled pairwise sum, which sums a row in one piece, is used only up to the
+    default buffer, and a longer position belief's entropy is numpy's own, in both readouts."""
+    assert referee.COMPILED_ENTROPY_CELLS <= np.getbufsize()
+    rng = np.random.default_rng(3)
+    b = rng.random((1, 100, 120))  # 12000 cells: compiled readout, numpy's entropy
+    b /= b.sum()
+    pos = b.reshape(-1)
+    assert referee.summary(b, (0, 0, 0), 0.5)["entropy"] == float(referee.entropy(pos))
+    batch = np.stack([b, b[:, ::-1].copy()])
+    np.testing.assert_array_equal(referee.summarise(batch, np.zeros((2, 3), dtype=np.int64), 0.5)["entropy"],
+                                  referee.entropy(batch.reshape(2, -1)))
+
+
 @needs_numba
 @pytest.mark.parametrize("pose", [False, True])
 def test_compiled_summary_equals_numpy_summary(pose, monkeypatch):
