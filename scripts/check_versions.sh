@@ -6,7 +6,10 @@
 # exits non-zero if any combination fails.
 #
 #   bash scripts/check_versions.sh              # every combination
-#   bash scripts/check_versions.sh 1.1.1:1.26.4 # only these (gymnasium:numpy[:scipy]), space-separated
+#   bash scripts/check_versions.sh 1.1.1:1.26.4 # only these (gymnasium:numpy[:scipy[:numba]]), space-separated
+#
+# A combination with a numba version also installs numba (the `fast` extra's compiled kernels) and
+# runs the tests that hold the compiled numbers to numpy's as well.
 #
 # Environment: PYTHON (the interpreter for the venvs; default .venv/bin/python, else python3),
 # KEEP=1 keeps the temporary directory, JOBS (pytest-xdist workers per run; default 2).
@@ -23,7 +26,9 @@ PER_RUN_TIMEOUT=${PER_RUN_TIMEOUT:-420}
 
 # gymnasium:numpy. 1.1.1 is the newest 1.1.x (the oldest series pyproject claims); 1.2.2 is the
 # version RLlib pins; the newest is whatever pip resolves for "gymnasium>=1.1,<2" (empty = unpinned).
-COMBOS=("1.1.1:1.26.4" "1.1.1:2" "1.2.2:1.26.4" "1.2.2:2" ":1.26.4" ":2")
+# The last adds the oldest numba the `fast` extra claims, on numpy 1.26 (which, unlike numpy 2.4,
+# reduces a long row buffer by buffer: the compiled sums must match it too).
+COMBOS=("1.1.1:1.26.4" "1.1.1:2" "1.2.2:1.26.4" "1.2.2:2" ":1.26.4" ":2" "1.2.2:1.26.4::0.60.0")
 if [ "$#" -gt 0 ]; then COMBOS=("$@"); fi
 
 TESTS=(tests/core tests/test_engine.py tests/test_filter.py tests/envs)
@@ -33,6 +38,8 @@ TESTS=(tests/core tests/test_engine.py tests/test_filter.py tests/envs)
 #   human mode raises an ImportError that names the render extra.
 # - tqdm: tests/test_filter.py imports scripts/long_run.py, which imports tqdm.
 TEST_TOOLS=(pytest pytest-xdist hypothesis pygame-ce tqdm)
+# With numba: the compiled kernels' tests against numpy and the vector env's.
+NUMBA_TESTS=(tests/test_kernels.py tests/test_readout.py tests/test_vector.py)
 
 TMP=$(mktemp -d "${TMPDIR:-/tmp}/gridloc-versions.XXXXXX")
 if [ "${KEEP:-0}" != 1 ]; then trap 'rm -rf "$TMP"' EXIT; fi
@@ -49,8 +56,8 @@ failed=0
 total_start=$(date +%s)
 printf '%-10s %-8s %-40s %s\n' "result" "seconds" "gymnasium / numpy / scipy" "log"
 for combo in "${COMBOS[@]}"; do
-    IFS=: read -r gym_v np_v scipy_v <<<"$combo"
-    name="gym${gym_v:-newest}-np${np_v}${scipy_v:+-scipy$scipy_v}"
+    IFS=: read -r gym_v np_v scipy_v numba_v <<<"$combo"
+    name="gym${gym_v:-newest}-np${np_v}${scipy_v:+-scipy$scipy_v}${numba_v:+-numba$numba_v}"
     venv="$TMP/$name"
     log="$TMP/$name.log"
     start=$(date +%s)
@@ -60,12 +67,14 @@ for combo in "${COMBOS[@]}"; do
         *) np_req="numpy==$np_v" ;;
     esac
     scipy_req="scipy"; [ -n "${scipy_v:-}" ] && scipy_req="scipy==$scipy_v"
+    extra=(); tests=("${TESTS[@]}")
+    if [ -n "${numba_v:-}" ]; then extra=("numba==$numba_v"); tests+=("${NUMBA_TESTS[@]}"); fi
     ok=1
     {
         "$PY" -m venv --without-pip "$venv"
         # the outer pip installs into the venv (fast: no pip inside each venv)
         "$PY" -m pip --python "$venv/bin/python" install -q "$WHEEL" "$gym_req" "$np_req" \
-            "$scipy_req" "${TEST_TOOLS[@]}"
+            "$scipy_req" "${extra[@]}" "${TEST_TOOLS[@]}"
         "$venv/bin/python" -c 'import gymnasium, numpy, scipy; print("versions", gymnasium.__version__, numpy.__version__, scipy.__version__)'
     } >"$log" 2>&1 || ok=0
     if [ "$ok" = 1 ]; then
@@ -73,10 +82,11 @@ for combo in "${COMBOS[@]}"; do
         # from the checkout, with the venv's python: the tests import the checkout's gym_gridloc,
         # which is the same code as the installed wheel; the dependencies are the venv's
         timeout "$PER_RUN_TIMEOUT" "$venv/bin/python" -m pytest -q -p no:cacheprovider "${xdist[@]}" \
-            "${TESTS[@]}" >>"$log" 2>&1 || ok=0
+            "${tests[@]}" >>"$log" 2>&1 || ok=0
     fi
     seconds=$(( $(date +%s) - start ))
     versions=$(grep -m1 '^versions ' "$log" | cut -d' ' -f2- | sed 's/ / \/ /g' || true)
+    [ -n "${numba_v:-}" ] && versions="${versions:-?} + numba $numba_v"
     summary=$(grep -E '(passed|failed|error)' "$log" | tail -1 || true)
     if [ "$ok" = 1 ]; then
         printf '%-10s %-8s %-40s %s\n' "pass" "$seconds" "${versions:-?}" "$summary"

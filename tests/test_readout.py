@@ -59,14 +59,14 @@ def test_the_compiled_entropy_sums_only_rows_numpy_sums_in_one_piece():
     piece): the compiled pairwise sum, which sums a row in one piece, is used only up to the
     default buffer, and a longer position belief's entropy is numpy's own, in both readouts."""
     assert referee.COMPILED_ENTROPY_CELLS <= np.getbufsize()
-    rng = np.random.default_rng(3)
-    b = rng.random((1, 100, 120))  # 12000 cells: compiled readout, numpy's entropy
-    b /= b.sum()
-    pos = b.reshape(-1)
-    assert referee.summary(b, (0, 0, 0), 0.5)["entropy"] == float(referee.entropy(pos))
-    batch = np.stack([b, b[:, ::-1].copy()])
-    np.testing.assert_array_equal(referee.summarise(batch, np.zeros((2, 3), dtype=np.int64), 0.5)["entropy"],
-                                  referee.entropy(batch.reshape(2, -1)))
+    for seed in range(8):  # (with numpy 1.26 the one-piece sum differs in seeds 1, 2, 4, 6)
+        rng = np.random.default_rng(seed)
+        b = rng.random((1, 100, 120))  # 12000 cells: compiled readout, numpy's entropy
+        b /= b.sum()
+        assert referee.summary(b, (0, 0, 0), 0.5)["entropy"] == float(referee.entropy(b.reshape(-1)))
+        batch = np.stack([b, b[:, ::-1].copy()])
+        np.testing.assert_array_equal(referee.summarise(batch, np.zeros((2, 3), dtype=np.int64), 0.5)["entropy"],
+                                      referee.entropy(batch.reshape(2, -1)))
 
 
 @needs_numba
