@@ -26,9 +26,10 @@ PER_RUN_TIMEOUT=${PER_RUN_TIMEOUT:-420}
 
 # gymnasium:numpy. 1.1.1 is the newest 1.1.x (the oldest series pyproject claims); 1.2.2 is the
 # version RLlib pins; the newest is whatever pip resolves for "gymnasium>=1.1,<2" (empty = unpinned).
-# The last adds the oldest numba the `fast` extra claims, on numpy 1.26 (which, unlike numpy 2.4,
-# reduces a long row buffer by buffer: the compiled sums must match it too).
-COMBOS=("1.1.1:1.26.4" "1.1.1:2" "1.2.2:1.26.4" "1.2.2:2" ":1.26.4" ":2" "1.2.2:1.26.4::0.60.0")
+# The last is the oldest of every declared range (gymnasium 1.1, numpy 1.24, scipy 1.10) with the
+# oldest numba the `fast` extra claims (0.60): numpy before 2.4 reduces a long row buffer by
+# buffer, and the compiled kernels' numbers must match it too.
+COMBOS=("1.1.1:1.26.4" "1.1.1:2" "1.2.2:1.26.4" "1.2.2:2" ":1.26.4" ":2" "1.1.1:1.24.4:1.10.1:0.60.0")
 if [ "$#" -gt 0 ]; then COMBOS=("$@"); fi
 
 TESTS=(tests/core tests/test_engine.py tests/test_filter.py tests/envs)
