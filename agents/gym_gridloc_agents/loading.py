@@ -13,6 +13,8 @@ import importlib
 from pathlib import Path
 from typing import Any, Sequence
 
+import numpy as np
+
 from gym_gridloc_agents.files import read_metadata
 
 #: The algorithms a config may name: ``algo`` -> (module, class).  Another stable-baselines3
@@ -60,7 +62,11 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
             raise ValueError(f"{path} does not fit this environment: {exc}") from None
         raise ValueError(f"{path} is not a loadable {algo} model: {exc}") from None
     except Exception as exc:  # noqa: BLE001 - a broken or foreign zip
-        raise ValueError(f"{path} is not a loadable {algo} model: {type(exc).__name__}: {exc}") from None
+        hint = ""
+        if isinstance(exc, ModuleNotFoundError) and "numpy._core" in str(exc):
+            hint = (f" (it was saved with numpy 2, and this Python has numpy {np.__version__}: "
+                    "pip install 'numpy>=2', as the rl extra asks)")
+        raise ValueError(f"{path} is not a loadable {algo} model: {type(exc).__name__}: {exc}{hint}") from None
     if observation_space is not None and model.observation_space != observation_space:
         where = f" (trained for {meta['env_id']})" if meta.get("env_id") else ""
         raise ValueError(

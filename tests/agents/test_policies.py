@@ -135,6 +135,8 @@ def test_random_policy_is_seeded_and_uniform():
 @pytest.mark.parametrize("env_id", BENCH_ENV_IDS)
 @pytest.mark.parametrize("name", POLICY_NAMES)
 def test_every_policy_returns_valid_actions(env_id, name):
+    if name == "pomcp":
+        pytest.importorskip("pomdp_py", reason="pomcp needs the planning extra (pip install 'gym_gridloc[planning]')")
     env = gym_gridloc.HMMBeliefWrapper(gym.make(env_id))
     if name == "optimal":  # the exact search needs a noiseless model
         from gym_gridloc_agents.planners.optimal import NotDeterministic
@@ -255,6 +257,20 @@ def test_ppo_for_another_environment_fails_clearly(tmp_path):
     junk.write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="not a loadable ppo model"):
         PPOPolicy(colour, path=junk)
+
+
+def test_a_model_numpy_1_cannot_read_says_to_install_numpy_2(monkeypatch):
+    """The shipped zips are pickled with numpy 2; under numpy 1 unpickling them fails on
+    ``numpy._core`` (seen with numpy 1.26): the error says what to install."""
+    from stable_baselines3 import PPO
+
+    def numpy_1_load(*args, **kwargs):
+        raise ModuleNotFoundError("No module named 'numpy._core.numeric'")
+
+    monkeypatch.setattr(PPO, "load", numpy_1_load)
+    with pytest.raises(ValueError, match=r"saved with numpy 2.*pip install 'numpy>=2'"):
+        PPOPolicy(gym_gridloc.colour_grid_model(), env_id="ColourGrid-v0",
+                  path=default_model_path("ColourGrid-v0", "ppo"))
 
 
 def test_models_are_matched_by_the_environment_their_keywords_build():
