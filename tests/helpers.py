@@ -13,9 +13,11 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 import warnings
 import weakref
 from datetime import timedelta
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -280,6 +282,34 @@ def run_python(code: str, **env: str) -> str:
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=full, timeout=120, check=False)
     assert res.returncode == 0, res.stderr
     return res.stdout.strip().splitlines()[-1]
+
+
+def session_processes(sid: int) -> dict[int, bytes]:
+    """The live processes of session ``sid`` (a command started with ``start_new_session``: also
+    the Ray workers of a Ray it started, which the raylet puts in process groups of their own, so
+    that ``killpg`` misses them), with their command lines (a Ray worker's is its process title,
+    ``ray::run_chunk`` while it runs a chunk).  Zombies are left out: they are dead."""
+    found = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, IndexError, ValueError):
+            state, _, _, session = stat.read_text().rsplit(")", 1)[1].split()[:4]
+            if int(session) == sid and state != "Z":
+                found[int(stat.parent.name)] = (stat.parent / "cmdline").read_bytes()
+    return found
+
+
+def kill_session(sid: int, timeout: float = 30.0) -> None:
+    """SIGKILL every process of session ``sid`` (its process group at once, then each one left)
+    and wait until none is alive, so that nothing it started writes a file afterwards."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(sid, signal.SIGKILL)
+    deadline = time.monotonic() + timeout
+    while left := session_processes(sid):
+        assert time.monotonic() < deadline, f"processes of session {sid} still alive after SIGKILL: {sorted(left)}"
+        for pid in left:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        time.sleep(0.05)
 
 
 # -- property tests of the environment families (map text and keyword arguments) ---------------------

@@ -31,6 +31,7 @@ from types import SimpleNamespace
 import pytest
 
 from gym_gridloc_agents.cli import main
+from tests.helpers import kill_session, session_processes
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("ray") is None or importlib.util.find_spec("optuna") is None,
                                 reason="needs the sweep extra (ray[tune], optuna)")
@@ -52,27 +53,6 @@ def _node_ports() -> list[str]:
             "--metrics-export-port", str(_free_port()), "--runtime-env-agent-port", str(_free_port())]
 
 
-def _session(sid: int) -> dict[int, bytes]:
-    """The processes of session ``sid`` (a ``ray start`` started with ``start_new_session``: its
-    node's processes, also the Ray workers, which the raylet puts in process groups of their own),
-    with their command lines (a worker's is its process title, ``ray::run_chunk`` while it runs a
-    chunk)."""
-    found = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        with contextlib.suppress(OSError, IndexError, ValueError):
-            if int(stat.read_text().rsplit(")", 1)[1].split()[3]) == sid:
-                found[int(stat.parent.name)] = (stat.parent / "cmdline").read_bytes()
-    return found
-
-
-def _kill_session(sid: int) -> None:
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(sid, signal.SIGKILL)
-    for pid in _session(sid):
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, signal.SIGKILL)
-
-
 def _stop(proc: subprocess.Popen) -> None:
     """End a ``ray start --block`` and its node's processes: SIGTERM to it (it stops its node in
     about 2 s; SIGTERM to the whole group at once takes Ray 30 s), then SIGKILL to whatever is left
@@ -81,7 +61,7 @@ def _stop(proc: subprocess.Popen) -> None:
         proc.send_signal(signal.SIGTERM)
     with contextlib.suppress(subprocess.TimeoutExpired):
         proc.wait(30)
-    _kill_session(proc.pid)
+    kill_session(proc.pid)
     with contextlib.suppress(subprocess.TimeoutExpired):
         proc.wait(10)
 
@@ -326,11 +306,11 @@ def chunks_lost_with_a_node_are_rerun(cluster, windy_local, tmp_path):
                                 stderr=err, env=cluster.env, cwd=tmp_path, start_new_session=True)
     try:
         deadline = time.monotonic() + 120
-        while not any(c.startswith(b"ray::run_chunk") for c in _session(cluster.second.pid).values()):
+        while not any(c.startswith(b"ray::run_chunk") for c in session_processes(cluster.second.pid).values()):
             assert proc.poll() is None and time.monotonic() < deadline, (tmp_path / "err.log").read_text()[-3000:]
             time.sleep(0.02)
         killed = time.monotonic()
-        _kill_session(cluster.second.pid)  # the node and its workers, at once
+        kill_session(cluster.second.pid)  # the node and its workers, at once
         assert proc.wait(150) == 0, (tmp_path / "err.log").read_text()[-3000:]
         print(f"\n[second node killed while running a chunk; the run ended {time.monotonic() - killed:.1f} s later]")
     finally:
@@ -367,5 +347,5 @@ def test_on_a_two_node_cluster(cluster, tmp_path):
             print(f"[{check.__name__}: {time.monotonic() - start:.1f} s]")
     finally:
         if local_sweep.poll() is None:
-            _kill_session(local_sweep.pid)
+            kill_session(local_sweep.pid)
             local_sweep.wait(30)

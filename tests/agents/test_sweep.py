@@ -26,6 +26,7 @@ import pytest
 
 from gym_gridloc_agents.evaluation import stats
 from gym_gridloc_agents.cli import main
+from tests.helpers import kill_session
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "agents" / "gym_gridloc_agents" / "models" / "ColourGrid-v0-ppo.zip"
@@ -311,7 +312,8 @@ def test_killed_sweep_resumes_without_rerunning_finished_trials(tmp_path, embedd
         return found
 
     # One trial at a time, Tune's experiment state saved every second (TUNE_GLOBAL_CHECKPOINT_S):
-    # kill the driver and the Ray it started once Tune's files show a finished trial and the
+    # kill the driver, the Ray it started and Ray's workers (all of its session: a worker left alive
+    # would finish its training after the kill) once Tune's files show a finished trial and the
     # next trial has a training checkpoint.
     log = open(tmp_path / "first.log", "w")
     proc = subprocess.Popen([sys.executable, "-m", "gym_gridloc_agents.cli", *args, "--cpus", "1"], stdout=log,
@@ -327,11 +329,11 @@ def test_killed_sweep_resumes_without_rerunning_finished_trials(tmp_path, embedd
             time.sleep(0.1)
         assert finished_at is not None and proc.poll() is None, \
             f"no trial finished, or all did (exit {proc.poll()}): {(tmp_path / 'first.log').read_text()[-3000:]}"
-        os.killpg(proc.pid, signal.SIGKILL)
+        kill_session(proc.pid)
         proc.wait(30)
     finally:
         if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
+            kill_session(proc.pid)
             proc.wait(30)
         log.close()
     finished = _finished_trials(out / "tune")  # what Tune recorded before the kill
@@ -402,7 +404,7 @@ def test_sweep_on_a_running_ray_cluster(tmp_path):
         try:
             head.wait(40)
         except subprocess.TimeoutExpired:
-            os.killpg(head.pid, signal.SIGKILL)
+            kill_session(head.pid)
             head.wait(10)
         log.close()
         shutil.rmtree(temp, ignore_errors=True)
