@@ -1,7 +1,9 @@
 """The test suite's one helpers module: shared models, simulation on the engine, the dense
-reference, comparisons, a subprocess runner and the property-test machinery of the env families.
+reference, comparisons, subprocesses (a runner; a started session's processes, and killing them
+all) and the property-test machinery of the env families.
 
-Every test file imports what it needs as ``from tests.helpers import ...``.
+Every test file imports what it needs as ``from tests.helpers import ...``: one module, longer than
+400 lines, so that no helper is written twice in two places.
 """
 
 from __future__ import annotations
