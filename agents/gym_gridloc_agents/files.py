@@ -136,17 +136,18 @@ def check_outputs(outputs, *, inputs=(), replace: bool = False, flag: str = "--f
 
 
 @contextlib.contextmanager
-def locked(path: str | Path, *, wait: bool = True, what: str = "file", directory: bool | None = None):
-    """An exclusive ``fcntl.flock`` for the block: on ``<dir>/.gridloc-lock`` for a directory, for
-    a file on a lock file named by the hash of its full path in the system's temporary directory
-    (no lock files beside results or models).  ``wait=False``: :class:`OutputError` if another
-    process holds it."""
+def locked(path: str | Path, *, wait: bool = True, what: str = "file", directory: bool | None = None,
+           name: str = ".gridloc-lock"):
+    """An exclusive ``fcntl.flock`` for the block: on ``<dir>/<name>`` for a directory (another
+    ``name``: another lock on the same directory), for a file on a lock file named by the hash of
+    its full path in the system's temporary directory (no lock files beside results or models).
+    ``wait=False``: :class:`OutputError` if another process holds it."""
     import hashlib
 
     path = Path(path)
     if path.is_dir() if directory is None else directory:
         path.mkdir(parents=True, exist_ok=True)
-        lock = path / ".gridloc-lock"
+        lock = path / name
     else:
         digest = hashlib.sha1(str(path.expanduser().resolve()).encode()).hexdigest()[:16]
         lock = Path(tempfile.gettempdir()) / "gridloc-locks" / f"{path.name[:40]}-{digest}.lock"

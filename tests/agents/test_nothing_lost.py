@@ -271,6 +271,21 @@ def test_two_trainings_into_one_output_never_share_files(tmp_path):
     assert len(set(seen)) == 2
 
 
+def test_a_trial_lock_shuts_out_a_twin_trial_but_not_the_training_inside_it(tmp_path):
+    """``gridloc sweep`` runs a trial under a lock of its own on the checkpoint directory (Optuna can
+    propose one configuration twice): the training inside takes the directory's own lock beside it."""
+    from gym_gridloc_agents.files import OutputError, locked
+
+    ckpt = tmp_path / "ckpt"
+    with locked(ckpt, what="trial", directory=True, name=".trial.lock"):
+        with locked(ckpt, wait=False, what="checkpoint directory", directory=True):
+            pass
+        with pytest.raises(OutputError, match="another process is writing the trial"):
+            with locked(ckpt, wait=False, what="trial", directory=True, name=".trial.lock"):
+                pass
+    assert sorted(p.name for p in ckpt.iterdir()) == [".gridloc-lock", ".trial.lock"]
+
+
 #: A training in its own process that stops after its first checkpoint, holding its locks, until its
 #: standard input closes.
 HOLDER = """

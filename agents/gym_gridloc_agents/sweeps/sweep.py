@@ -52,17 +52,15 @@ Ray and Optuna are imported here only, when a sweep runs (the ``sweep`` extra).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import re
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from gym_gridloc.core.validation import check_int
-from gym_gridloc_agents.files import atomic_write_json, writable_directory
+from gym_gridloc_agents.files import atomic_write_json, locked, writable_directory
 
 # What a sweep is (--grid, the trials' configs, --resume's check) is sweep_spec; what its trials
 # produced and the report, sweep_results.  Their public names are importable from here too.
@@ -112,24 +110,6 @@ SWEEP_OUTPUTS = ("models", "checkpoints", "results", "tensorboard", "summary.md"
 
 
 # -- one trial (runs in a Ray worker) ---------------------------------------------------------------
-@contextlib.contextmanager
-def _exclusive(path: Path) -> Iterator[None]:
-    """An exclusive lock on ``path`` (two trials of the same configuration and seed -- Optuna can
-    propose a configuration twice -- never train into the same files at once)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX
-        yield
-        return
-    with open(path, "a+") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
-
-
 def latest_checkpoint(directory: Path) -> Path | None:
     """The training checkpoint with the most steps in ``directory`` (periodic ``step_N.zip`` or
     ``interrupted_step_N.zip``), among those whose metadata was written (a complete checkpoint)."""
@@ -154,7 +134,10 @@ def trial_fn(config: dict[str, Any], spec: dict[str, Any]) -> None:
         tune.report({**entry, "score": score(cfg, entry), "final": False, **ids})
 
     ckpt_dir = Path(cfg["checkpoint_dir"])
-    with _exclusive(ckpt_dir / ".trial.lock"):
+    # two trials of the same configuration and seed (Optuna can propose a configuration twice) never
+    # train into the same files at once: the second waits, then reuses or resumes the first's work
+    # (a lock of its own in the directory, beside the one training takes there)
+    with locked(ckpt_dir, what="trial", directory=True, name=".trial.lock"):
         meta = completed_metadata(cfg)
         reused = meta is not None
         if meta is None:
