@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.extending import intrinsic
 
 _CHUNK = 2048
 _U = np.uint64  # Offsets and indices are unsigned: numba then emits no negative-index checks, and
@@ -256,6 +258,69 @@ def observed32(flat, n_layers, out):  # pragma: no cover - compiled
         out[i] = min(np.float32(x), np.float32(1.0))
 
 
+# -- a numpy bit generator's draws, as numpy's Generator makes them ---------------------------------
+# (from the generator's own C functions, whose addresses come as integers: the compiled step draws
+# what the Python calls it replaces drew, in the same order; tests hold them equal)
+@intrinsic
+def _next_u32(typingctx, function, state):  # pragma: no cover - compiled
+    """A numpy bit generator's ``next_uint32(state)``: ``function`` and ``state`` are the
+    addresses of its C function and its state (``bit_generator.ctypes``), passed as integers (a
+    ctypes function argument costs about 1.5 us a call to unbox; an integer, nothing)."""
+    def codegen(context, builder, signature, args):
+        pointer = ir.IntType(8).as_pointer()
+        f = builder.inttoptr(args[0], ir.FunctionType(ir.IntType(32), [pointer]).as_pointer())
+        return builder.call(f, [builder.inttoptr(args[1], pointer)])
+
+    return numba.types.uint32(numba.types.uintp, numba.types.uintp), codegen
+
+
+@intrinsic
+def _next_double(typingctx, function, state):  # pragma: no cover - compiled
+    """A numpy bit generator's ``next_double(state)`` (addresses as for :func:`_next_u32`):
+    ``Generator.random`` fills its arrays with these."""
+    def codegen(context, builder, signature, args):
+        pointer = ir.IntType(8).as_pointer()
+        f = builder.inttoptr(args[0], ir.FunctionType(ir.DoubleType(), [pointer]).as_pointer())
+        return builder.call(f, [builder.inttoptr(args[1], pointer)])
+
+    return numba.types.float64(numba.types.uintp, numba.types.uintp), codegen
+
+
+@numba.njit(cache=True, nogil=True)
+def _bounded(next_u32, state, top):  # pragma: no cover - compiled
+    """numpy's ``buffered_bounded_lemire_uint32`` for ``0 < top < 2**32 - 1``: a uniform
+    integer in ``0..top`` by Lemire's multiply and reject (``Generator.integers(top + 1)``
+    draws each of its int64 values so)."""
+    excl = np.uint64(top) + np.uint64(1)
+    m = np.uint64(_next_u32(next_u32, state)) * excl
+    leftover = m & np.uint64(0xFFFFFFFF)
+    if leftover < excl:
+        threshold = (np.uint64(0xFFFFFFFF) - np.uint64(top)) % excl
+        while leftover < threshold:
+            m = np.uint64(_next_u32(next_u32, state)) * excl
+            leftover = m & np.uint64(0xFFFFFFFF)
+    return np.int64(m >> np.uint64(32))
+
+
+@numba.njit(cache=True, nogil=True)
+def _interval(next_u32, state, top):  # pragma: no cover - compiled
+    """numpy's ``random_interval(bitgen, top)`` for ``0 <= top < 2**32``: a uniform integer in
+    ``0..top``, by rejection on the smallest all-ones mask covering ``top``."""
+    if top == 0:
+        return 0
+    mask = np.uint64(top)
+    mask |= mask >> np.uint64(1)
+    mask |= mask >> np.uint64(2)
+    mask |= mask >> np.uint64(4)
+    mask |= mask >> np.uint64(8)
+    mask |= mask >> np.uint64(16)
+    while True:
+        value = np.uint64(_next_u32(next_u32, state)) & mask
+        if value <= np.uint64(top):
+            return np.int64(value)
+
+
+
 # -- a batch of N: the native vector environment's step ---------------------------------------------
 @numba.njit(cache=True, nogil=True)
 def _move(weights, wo, keys, ko, K, hw, layer, r, c, u, width, cum, states, i):  # pragma: no cover - compiled
@@ -321,28 +386,48 @@ def draw_reading(kind, cum, total, values, R, s, u, j):  # pragma: no cover - co
 
 @numba.njit(cache=True, nogil=True)
 def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
-                   free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, n_moving,
-                   u_move, starts, u_start):  # pragma: no cover - compiled
+                   free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, bits, n_states,
+                   read, pose, threshold, rscratch, ints, confidence, estimate, flags):  # pragma: no cover - compiled
     """A vector step of N robots, row ``i`` on the model of slot ``slots[i]`` (every table has
     a leading slot axis: one model's tables, or a bank of models of the same sizes).  Row ``i``
     with ``modes[i]`` 0 moves under ``actions[i]``, reads and filters (``out[i]`` the normalised
-    posterior of ``beliefs[i]``); 1 starts an episode at the state index ``starts[...]`` (uniform
-    over free states, layer-major), reads, and takes the first posterior ``posts[reading]``; 2
-    keeps its state, reading and belief.  Random numbers as the engine draws them: ``u_move``
-    holds the ``n_moving`` moving rows' move uniforms, then their readings' (``per_draw`` each),
-    rows in order; ``u_start`` the starting rows' readings'.  Returns -1, or the first row whose
-    reading is impossible (z not positive and finite: the caller raises).  Moves are drawn from
-    the filter's own weights ``w`` with the ``keys`` (as :func:`sample_moves` draws them).  The
-    tables are read flat, each row's at its slot's offset."""
+    posterior of ``beliefs[i]``); 1 starts an episode at a state index drawn uniformly among the
+    ``n_states`` free states (layer-major), reads, and takes the first posterior
+    ``posts[reading]``; 2 keeps its state, reading and belief.  Random numbers from the numpy bit
+    generator of ``bits`` (the addresses of its ``next_uint32``, its ``next_double`` and its
+    state), as the engine's Python drew them: ``Generator.random`` of the moving rows' move
+    uniforms, then their readings' (``per_draw`` each), rows in order; ``Generator.integers`` of
+    the starting rows' states; ``Generator.random`` of their readings'.  With ``read``, every
+    row's readout as :func:`batch_readout` fills it (``rscratch`` and the blocks after it).
+    Returns -1, or the first row whose reading is impossible (z not positive and finite: the
+    caller raises).  Moves are drawn from the filter's own weights ``w`` with the ``keys`` (as
+    :func:`sample_moves` draws them).  The tables are read flat, each row's at its slot's offset."""
     n = states.shape[0]
     n_free = free_cells.shape[1]
     A, K, hw = w.shape[1], w.shape[2], w.shape[3]
     n_read, lsize = liks.shape[1], liks.shape[2]
     S, R = cum.shape[1], cum.shape[2]
     size = beliefs.shape[1]
+    n_moving = 0
+    n_starting = 0
+    for i in range(n):
+        n_moving += modes[i] == 0
+        n_starting += modes[i] == 1
+    u32, f64, state = bits[0], bits[1], bits[2]
+    u_move = np.empty(n_moving * (1 + per_draw))
+    for j in range(u_move.size):
+        u_move[j] = _next_double(f64, state)
+    starts = np.zeros(n_starting, dtype=np.int64)
+    if n_states > 1:
+        for j in range(n_starting):
+            starts[j] = _bounded(u32, state, n_states - 1)
+    u_start = np.empty(n_starting * per_draw)
+    for j in range(u_start.size):
+        u_start[j] = _next_double(f64, state)
     kf, wf, mf = keys.reshape(keys.size), w.reshape(w.size), meta.reshape(meta.size)
     lf, pf, bf, of = liks.reshape(liks.size), posts.reshape(posts.size), beliefs.reshape(beliefs.size), out.reshape(out.size)
     cf, tf, vf = cum.reshape(cum.size), total.reshape(total.size), values.reshape(values.size)
+    rsf, rhw = rscratch.reshape(rscratch.size), rscratch.shape[2]
     scratch = np.empty(K)
     jm = 0
     js = 0
@@ -383,6 +468,8 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
         else:
             for c in range(_U(size)):
                 of[oi + c] = bf[oi + c]
+        if read:
+            _readout_row(of, size, n_layers, pose, width, states, threshold, rsf, rhw, n, ints, confidence, estimate, flags, i)
     return bad
 
 
@@ -399,36 +486,42 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints,
     n, size = flat.shape[0], flat.shape[1]
     hw = scratch.shape[2]
     ff, sc = flat.reshape(flat.size), scratch.reshape(scratch.size)
-    qo = _U(n * hw)  # q's block, after pos's
     for i in range(n):
-        fo, po = _U(i * size), _U(i * hw)
+        _readout_row(ff, size, n_layers, pose, width, states, threshold, sc, hw, n, ints, confidence, estimate, flags, i)
+
+
+@numba.njit(cache=True, nogil=True)
+def _readout_row(ff, size, n_layers, pose, width, states, threshold, sc, hw, n, ints, confidence, estimate, flags, i):  # pragma: no cover - compiled
+    """Row ``i`` of :func:`batch_readout` (``ff`` the beliefs flat, ``sc`` the scratch flat, ``n`` rows)."""
+    fo, po = _U(i * size), _U(i * hw)
+    qo = _U(n * hw)  # q's block, after pos's
+    for c in range(_U(hw)):
+        sc[po + c] = ff[fo + c]
+    for lay in range(1, n_layers):  # the layers added in order, as numpy's sum over them
+        lo = fo + _U(lay * hw)
         for c in range(_U(hw)):
-            sc[po + c] = ff[fo + c]
-        for lay in range(1, n_layers):  # the layers added in order, as numpy's sum over them
-            lo = fo + _U(lay * hw)
-            for c in range(_U(hw)):
-                sc[po + c] += ff[lo + c]
-        for c in range(_U(hw)):
-            x = sc[po + c]
-            sc[qo + po + c] = x + 1.0 if x <= 0.0 else x + 0.0
-        j = _argmax(ff, fo, size) if pose else _argmax(sc, po, hw)
-        conf = ff[fo + _U(j)] if pose else sc[po + _U(j)]
-        cell = j % hw if pose and n_layers > 1 else j
-        er, ec = cell // width, cell % width
-        lay = j // hw
-        e = abs(er - states[i, 1]) + abs(ec - states[i, 2])
-        ints[0, i] = j
-        ints[1, i] = lay
-        ints[2, i] = e
-        confidence[i] = conf
-        estimate[i, 0] = er
-        estimate[i, 1] = ec
-        localised = conf >= threshold
-        right = e == 0
-        if pose:
-            right = right and lay == states[i, 0]
-        flags[0, i] = localised
-        flags[1, i] = localised and right
+            sc[po + c] += ff[lo + c]
+    for c in range(_U(hw)):
+        x = sc[po + c]
+        sc[qo + po + c] = x + 1.0 if x <= 0.0 else x + 0.0
+    j = _argmax(ff, fo, size) if pose else _argmax(sc, po, hw)
+    conf = ff[fo + _U(j)] if pose else sc[po + _U(j)]
+    cell = j % hw if pose and n_layers > 1 else j
+    er, ec = cell // width, cell % width
+    lay = j // hw
+    e = abs(er - states[i, 1]) + abs(ec - states[i, 2])
+    ints[0, i] = j
+    ints[1, i] = lay
+    ints[2, i] = e
+    confidence[i] = conf
+    estimate[i, 0] = er
+    estimate[i, 1] = ec
+    localised = conf >= threshold
+    right = e == 0
+    if pose:
+        right = right and lay == states[i, 0]
+    flags[0, i] = localised
+    flags[1, i] = localised and right
 
 
 @numba.njit(cache=True, nogil=True)
@@ -467,3 +560,43 @@ def all_below(a, k):  # pragma: no cover - compiled
         if not (0 <= a[i] < k):
             return False
     return True
+
+
+# -- maps: a batch of perfect mazes ---------------------------------------------------------------
+@numba.njit(cache=True, nogil=True)
+def perfect_maze_codes(next_u32, state, wall_a, wall_b, n_rooms, codes):  # pragma: no cover - compiled
+    """``codes.size`` perfect mazes in a row, drawn as ``generators.perfect_maze`` draws each: the
+    walls shuffled as numpy's ``Generator.permutation`` shuffles ``arange(n_walls)`` (from the
+    last position down, each swap partner by ``random_interval`` from the bit generator's
+    ``next_uint32`` at ``state``: both addresses), then Kruskal's union-find with path halving until the rooms
+    are one tree.  ``codes[i]``: maze ``i``'s opened walls, bit ``w`` for wall ``w`` (at most
+    63 walls)."""
+    n_walls = wall_a.shape[0]
+    order = np.empty(n_walls, dtype=np.int64)
+    parent = np.empty(n_rooms, dtype=np.int64)
+    for m in range(codes.shape[0]):
+        for i in range(n_walls):
+            order[i] = i
+        for i in range(n_walls - 1, 0, -1):
+            j = _interval(next_u32, state, i)
+            order[i], order[j] = order[j], order[i]
+        for r in range(n_rooms):
+            parent[r] = r
+        opened = 0
+        code = 0
+        for t in range(n_walls):
+            w = order[t]
+            a, b = wall_a[w], wall_b[w]
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            while parent[b] != b:
+                parent[b] = parent[parent[b]]
+                b = parent[b]
+            if a != b:
+                parent[a] = b
+                code |= np.int64(1) << w
+                opened += 1
+                if opened == n_rooms - 1:
+                    break
+        codes[m] = code

@@ -718,27 +718,32 @@ def _vector_tables(model: GridModel) -> tuple[tuple[int, ...], tuple[np.ndarray,
 
 def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], model_at: Callable[[int], GridModel]):
     """The vector step over ``stacked`` tables (a leading slot axis):
-    ``(states, readings, actions, beliefs, out, modes, rng, slots)``; ``model_at(slot)`` names
-    the model in an impossible reading's error."""
+    ``(states, readings, actions, beliefs, out, modes, rng, slots, readout=None)``;
+    ``model_at(slot)`` names the model in an impossible reading's error.  ``readout``: the
+    referee's blocks (:func:`referee.readout_blocks`), which the same call fills for every row."""
     width, n_layers, layered, kind, per_draw, n_states = scalars
     keys, w, meta, liks, cum, total, values, free_cells, posts, possible = stacked
     kernel = kernels.compiled(1).vector_advance
-    none, no_starts = np.empty(0), np.empty(0, dtype=np.int64)
 
-    def advance(states, readings, actions, beliefs, out, modes, rng, slots):
-        n_moving = modes.size - np.count_nonzero(modes)
-        n_starting = 0 if n_moving == modes.size else int(np.count_nonzero(modes == 1))
-        u_move = rng.random(n_moving * (1 + per_draw)) if n_moving else none
-        starts, u_start = (rng.integers(n_states, size=n_starting), rng.random(n_starting * per_draw)) if n_starting else (no_starts, none)
-        bad = kernel(keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
-                     free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, n_moving, u_move,
-                     starts, u_start)
+    def advance(states, readings, actions, beliefs, out, modes, rng, slots, readout=None):
+        bits = rng.bit_generator
+        functions = kernels.bit_functions(bits)
+        pose, threshold, scratch, ints, confidence, estimate, flags = _NO_READOUT if readout is None else readout
+        with bits.lock:  # (the draws are the generator's: as its own methods, under its lock)
+            bad = kernel(keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
+                         free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, functions, n_states,
+                         readout is not None, pose, threshold, scratch, ints, confidence, estimate, flags)
         if bad >= 0:
             model = model_at(int(slots[bad]))
             text = model.sensor.observation_text(int(readings[bad]))
             raise impossible(model, int(readings[bad]), label=f"observation {text} of belief {bad}")
 
     return advance
+
+
+#: The readout arguments of a vector step that reads nothing (the types of the real blocks).
+_NO_READOUT = (False, 0.0, np.empty((2, 0, 1)), np.empty((3, 0), dtype=np.int64), np.empty(0), np.empty((0, 2), dtype=np.int64),
+               np.empty((2, 0), dtype=bool))
 
 
 class VectorBank:

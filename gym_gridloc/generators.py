@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from gym_gridloc import kernels
 from gym_gridloc.core.grid import GridMap
 from gym_gridloc.core.validation import check_int, check_size, is_int
 
@@ -176,6 +177,57 @@ def perfect_maze(size: int, *, seed: Any = None) -> GridMap:
                 break
     opened.sort()
     return _maze_map(n, tuple(opened))
+
+
+#: The most walls a perfect maze may have for :func:`perfect_maze_codes` (a code is an int64).
+CODED_WALLS = 63
+
+
+def perfect_maze_codes(size: int, rng: np.random.Generator, count: int) -> np.ndarray | None:
+    """``count`` perfect mazes drawn from ``rng`` exactly as ``count`` calls of
+    :func:`perfect_maze` (``seed=rng``) draw them (the same mazes; the generator left in the same
+    state), each as its code: bit ``w`` set for each opened wall ``w``
+    (:func:`perfect_maze_of_code` gives the map).  One compiled call: it shuffles the walls as
+    numpy's ``Generator.permutation`` does, from the generator's own bit generator (its C
+    interface, under its lock); ``tests/test_generators.py`` holds it to :func:`perfect_maze`.
+    None when there is no compiled path (numba missing) or a code cannot hold the walls (more
+    than :data:`CODED_WALLS`: a side above 13)."""
+    # (a vector env calls this at most steps: plain ints pass without check_int's work)
+    n = size if type(size) is int and 5 <= size <= MAX_SIDE else check_int("size", size, 5, MAX_SIDE)
+    count = count if type(count) is int and count >= 0 else check_int("count", count, 0)
+    if n % 2 == 0:
+        raise ValueError(f"size must be odd (rooms at odd coordinates, walls all round), got {size!r}")
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy Generator, got {rng!r}")
+    k = (n - 1) // 2
+    fast = kernels.compiled(1)
+    if fast is None or 2 * k * (k - 1) > CODED_WALLS:
+        return None
+    wall_a, wall_b = _maze_wall_rooms(k)
+    codes = np.empty(count, dtype=np.int64)
+    bits = rng.bit_generator
+    functions = kernels.bit_functions(bits)
+    with bits.lock:
+        fast.perfect_maze_codes(functions[0], functions[2], wall_a, wall_b, k * k, codes)
+    return codes
+
+
+def perfect_maze_of_code(size: int, code: int) -> GridMap:
+    """The perfect maze of side ``size`` whose opened walls are the bits of ``code`` (see
+    :func:`perfect_maze_codes`): the same map object :func:`perfect_maze` returns for it while
+    the last 256 mazes are kept."""
+    _, cells = _maze_walls((size - 1) // 2)
+    return _maze_map(size, tuple(sorted(c for w, c in enumerate(cells) if code >> w & 1)))
+
+
+@functools.lru_cache(maxsize=16)
+def _maze_wall_rooms(k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each wall's two rooms (:func:`_maze_walls`), as two read-only int64 arrays."""
+    walls, _ = _maze_walls(k)
+    out = (np.array([a for a, _ in walls], dtype=np.int64), np.array([b for _, b in walls], dtype=np.int64))
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 @functools.lru_cache(maxsize=256)

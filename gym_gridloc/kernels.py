@@ -31,6 +31,7 @@ import functools
 import importlib.util
 import os
 import threading
+from typing import Any
 
 import numpy as np
 
@@ -59,6 +60,29 @@ def compiled(n_cells: int):
     and the observation's readout of one belief use them (the same numbers as their numpy code)."""
     return _COMPILED if _COMPILED is not None and AVAILABLE and n_cells < NUMBA_MAX_CELLS else (
         _compiled() if uses_numba(n_cells) else None)
+
+
+def bit_functions(bit_generator: np.random.BitGenerator) -> np.ndarray:
+    """The addresses the compiled kernels draw from ``bit_generator`` with (its C interface:
+    ``next_uint32``, ``next_double``, its state), as a ``uint64`` array of 3 (the caller holds
+    the bit generator's lock while drawing).  Made once per bit generator: the last 64 are kept,
+    each with the ``ctypes`` interface it was read from (a bit generator makes that once, so a
+    new one at the same ``id`` is told apart)."""
+    c = bit_generator.ctypes
+    known = _BIT_FUNCTIONS.get(id(bit_generator))
+    if known is None or known[0] is not c:
+        import ctypes
+
+        addresses = np.array([ctypes.cast(c.next_uint32, ctypes.c_void_p).value, ctypes.cast(c.next_double, ctypes.c_void_p).value,
+                              c.state_address], dtype=np.uint64)
+        addresses.flags.writeable = False
+        if len(_BIT_FUNCTIONS) >= 64:
+            _BIT_FUNCTIONS.clear()
+        known = _BIT_FUNCTIONS[id(bit_generator)] = (c, addresses)
+    return known[1]
+
+
+_BIT_FUNCTIONS: dict[int, tuple[Any, np.ndarray]] = {}
 
 
 def make_plan(transitions, n_layers: int, shape: tuple[int, int]):

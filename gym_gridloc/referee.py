@@ -105,25 +105,40 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
     log2, one compiled pass for the entropies (of at most :data:`COMPILED_ENTROPY_CELLS` cells;
     numpy sums longer ones): the same numbers (``tests/test_readout.py``)."""
     n, L, h, w = beliefs.shape
-    hw = h * w
-    flat = beliefs.reshape(n, -1)
     st = np.ascontiguousarray(states, dtype=np.int64)
-    # few allocations and arguments (a vector env pays them at every step): blocks whose rows are
-    # the arrays
-    scratch, ints, flags = np.empty((2, n, hw)), np.empty((3, n), dtype=np.int64), np.empty((2, n), dtype=bool)
-    confidence, estimate, ent = np.empty(n), np.empty((n, 2), dtype=np.int64), np.empty(n)
-    fast.batch_readout(flat, L, pose, w, st, float(threshold), scratch, ints, confidence, estimate, flags)
+    blocks = readout_blocks(n, h * w, threshold, pose)
+    fast.batch_readout(beliefs.reshape(n, -1), L, blocks[0], w, st, *blocks[1:])
+    return read_blocks(blocks, st, L)
+
+
+def readout_blocks(n: int, cells: int, threshold: float, pose: bool) -> tuple:
+    """What the compiled readout of N beliefs of ``cells`` positions fills, with its two
+    parameters: ``(pose, threshold, scratch, ints, confidence, estimate, flags)``
+    (``_numba_kernels.batch_readout``'s, or the engine's vector step's with them); then
+    :func:`read_blocks` gives the infos.  Few allocations: blocks whose rows are the arrays
+    (a vector env pays them at every step)."""
+    return (bool(pose), float(threshold), np.empty((2, n, cells)), np.empty((3, n), dtype=np.int64), np.empty(n),
+            np.empty((n, 2), dtype=np.int64), np.empty((2, n), dtype=bool))
+
+
+def read_blocks(blocks: tuple, states: np.ndarray, n_layers: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """:func:`readout`'s infos and position beliefs from the filled :func:`readout_blocks` of
+    the beliefs of the true ``states`` (N, 3) int64 (the infos' positions and headings are
+    copies): numpy's log2, then the entropies."""
+    pose, _, scratch, ints, confidence, estimate, flags = blocks
     pos, q = scratch
-    if hw <= COMPILED_ENTROPY_CELLS:
-        fast.batch_entropy(pos, np.log2(q, out=q), ent)
+    n, cells = pos.shape
+    ent = np.empty(n)
+    if cells <= COMPILED_ENTROPY_CELLS:
+        kernels.compiled(1).batch_entropy(pos, np.log2(q, out=q), ent)
     else:
         ent = entropy(pos)
     _, layer, error = ints
     localised, success = flags
-    info = {"position": st[:, 1:3].copy(), "estimate": estimate, "confidence": confidence, "error": error,
+    info = {"position": states[:, 1:3].copy(), "estimate": estimate, "confidence": confidence, "error": error,
             "localised": localised, "success": success, "entropy": ent}
-    if L > 1:
-        info["heading"] = st[:, 0].copy()
+    if n_layers > 1:
+        info["heading"] = states[:, 0].copy()
     if pose:
         info["estimate_heading"] = layer
     return info, pos

@@ -114,6 +114,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         #: engine.VectorBank of the environments' models (None: no compiled step; one engine call per model)
         self._bank = engine.vector_bank(model, n)
         self._slots = np.zeros(n, dtype=np.int64)  # each environment's slot in the bank
+        self._hw = model.shape[0] * model.shape[1]
+        self._coded: dict[int, Any] = {}  # map code -> model, for maps drawn as codes (MapFactory.codes)
         fast = kernels.compiled(self._beliefs[0].size)  # (None: numpy, as the referee and the filter)
         self._below = None if fast is None else fast.all_below  # the actions' range check
         length = template.episode_length
@@ -160,18 +162,31 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             yield self.models[sub[0]], sub
 
     def _redraw(self, idx: np.ndarray) -> None:
-        """New maps for the environments ``idx`` (in index order, from the batch's generator), each
-        placed in the bank (dropped, for one engine call per model, when it cannot hold one)."""
+        """New maps for the environments ``idx`` (in index order, from the batch's generator; all
+        in one call where the family has map codes), each placed in the bank (dropped, for one
+        engine call per model, when it cannot hold one)."""
         factory, rng, models, bank = self.template.map_factory, self.np_random, self.models, self._bank
-        for i in idx.tolist():
-            models[i] = factory(rng)
-            slot = None if bank is None else bank.slot(models[i], self._slots)
+        codes = factory.codes(rng, idx.size)
+        if codes is None:
+            drawn = [factory(rng) for _ in range(idx.size)]
+        else:  # the models of the last codes, as many as the bank holds (a code's model is fixed)
+            coded = self._coded
+            drawn = [coded.get(c) or self._code_model(c) for c in codes.tolist()]
+        for i, model in zip(idx.tolist(), drawn):
+            models[i] = model
+            slot = None if bank is None else bank.slot(model, self._slots)
             if slot is None:
                 bank = self._bank = None
             else:
                 self._slots[i] = slot
         if bank is None:
             self._regroup()
+
+    def _code_model(self, code: int):
+        model = self._coded[code] = self.template.map_factory.model_of_code(code)
+        if len(self._coded) > (self._bank.limit if self._bank is not None else engine.VectorBank.BYTES // 2**16):
+            del self._coded[next(iter(self._coded))]  # the oldest
+        return model
 
     def _restart(self, idx: np.ndarray, *, redrawn: bool = False) -> None:
         """Start new episodes in the environments ``idx``: maps (if redrawn, and not ``redrawn``
@@ -183,7 +198,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             n = self.num_envs
             modes = np.full(n, 2, dtype=np.int8)
             modes[idx] = 1
-            self._advance(np.zeros(n, dtype=np.int64), modes)
+            self._advance(np.zeros(n, dtype=np.int64), modes)  # (its infos: the caller reads them)
             self._elapsed[idx] = 0
             return
         for model, sub in self._by_model(idx):
@@ -193,13 +208,16 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._beliefs[sub] = engine.first_posterior(model, self._readings[sub])
         self._elapsed[idx] = 0
 
-    def _advance(self, actions: np.ndarray, modes: np.ndarray) -> None:
+    def _advance(self, actions: np.ndarray, modes: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
         """Every environment in one engine call (:class:`engine.VectorBank`; ``modes`` as
-        :func:`engine.vector_advancer`'s)."""
-        n = self.num_envs
+        :func:`engine.vector_advancer`'s), which reads the referee's readout of every row too:
+        :meth:`_infos`'s infos and position beliefs."""
+        n, t = self.num_envs, self.template
+        blocks = referee.readout_blocks(n, self._hw, t.localise_threshold, t.referee_pose)
         self._bank.advance(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1),
-                           modes, self.np_random, self._slots)
+                           modes, self.np_random, self._slots, blocks)
         self._beliefs, self._spare = self._spare, self._beliefs
+        return referee.read_blocks(blocks, self._states, self._beliefs.shape[1])
 
     def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
         """One step of the environments ``idx``: moves, readings, beliefs."""
@@ -284,15 +302,15 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         redrawn = self._bank is not None and self.template.map_factory is not None and resetting.any()
         if redrawn:  # maps first, then the one call's draws (moves, starts, readings)
             self._redraw(np.flatnonzero(resetting))
-        if self._bank is not None:  # moves and new episodes in one engine call
-            self._advance(acts, resetting.view(np.int8))
+        if self._bank is not None:  # moves, new episodes and the referee's readout in one engine call
+            info, positions = self._advance(acts, resetting.view(np.int8))
         else:
             moving = np.flatnonzero(~resetting)
             if moving.size:
                 self._move(moving, acts)
             if resetting.any():
                 self._restart(np.flatnonzero(resetting), redrawn=redrawn)
-        info, positions = self._infos()
+            info, positions = self._infos()
         rewards, terminated, truncated, done = referee.outcomes(
             self.template.reward_kind, info, resetting, self._elapsed, self._limit, self.template.episode_length is not None,
             cells=self._beliefs[0].size)  # (and the step counts: +1, or 0 where restarted)

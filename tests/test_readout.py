@@ -328,30 +328,15 @@ class _Replay:
         return np.asarray(self.integers_.pop(0), dtype=np.int64)
 
 
-class _Recorder:
-    """A generator that records what each call drew."""
-
-    def __init__(self, rng):
-        self.rng, self.calls = rng, []
-
-    def random(self, size=None):
-        out = self.rng.random(size)
-        self.calls.append(("random", out.copy()))
-        return out
-
-    def integers(self, high, size=None):
-        out = self.rng.integers(high, size=size)
-        self.calls.append(("integers", out.copy()))
-        return out
-
-
 @needs_numba
 @pytest.mark.parametrize("kwargs", [{}, {"p_depth_error": 0.2, "p_move_fail": 0.1}])
 def test_a_vector_bank_steps_each_row_on_its_own_model(kwargs):
     """engine.VectorBank, the native vector step with maps redrawn at reset: every row moves,
-    starts or keeps on its own model as vector_advancer of that model does for that row alone,
-    given the same draws (the bank draws for all rows at once: moves, then readings, in row
-    order), to the bit."""
+    starts or keeps on its own model as the engine's functions do for that row alone, given the
+    same draws: the bank draws from the generator's bit stream what Generator.random and
+    Generator.integers would (the moving rows' moves, then their readings, in row order; the
+    starting rows' states; their readings), to the bit, and leaves the generator where they
+    would."""
     env = gym.make("DepthMaze-v0", **kwargs).unwrapped
     factory = env.map_factory
     maze_rng = np.random.default_rng(0)
@@ -365,30 +350,39 @@ def test_a_vector_bank_steps_each_row_on_its_own_model(kwargs):
     readings = np.concatenate([engine.sample_readings(models[i % 6], states[i:i + 1], rng) for i in range(n)])
     beliefs = np.concatenate([engine.first_posterior(models[i % 6], readings[i:i + 1]).reshape(1, -1) for i in range(n)])
     per = 1  # DepthSensor: one uniform per reading
+    n_states = models[0].n_states
     for _ in range(6):
         actions = rng.integers(0, 3, size=n)
         modes = rng.integers(0, 3, size=n).astype(np.int8)
-        rec = _Recorder(np.random.default_rng(int(rng.integers(1000))))
+        seed = int(rng.integers(1000))
+        drawn, replayed = np.random.default_rng(seed), np.random.default_rng(seed)
         new_states, new_readings, out = states.copy(), readings.copy(), np.empty_like(beliefs)
-        bank.advance(new_states, new_readings, actions, beliefs, out, modes, rec, slots)
-        calls = [drawn for _, drawn in rec.calls]  # moves and their readings, starts, their readings
-        u_move = calls.pop(0) if (modes == 0).any() else None
-        starts, u_start = calls if (modes == 1).any() else (None, None)
-        moving = np.flatnonzero(modes == 0)
-        js = 0
+        blocks = referee.readout_blocks(n, 49, 0.9, True)  # the referee's readout, in the same call
+        bank.advance(new_states, new_readings, actions, beliefs, out, modes, drawn, slots, blocks)
+        info, positions = referee.read_blocks(blocks, new_states, 4)
+        ref_info, ref_positions = referee.readout(out.reshape(n, 4, 7, 7).copy(), new_states, 0.9, pose=True)
+        assert positions.tobytes() == ref_positions.tobytes() and info.keys() == ref_info.keys()
+        assert all(info[k].tobytes() == ref_info[k].tobytes() for k in info)
+        moving, starting = np.flatnonzero(modes == 0), np.flatnonzero(modes == 1)
+        u_move = replayed.random(moving.size * (1 + per)) if moving.size else None
+        starts = replayed.integers(n_states, size=starting.size) if starting.size else None
+        u_start = replayed.random(starting.size * per) if starting.size else None
+        assert drawn.random() == replayed.random()  # the same number of draws
         for i in range(n):
+            model = models[i % 6]
+            s, r, o = states[i:i + 1].copy(), readings[i:i + 1].copy(), beliefs[i].reshape(1, *model.belief_shape).copy()
             if modes[i] == 0:
                 j = int(np.flatnonzero(moving == i)[0])
-                replay = _Replay([np.concatenate([u_move[j:j + 1], u_move[moving.size + j * per: moving.size + (j + 1) * per]])])
+                s = engine.sample_next(model, s, actions[i:i + 1], _Replay([u_move[j:j + 1]]))
+                r = engine.sample_readings(model, s, _Replay([u_move[moving.size + j * per: moving.size + (j + 1) * per]]))
+                o = engine.step(model, o, actions[i:i + 1], r)[0]
             elif modes[i] == 1:
-                replay = _Replay([u_start[js * per:(js + 1) * per]], [starts[js:js + 1]])
-                js += 1
-            else:
-                replay = _Replay([])
-            s, r, o = states[i:i + 1].copy(), readings[i:i + 1].copy(), np.empty((1, beliefs.shape[1]))
-            engine.vector_advancer(models[i % 6])(s, r, actions[i:i + 1], beliefs[i:i + 1], o, modes[i:i + 1], replay)
+                js = int(np.flatnonzero(starting == i)[0])
+                s = engine.sample_initial(model, 1, _Replay([], [starts[js:js + 1]]))
+                r = engine.sample_readings(model, s, _Replay([u_start[js * per:(js + 1) * per]]))
+                o = engine.first_posterior(model, r)
             assert np.array_equal(new_states[i], s[0]) and new_readings[i] == r[0]
-            assert out[i].tobytes() == o[0].tobytes()
+            assert out[i].tobytes() == o.reshape(-1).tobytes()
         states, readings, beliefs = new_states, new_readings, out
 
 

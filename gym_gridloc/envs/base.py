@@ -32,7 +32,7 @@ class GridLocEnv(gym.Env):
 
     Keyword arguments the subclasses pass on: ``localise_threshold``; ``builder`` (``GridMap ->
     GridModel``: the family's model on another map, for the ``map`` reset option); ``map_factory``
-    (``rng -> GridModel``, a new map at every reset); ``referee_pose`` (the referee tests the most
+    (a :class:`MapFactory`: ``rng -> GridModel``, a new map at every reset); ``referee_pose`` (the referee tests the most
     probable hidden state rather than position); ``episode_length`` (a fixed number of steps:
     truncated there, never terminated early); ``reward`` (``"step"``: -1 per step, or
     ``"belief"``: the referee's confidence).
@@ -46,7 +46,7 @@ class GridLocEnv(gym.Env):
 
     def __init__(self, model: GridModel, *, localise_threshold: float = 0.9, render_mode: str | None = None,
                  builder: Callable[[Any], GridModel] | None = None,
-                 map_factory: Callable[[np.random.Generator], GridModel] | None = None,
+                 map_factory: "MapFactory | None" = None,
                  referee_pose: bool = False, episode_length: int | None = None, reward: str = "step") -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
@@ -218,7 +218,7 @@ class GridLocEnv(gym.Env):
         return self._state
 
     @property
-    def map_factory(self) -> Callable[[np.random.Generator], GridModel] | None:
+    def map_factory(self) -> "MapFactory | None":
         """What draws a new map's model at every reset (``new_map_each_reset``), or None: the
         native vector env draws its environments' maps with it."""
         return self._map_factory
@@ -241,9 +241,14 @@ class GridLocEnv(gym.Env):
         return self._last_reading
 
 
-def redraw(rng: np.random.Generator, *, build: Callable[[Any], GridModel], draw: Callable[[np.random.Generator], Any]) -> GridModel:
-    """``build(draw(rng))``: the model on a newly drawn map.  Bound with ``functools.partial`` to
-    module-level ``build`` and ``draw`` functions, a map factory pickles with its environment.
+class MapFactory:
+    """The map factory of an environment with a new map at every reset: ``factory(rng)`` is
+    ``build(draw(rng))``, the model on a newly drawn map.  Made of module-level functions (or
+    ``functools.partial`` of them), a factory pickles with its environment.
+
+    A family whose maps have integer codes also gives ``codes(rng, count)`` (``count`` maps drawn
+    at once, as ``count`` calls of ``draw`` draw them, as their codes) and ``of_code(code)`` (the
+    map): the native vector env draws its resets' maps so, one call for all of them.
 
     A small map drawn again is not built again: a map (of at most :data:`REDRAWN_CELLS` cells)
     drawn for the second time among the last :data:`REDRAWN_SEEN` keeps its model, the last
@@ -253,7 +258,29 @@ def redraw(rng: np.random.Generator, *, build: Callable[[Any], GridModel], draw:
     few hundred resets a new episode's model, and the engine's tables for it, are already there (a
     build costs about 0.5 ms, a maze's draw about 5 µs); mazes that do not come again (15x15: more
     than 10^20 of them) keep nothing."""
-    grid = draw(rng)
+
+    def __init__(self, build: Callable[[Any], GridModel], draw: Callable[[np.random.Generator], Any], *,
+                 codes: Callable[[np.random.Generator, int], np.ndarray | None] | None = None,
+                 of_code: Callable[[int], Any] | None = None) -> None:
+        if (codes is None) != (of_code is None):
+            raise ValueError("give both codes= and of_code= (a map's code and the map it stands for), or neither")
+        self.build, self.draw, self._codes, self._of_code = build, draw, codes, of_code
+
+    def __call__(self, rng: np.random.Generator) -> GridModel:
+        return _kept_model(self.build, self.draw(rng))
+
+    def codes(self, rng: np.random.Generator, count: int) -> np.ndarray | None:
+        """``count`` maps drawn as ``count`` calls of the factory draw them, as int64 codes
+        (:meth:`model_of_code` gives each one's model); None when the family has no codes."""
+        return None if self._codes is None else self._codes(rng, count)
+
+    def model_of_code(self, code: int) -> GridModel:
+        """The model on the map of ``code`` (the model ``factory(rng)`` gives for that map)."""
+        return _kept_model(self.build, self._of_code(code))
+
+
+def _kept_model(build: Callable[[Any], GridModel], grid: Any) -> GridModel:
+    """``build(grid)``, or the model kept for that map (see :class:`MapFactory`)."""
     key = _redraw_key(build, grid)
     if key is None:
         return build(grid)
@@ -278,7 +305,7 @@ def redraw(rng: np.random.Generator, *, build: Callable[[Any], GridModel], draw:
     return model
 
 
-#: :func:`redraw` keeps the models of this many maps (the most recently drawn) ...
+#: :class:`MapFactory` keeps the models of this many maps (the most recently drawn) ...
 REDRAWN_MODELS = 256
 #: ... of at most this many cells each, drawn at least twice among the last ``REDRAWN_SEEN`` maps.
 REDRAWN_CELLS = 256

@@ -4,7 +4,7 @@ import functools
 
 import numpy as np
 
-from gym_gridloc.envs.base import GridLocEnv, redraw
+from gym_gridloc.envs.base import GridLocEnv, MapFactory
 from gym_gridloc.generators import colour_map
 from gym_gridloc.models import colour_grid_model
 
@@ -86,4 +86,4 @@ class ColourGridEnv(GridLocEnv):
 
         grid = draw(0 if map_seed is None else map_seed) if generated else layout
         super().__init__(build(grid), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
-                         map_factory=functools.partial(redraw, build=build, draw=draw) if new_map_each_reset else None)
+                         map_factory=MapFactory(build, draw) if new_map_each_reset else None)

@@ -5,8 +5,8 @@ import functools
 import numpy as np
 
 from gym_gridloc.core.validation import check_int
-from gym_gridloc.envs.base import GridLocEnv, redraw
-from gym_gridloc.generators import perfect_maze
+from gym_gridloc.envs.base import GridLocEnv, MapFactory
+from gym_gridloc.generators import perfect_maze, perfect_maze_codes, perfect_maze_of_code
 from gym_gridloc.models import depth_maze_model
 
 
@@ -17,6 +17,14 @@ def _build(grid, *, p_turn_fail, p_move_fail, p_depth_error, max_depth, kidnap_p
 
 def _draw(rng, *, size):
     return perfect_maze(size, seed=rng)
+
+
+def _codes(rng, count, *, size):
+    return perfect_maze_codes(size, rng, count)
+
+
+def _of_code(code, *, size):
+    return perfect_maze_of_code(size, code)
 
 
 #: The largest DepthMaze side: its tables grow about as size**2.7 (401 needs 4.2 GB); 201 about 0.6 GB.
@@ -97,12 +105,13 @@ class DepthMazeEnv(GridLocEnv):
                                   max_depth=n - 2 if layout is None else None, kidnap_prob=kidnap_prob)
         draw = functools.partial(_draw, size=n)
 
+        factory = MapFactory(build, draw, codes=functools.partial(_codes, size=n), of_code=functools.partial(_of_code, size=n))
         first = layout if layout is not None else draw(0 if map_seed is None else map_seed)
         if layout is not None and size is not None:  # the layout's size is the maze's: a different size= is no size
             model = build(layout)
             if model.shape != (n, n):
                 raise ValueError(f"size={size!r} but the layout is a {model.shape[0]}x{model.shape[1]} maze: give one of them")
         super().__init__(build(first), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
-                         map_factory=functools.partial(redraw, build=build, draw=draw) if new_map_each_reset else None,
+                         map_factory=factory if new_map_each_reset else None,
                          referee_pose=True, episode_length=episode_length, reward=reward)
         self.size = n

@@ -130,7 +130,7 @@ def test_a_maze_drawn_again_reuses_its_model():
         assert id(other.model) not in ours and other.model.sensor.p_depth_error == 0.1
     assert len(base._REDRAWN) <= base.REDRAWN_MODELS
     big = gym.make("DepthMaze-v0", size=17).unwrapped  # 289 cells: not kept
-    assert base._redraw_key(big.map_factory.keywords["build"], big.model.grid) is None
+    assert base._redraw_key(big.map_factory.build, big.model.grid) is None
 
 
 def test_a_maze_drawn_once_keeps_nothing():
