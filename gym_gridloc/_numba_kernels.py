@@ -387,7 +387,8 @@ def draw_reading(kind, cum, total, values, R, s, u, j):  # pragma: no cover - co
 @numba.njit(cache=True, nogil=True)
 def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
                    free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, bits, n_states,
-                   read, pose, threshold, rscratch, ints, confidence, estimate, flags):  # pragma: no cover - compiled
+                   read, pose, threshold, rscratch, ints, confidence, estimate, flags,
+                   end, restarted, elapsed, limit, fixed_length, belief_reward, rewards, ends):  # pragma: no cover - compiled
     """A vector step of N robots, row ``i`` on the model of slot ``slots[i]`` (every table has
     a leading slot axis: one model's tables, or a bank of models of the same sizes).  Row ``i``
     with ``modes[i]`` 0 moves under ``actions[i]``, reads and filters (``out[i]`` the normalised
@@ -398,7 +399,8 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
     state), as the engine's Python drew them: ``Generator.random`` of the moving rows' move
     uniforms, then their readings' (``per_draw`` each), rows in order; ``Generator.integers`` of
     the starting rows' states; ``Generator.random`` of their readings'.  With ``read``, every
-    row's readout as :func:`batch_readout` fills it (``rscratch`` and the blocks after it).
+    row's readout as :func:`batch_readout` fills it (``rscratch`` and the blocks after it); with
+    ``end`` too, how every row's step ends, as :func:`batch_outcomes` (``restarted`` and after).
     Returns -1, or the first row whose reading is impossible (z not positive and finite: the
     caller raises).  Moves are drawn from the filter's own weights ``w`` with the ``keys`` (as
     :func:`sample_moves` draws them).  The tables are read flat, each row's at its slot's offset."""
@@ -427,7 +429,6 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
     kf, wf, mf = keys.reshape(keys.size), w.reshape(w.size), meta.reshape(meta.size)
     lf, pf, bf, of = liks.reshape(liks.size), posts.reshape(posts.size), beliefs.reshape(beliefs.size), out.reshape(out.size)
     cf, tf, vf = cum.reshape(cum.size), total.reshape(total.size), values.reshape(values.size)
-    rsf, rhw = rscratch.reshape(rscratch.size), rscratch.shape[2]
     scratch = np.empty(K)
     jm = 0
     js = 0
@@ -468,8 +469,10 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
         else:
             for c in range(_U(size)):
                 of[oi + c] = bf[oi + c]
-        if read:
-            _readout_row(of, size, n_layers, pose, width, states, threshold, rsf, rhw, n, ints, confidence, estimate, flags, i)
+    if read:
+        batch_readout(out, n_layers, pose, width, states, threshold, rscratch, ints, confidence, estimate, flags)
+        if end:
+            batch_outcomes(flags[0], confidence, restarted, elapsed, limit, fixed_length, belief_reward, rewards, ends)
     return bad
 
 
@@ -477,61 +480,76 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
 def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints, confidence, estimate, flags):  # pragma: no cover - compiled
     """:func:`readout` of N hidden-state beliefs ``flat`` (N, L*H*W) and the referee's arrays of
     ``referee.summarise`` (the same numbers), in blocks (few arguments and allocations: the vector
-    env pays them at every step): ``scratch`` (2, N, H*W) gets ``pos`` and ``q`` as :func:`readout`
-    fills them; per row, ``ints`` (3, N) the index of the largest tested value, the estimated
-    layer (pose) and the Manhattan error to the true ``states`` (layer, row, col);
+    env pays them at every step): ``scratch`` (2, N, H*W) gets ``pos`` and, at the start of its
+    second block, the values of ``q`` (as :func:`readout` fills it) that are not 1, row after row
+    (their log2 is all that :func:`batch_entropy` needs: the zero cells of a position belief are
+    most of a maze's); per row, ``ints`` (4, N) the index of the largest tested value, the
+    estimated layer (pose), the Manhattan error to the true ``states`` (layer, row, col) and
+    where the row's values of ``q`` end;
     ``confidence``, the ``estimate`` (row, column); ``flags`` (2, N) localised (confidence >=
     threshold) and success.  Rows are indexed in place, not sliced (a row's view costs more than
     its work on small maps): the arrays are read flat."""
     n, size = flat.shape[0], flat.shape[1]
     hw = scratch.shape[2]
     ff, sc = flat.reshape(flat.size), scratch.reshape(scratch.size)
-    for i in range(n):
-        _readout_row(ff, size, n_layers, pose, width, states, threshold, sc, hw, n, ints, confidence, estimate, flags, i)
-
-
-@numba.njit(cache=True, nogil=True)
-def _readout_row(ff, size, n_layers, pose, width, states, threshold, sc, hw, n, ints, confidence, estimate, flags, i):  # pragma: no cover - compiled
-    """Row ``i`` of :func:`batch_readout` (``ff`` the beliefs flat, ``sc`` the scratch flat, ``n`` rows)."""
-    fo, po = _U(i * size), _U(i * hw)
     qo = _U(n * hw)  # q's block, after pos's
-    for c in range(_U(hw)):
-        sc[po + c] = ff[fo + c]
-    for lay in range(1, n_layers):  # the layers added in order, as numpy's sum over them
-        lo = fo + _U(lay * hw)
+    qn = 0
+    for i in range(n):
+        fo, po = _U(i * size), _U(i * hw)
         for c in range(_U(hw)):
-            sc[po + c] += ff[lo + c]
-    for c in range(_U(hw)):
-        x = sc[po + c]
-        sc[qo + po + c] = x + 1.0 if x <= 0.0 else x + 0.0
-    j = _argmax(ff, fo, size) if pose else _argmax(sc, po, hw)
-    conf = ff[fo + _U(j)] if pose else sc[po + _U(j)]
-    cell = j % hw if pose and n_layers > 1 else j
-    er, ec = cell // width, cell % width
-    lay = j // hw
-    e = abs(er - states[i, 1]) + abs(ec - states[i, 2])
-    ints[0, i] = j
-    ints[1, i] = lay
-    ints[2, i] = e
-    confidence[i] = conf
-    estimate[i, 0] = er
-    estimate[i, 1] = ec
-    localised = conf >= threshold
-    right = e == 0
-    if pose:
-        right = right and lay == states[i, 0]
-    flags[0, i] = localised
-    flags[1, i] = localised and right
+            sc[po + c] = ff[fo + c]
+        for lay in range(1, n_layers):  # the layers added in order, as numpy's sum over them
+            lo = fo + _U(lay * hw)
+            for c in range(_U(hw)):
+                sc[po + c] += ff[lo + c]
+        for c in range(_U(hw)):
+            x = sc[po + c]
+            q = x + 1.0 if x <= 0.0 else x + 0.0
+            if q != 1.0:  # (log2 of 1 is 0: batch_entropy puts those back)
+                sc[qo + _U(qn)] = q
+                qn += 1
+        ints[3, i] = qn
+        j = _argmax(ff, fo, size) if pose else _argmax(sc, po, hw)
+        conf = ff[fo + _U(j)] if pose else sc[po + _U(j)]
+        cell = j % hw if pose and n_layers > 1 else j
+        er, ec = cell // width, cell % width
+        lay = j // hw
+        e = abs(er - states[i, 1]) + abs(ec - states[i, 2])
+        ints[0, i] = j
+        ints[1, i] = lay
+        ints[2, i] = e
+        confidence[i] = conf
+        estimate[i, 0] = er
+        estimate[i, 1] = ec
+        localised = conf >= threshold
+        right = e == 0
+        if pose:
+            right = right and lay == states[i, 0]
+        flags[0, i] = localised
+        flags[1, i] = localised and right
 
 
 @numba.njit(cache=True, nogil=True)
-def batch_entropy(pos, log2q, out):  # pragma: no cover - compiled
-    """:func:`entropy_sum` of each row: ``out[i] = -np.add.reduce(pos[i] * log2q[i]) + 0.0``
-    (C-contiguous ``(N, n)`` arrays, read flat: no row views)."""
+def batch_entropy(pos, log2q, ends, out):  # pragma: no cover - compiled
+    """:func:`entropy_sum` of each row: ``out[i] = -np.add.reduce(pos[i] * log2(q[i])) + 0.0``
+    with ``q`` as :func:`readout` makes it from ``pos``, given the log2 of its values that are not
+    1, row after row, in ``log2q`` (flat; row ``i``'s end at ``ends[i]``: :func:`batch_readout`'s
+    layout): each row is rebuilt (0 where ``q`` is 1) and summed as numpy sums it."""
     n = pos.shape[1]
-    pf, lf = pos.reshape(pos.size), log2q.reshape(log2q.size)
+    pf = pos.reshape(pos.size)
+    row, lq = np.empty(n), np.empty(n)
+    k = 0
     for i in range(pos.shape[0]):
-        res = _block_product(pf, lf, i * n, n) if n <= 128 else _pairwise_product(pf, lf, i * n, n)
+        for c in range(n):
+            x = pf[i * n + c]
+            row[c] = x
+            q = x + 1.0 if x <= 0.0 else x + 0.0
+            if q != 1.0:
+                lq[c] = log2q[k]
+                k += 1
+            else:
+                lq[c] = 0.0
+        res = _block_product(row, lq, 0, n) if n <= 128 else _pairwise_product(row, lq, 0, n)
         out[i] = -(0.0 + res) + 0.0
 
 

@@ -117,7 +117,7 @@ def readout_blocks(n: int, cells: int, threshold: float, pose: bool) -> tuple:
     (``_numba_kernels.batch_readout``'s, or the engine's vector step's with them); then
     :func:`read_blocks` gives the infos.  Few allocations: blocks whose rows are the arrays
     (a vector env pays them at every step)."""
-    return (bool(pose), float(threshold), np.empty((2, n, cells)), np.empty((3, n), dtype=np.int64), np.empty(n),
+    return (bool(pose), float(threshold), np.empty((2, n, cells)), np.empty((4, n), dtype=np.int64), np.empty(n),
             np.empty((n, 2), dtype=np.int64), np.empty((2, n), dtype=bool))
 
 
@@ -128,12 +128,13 @@ def read_blocks(blocks: tuple, states: np.ndarray, n_layers: int) -> tuple[dict[
     pose, _, scratch, ints, confidence, estimate, flags = blocks
     pos, q = scratch
     n, cells = pos.shape
-    ent = np.empty(n)
     if cells <= COMPILED_ENTROPY_CELLS:
-        kernels.compiled(1).batch_entropy(pos, np.log2(q, out=q), ent)
+        ent = np.empty(n)
+        logs = q.reshape(-1)[:ints[3, -1] if n else 0]  # the values of q that are not 1 (batch_readout)
+        kernels.compiled(1).batch_entropy(pos, np.log2(logs, out=logs), ints[3], ent)
     else:
         ent = entropy(pos)
-    _, layer, error = ints
+    _, layer, error, _ = ints
     localised, success = flags
     info = {"position": states[:, 1:3].copy(), "estimate": estimate, "confidence": confidence, "error": error,
             "localised": localised, "success": success, "entropy": ent}
@@ -189,6 +190,21 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
     return info
 
 
+def ending_blocks(kind: str, restarted: np.ndarray, elapsed: np.ndarray, limit: int | None, fixed_length: bool) -> tuple:
+    """:func:`outcomes`'s arguments and outputs as a compiled step takes them (the engine's vector
+    step computes them beside its readout): ``(restarted, elapsed, limit, fixed_length,
+    belief_reward, rewards, flags)``; :func:`ended` gives ``(rewards, terminated, truncated,
+    done)`` from them."""
+    n = elapsed.shape[0]
+    return restarted, elapsed, int(limit or 0), bool(fixed_length), kind == "belief", np.empty(n), np.empty((3, n), dtype=bool)
+
+
+def ended(blocks: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(rewards, terminated, truncated, done)`` of filled :func:`ending_blocks`."""
+    rewards_, flags = blocks[5], blocks[6]
+    return rewards_, flags[0], flags[1], flags[2]
+
+
 def outcomes(kind: str, info: dict[str, np.ndarray], restarted: np.ndarray, elapsed: np.ndarray, limit: int | None,
              fixed_length: bool, *, cells: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """How N steps end, from the referee's ``info`` (:func:`summarise`): ``(rewards, terminated,
@@ -200,11 +216,9 @@ def outcomes(kind: str, info: dict[str, np.ndarray], restarted: np.ndarray, elap
     pass does it (the same numbers)."""
     fast = None if cells is None else kernels.compiled(cells)
     if fast is not None:
-        n = elapsed.shape[0]
-        rewards_, flags = np.empty(n), np.empty((3, n), dtype=bool)
-        fast.batch_outcomes(info["localised"], info["confidence"], restarted, elapsed, limit or 0, fixed_length,
-                            kind == "belief", rewards_, flags)
-        return rewards_, flags[0], flags[1], flags[2]
+        blocks = ending_blocks(kind, restarted, elapsed, limit, fixed_length)
+        fast.batch_outcomes(info["localised"], info["confidence"], *blocks)
+        return ended(blocks)
     stepped = ~restarted
     elapsed += 1
     elapsed *= stepped  # +1, or 0 when restarted

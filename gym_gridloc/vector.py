@@ -198,7 +198,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             n = self.num_envs
             modes = np.full(n, 2, dtype=np.int8)
             modes[idx] = 1
-            self._advance(np.zeros(n, dtype=np.int64), modes)  # (its infos: the caller reads them)
+            self._advance(np.zeros(n, dtype=np.int64), modes)  # (its infos: the caller reads them again)
             self._elapsed[idx] = 0
             return
         for model, sub in self._by_model(idx):
@@ -208,16 +208,20 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._beliefs[sub] = engine.first_posterior(model, self._readings[sub])
         self._elapsed[idx] = 0
 
-    def _advance(self, actions: np.ndarray, modes: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    def _advance(self, actions: np.ndarray, modes: np.ndarray, restarted: np.ndarray | None = None):
         """Every environment in one engine call (:class:`engine.VectorBank`; ``modes`` as
         :func:`engine.vector_advancer`'s), which reads the referee's readout of every row too:
-        :meth:`_infos`'s infos and position beliefs."""
+        :meth:`_infos`'s infos and position beliefs; with ``restarted`` (a step: the rows that
+        started an episode), how each row's step ends too (:func:`referee.outcomes`'s)."""
         n, t = self.num_envs, self.template
         blocks = referee.readout_blocks(n, self._hw, t.localise_threshold, t.referee_pose)
+        ending = None if restarted is None else referee.ending_blocks(t.reward_kind, restarted, self._elapsed, self._limit,
+                                                                     t.episode_length is not None)
         self._bank.advance(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1),
-                           modes, self.np_random, self._slots, blocks)
+                           modes, self.np_random, self._slots, blocks, ending)
         self._beliefs, self._spare = self._spare, self._beliefs
-        return referee.read_blocks(blocks, self._states, self._beliefs.shape[1])
+        info, positions = referee.read_blocks(blocks, self._states, self._beliefs.shape[1])
+        return info, positions, None if ending is None else referee.ended(ending)
 
     def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
         """One step of the environments ``idx``: moves, readings, beliefs."""
@@ -302,8 +306,8 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         redrawn = self._bank is not None and self.template.map_factory is not None and resetting.any()
         if redrawn:  # maps first, then the one call's draws (moves, starts, readings)
             self._redraw(np.flatnonzero(resetting))
-        if self._bank is not None:  # moves, new episodes and the referee's readout in one engine call
-            info, positions = self._advance(acts, resetting.view(np.int8))
+        if self._bank is not None:  # moves, new episodes, the referee's readout and outcomes in one engine call
+            info, positions, (rewards, terminated, truncated, done) = self._advance(acts, resetting.view(np.int8), resetting)
         else:
             moving = np.flatnonzero(~resetting)
             if moving.size:
@@ -311,9 +315,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             if resetting.any():
                 self._restart(np.flatnonzero(resetting), redrawn=redrawn)
             info, positions = self._infos()
-        rewards, terminated, truncated, done = referee.outcomes(
-            self.template.reward_kind, info, resetting, self._elapsed, self._limit, self.template.episode_length is not None,
-            cells=self._beliefs[0].size)  # (and the step counts: +1, or 0 where restarted)
+            rewards, terminated, truncated, done = referee.outcomes(
+                self.template.reward_kind, info, resetting, self._elapsed, self._limit, self.template.episode_length is not None,
+                cells=self._beliefs[0].size)  # (and the step counts: +1, or 0 where restarted)
         obs = self._observations(positions)
         if same_step and done.any():
             ended = np.flatnonzero(done)
