@@ -480,12 +480,9 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
 def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints, confidence, estimate, flags):  # pragma: no cover - compiled
     """:func:`readout` of N hidden-state beliefs ``flat`` (N, L*H*W) and the referee's arrays of
     ``referee.summarise`` (the same numbers), in blocks (few arguments and allocations: the vector
-    env pays them at every step): ``scratch`` (2, N, H*W) gets ``pos`` and, at the start of its
-    second block, the values of ``q`` (as :func:`readout` fills it) that are not 1, row after row
-    (their log2 is all that :func:`batch_entropy` needs: the zero cells of a position belief are
-    most of a maze's); per row, ``ints`` (4, N) the index of the largest tested value, the
-    estimated layer (pose), the Manhattan error to the true ``states`` (layer, row, col) and
-    where the row's values of ``q`` end;
+    env pays them at every step): ``scratch`` (2, N, H*W) gets ``pos`` and ``q`` as :func:`readout`
+    fills them; per row, ``ints`` (3, N) the index of the largest tested value, the estimated
+    layer (pose) and the Manhattan error to the true ``states`` (layer, row, col);
     ``confidence``, the ``estimate`` (row, column); ``flags`` (2, N) localised (confidence >=
     threshold) and success.  Rows are indexed in place, not sliced (a row's view costs more than
     its work on small maps): the arrays are read flat."""
@@ -493,7 +490,6 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints,
     hw = scratch.shape[2]
     ff, sc = flat.reshape(flat.size), scratch.reshape(scratch.size)
     qo = _U(n * hw)  # q's block, after pos's
-    qn = 0
     for i in range(n):
         fo, po = _U(i * size), _U(i * hw)
         for c in range(_U(hw)):
@@ -504,11 +500,7 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints,
                 sc[po + c] += ff[lo + c]
         for c in range(_U(hw)):
             x = sc[po + c]
-            q = x + 1.0 if x <= 0.0 else x + 0.0
-            if q != 1.0:  # (log2 of 1 is 0: batch_entropy puts those back)
-                sc[qo + _U(qn)] = q
-                qn += 1
-        ints[3, i] = qn
+            sc[qo + po + c] = x + 1.0 if x <= 0.0 else x + 0.0
         j = _argmax(ff, fo, size) if pose else _argmax(sc, po, hw)
         conf = ff[fo + _U(j)] if pose else sc[po + _U(j)]
         cell = j % hw if pose and n_layers > 1 else j
@@ -530,26 +522,13 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints,
 
 
 @numba.njit(cache=True, nogil=True)
-def batch_entropy(pos, log2q, ends, out):  # pragma: no cover - compiled
-    """:func:`entropy_sum` of each row: ``out[i] = -np.add.reduce(pos[i] * log2(q[i])) + 0.0``
-    with ``q`` as :func:`readout` makes it from ``pos``, given the log2 of its values that are not
-    1, row after row, in ``log2q`` (flat; row ``i``'s end at ``ends[i]``: :func:`batch_readout`'s
-    layout): each row is rebuilt (0 where ``q`` is 1) and summed as numpy sums it."""
+def batch_entropy(pos, log2q, out):  # pragma: no cover - compiled
+    """:func:`entropy_sum` of each row: ``out[i] = -np.add.reduce(pos[i] * log2q[i]) + 0.0``
+    (C-contiguous ``(N, n)`` arrays, read flat: no row views)."""
     n = pos.shape[1]
-    pf = pos.reshape(pos.size)
-    row, lq = np.empty(n), np.empty(n)
-    k = 0
+    pf, lf = pos.reshape(pos.size), log2q.reshape(log2q.size)
     for i in range(pos.shape[0]):
-        for c in range(n):
-            x = pf[i * n + c]
-            row[c] = x
-            q = x + 1.0 if x <= 0.0 else x + 0.0
-            if q != 1.0:
-                lq[c] = log2q[k]
-                k += 1
-            else:
-                lq[c] = 0.0
-        res = _block_product(row, lq, 0, n) if n <= 128 else _pairwise_product(row, lq, 0, n)
+        res = _block_product(pf, lf, i * n, n) if n <= 128 else _pairwise_product(pf, lf, i * n, n)
         out[i] = -(0.0 + res) + 0.0
 
 

@@ -748,7 +748,7 @@ def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], 
 #: The ending arguments of a vector step that computes none (the types of the real blocks).
 _NO_ENDING = (np.empty(0, dtype=bool), np.empty(0, dtype=np.int64), 0, False, False, np.empty(0), np.empty((3, 0), dtype=bool))
 #: The readout arguments of a vector step that reads nothing (the types of the real blocks).
-_NO_READOUT = (False, 0.0, np.empty((2, 0, 1)), np.empty((4, 0), dtype=np.int64), np.empty(0), np.empty((0, 2), dtype=np.int64),
+_NO_READOUT = (False, 0.0, np.empty((2, 0, 1)), np.empty((3, 0), dtype=np.int64), np.empty(0), np.empty((0, 2), dtype=np.int64),
                np.empty((2, 0), dtype=bool))
 
 

@@ -117,7 +117,7 @@ def readout_blocks(n: int, cells: int, threshold: float, pose: bool) -> tuple:
     (``_numba_kernels.batch_readout``'s, or the engine's vector step's with them); then
     :func:`read_blocks` gives the infos.  Few allocations: blocks whose rows are the arrays
     (a vector env pays them at every step)."""
-    return (bool(pose), float(threshold), np.empty((2, n, cells)), np.empty((4, n), dtype=np.int64), np.empty(n),
+    return (bool(pose), float(threshold), np.empty((2, n, cells)), np.empty((3, n), dtype=np.int64), np.empty(n),
             np.empty((n, 2), dtype=np.int64), np.empty((2, n), dtype=bool))
 
 
@@ -130,11 +130,10 @@ def read_blocks(blocks: tuple, states: np.ndarray, n_layers: int) -> tuple[dict[
     n, cells = pos.shape
     if cells <= COMPILED_ENTROPY_CELLS:
         ent = np.empty(n)
-        logs = q.reshape(-1)[:ints[3, -1] if n else 0]  # the values of q that are not 1 (batch_readout)
-        kernels.compiled(1).batch_entropy(pos, np.log2(logs, out=logs), ints[3], ent)
+        kernels.compiled(1).batch_entropy(pos, np.log2(q, out=q), ent)
     else:
         ent = entropy(pos)
-    _, layer, error, _ = ints
+    _, layer, error = ints
     localised, success = flags
     info = {"position": states[:, 1:3].copy(), "estimate": estimate, "confidence": confidence, "error": error,
             "localised": localised, "success": success, "entropy": ent}
