@@ -387,7 +387,7 @@ def draw_reading(kind, cum, total, values, R, s, u, j):  # pragma: no cover - co
 @numba.njit(cache=True, nogil=True)
 def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
                    free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, bits, n_states,
-                   read, pose, threshold, rscratch, ints, confidence, estimate, flags,
+                   read, pose, threshold, rscratch, ints, confidence, estimate, flags, observed,
                    end, restarted, elapsed, limit, fixed_length, belief_reward, rewards, ends):  # pragma: no cover - compiled
     """A vector step of N robots, row ``i`` on the model of slot ``slots[i]`` (every table has
     a leading slot axis: one model's tables, or a bank of models of the same sizes).  Row ``i``
@@ -470,22 +470,23 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
             for c in range(_U(size)):
                 of[oi + c] = bf[oi + c]
     if read:
-        batch_readout(out, n_layers, pose, width, states, threshold, rscratch, ints, confidence, estimate, flags)
+        batch_readout(out, n_layers, pose, width, states, threshold, rscratch, ints, confidence, estimate, flags, observed)
         if end:
             batch_outcomes(flags[0], confidence, restarted, elapsed, limit, fixed_length, belief_reward, rewards, ends)
     return bad
 
 
 @numba.njit(cache=True, nogil=True)
-def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints, confidence, estimate, flags):  # pragma: no cover - compiled
+def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints, confidence, estimate, flags, observed):  # pragma: no cover - compiled
     """:func:`readout` of N hidden-state beliefs ``flat`` (N, L*H*W) and the referee's arrays of
     ``referee.summarise`` (the same numbers), in blocks (few arguments and allocations: the vector
     env pays them at every step): ``scratch`` (2, N, H*W) gets ``pos`` and ``q`` as :func:`readout`
     fills them; per row, ``ints`` (3, N) the index of the largest tested value, the estimated
     layer (pose) and the Manhattan error to the true ``states`` (layer, row, col);
     ``confidence``, the ``estimate`` (row, column); ``flags`` (2, N) localised (confidence >=
-    threshold) and success.  Rows are indexed in place, not sliced (a row's view costs more than
-    its work on small maps): the arrays are read flat."""
+    threshold) and success; ``observed`` (N, H*W) float32, unless it has no rows, the observed
+    position beliefs (:func:`observed32`'s numbers).  Rows are indexed in place, not sliced (a
+    row's view costs more than its work on small maps): the arrays are read flat."""
     n, size = flat.shape[0], flat.shape[1]
     hw = scratch.shape[2]
     ff, sc = flat.reshape(flat.size), scratch.reshape(scratch.size)
@@ -501,6 +502,9 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints,
         for c in range(_U(hw)):
             x = sc[po + c]
             sc[qo + po + c] = x + 1.0 if x <= 0.0 else x + 0.0
+        if observed.shape[0]:
+            for c in range(hw):
+                observed[i, c] = min(np.float32(sc[po + _U(c)]), np.float32(1.0))
         j = _argmax(ff, fo, size) if pose else _argmax(sc, po, hw)
         conf = ff[fo + _U(j)] if pose else sc[po + _U(j)]
         cell = j % hw if pose and n_layers > 1 else j

@@ -730,12 +730,12 @@ def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], 
     def advance(states, readings, actions, beliefs, out, modes, rng, slots, readout=None, ending=None):
         bits = rng.bit_generator
         functions = kernels.bit_functions(bits)
-        pose, threshold, scratch, ints, confidence, estimate, flags = _NO_READOUT if readout is None else readout
+        pose, threshold, scratch, ints, confidence, estimate, flags, observed = _NO_READOUT if readout is None else readout
         restarted, elapsed, limit, fixed, belief, rewards, ends = _NO_ENDING if ending is None else ending
         with bits.lock:  # (the draws are the generator's: as its own methods, under its lock)
             bad = kernel(keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
                          free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, functions, n_states,
-                         readout is not None, pose, threshold, scratch, ints, confidence, estimate, flags,
+                         readout is not None, pose, threshold, scratch, ints, confidence, estimate, flags, observed,
                          ending is not None, restarted, elapsed, limit, fixed, belief, rewards, ends)
         if bad >= 0:
             model = model_at(int(slots[bad]))
@@ -749,7 +749,7 @@ def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], 
 _NO_ENDING = (np.empty(0, dtype=bool), np.empty(0, dtype=np.int64), 0, False, False, np.empty(0), np.empty((3, 0), dtype=bool))
 #: The readout arguments of a vector step that reads nothing (the types of the real blocks).
 _NO_READOUT = (False, 0.0, np.empty((2, 0, 1)), np.empty((3, 0), dtype=np.int64), np.empty(0), np.empty((0, 2), dtype=np.int64),
-               np.empty((2, 0), dtype=bool))
+               np.empty((2, 0), dtype=bool), np.empty((0, 1), dtype=np.float32))
 
 
 class VectorBank:

@@ -143,6 +143,9 @@ class BeliefObservation:
         self.space = belief_observation_space(model, self.inner, flatten=self.flatten, full_state=self.full_state,
                                               key=key, map=self.map, lookahead=self.lookahead)
         self._plain = not (self.flatten or self.map or self.lookahead)  # the belief beside the reading, nothing else
+        #: The observation is the reading and the observed position belief, nothing else: a batch
+        #: can take that belief already made (:meth:`encode`'s ``observed``).
+        self.plain_positions = self._plain and not self.full_state
 
     @property
     def options(self) -> dict[str, Any]:
@@ -178,11 +181,16 @@ class BeliefObservation:
         return np.concatenate(parts)
 
     def encode(self, models: GridModel | list[GridModel], observations: Any, readings: np.ndarray,
-               full_beliefs: np.ndarray, positions: np.ndarray | None = None):
+               full_beliefs: np.ndarray, positions: np.ndarray | None = None, *, observed: np.ndarray | None = None):
         """N observations: the sensor ``observations`` batched (a vector env's batch, or a dict of
         batches), their ``readings`` (N,), the hidden-state beliefs ``(N, L, H, W)`` and the model
         of each (one model for all, or N).  ``positions``: the position beliefs ``(N, H*W)``
-        when the caller has them (:func:`gym_gridloc.referee.readout`: the same sums)."""
+        when the caller has them (:func:`gym_gridloc.referee.readout`: the same sums);
+        ``observed``: their observed form (float32 ``(N, H*W)``, as :func:`observed_belief`
+        makes it), when the caller has it and :attr:`plain_positions`."""
+        if observed is not None and self.plain_positions and not isinstance(observations, dict):
+            n, _, h, w = full_beliefs.shape
+            return {"observation": observations, self.key: observed.reshape(n, h, w)}
         if positions is not None and not self.full_state:
             n, _, h, w = full_beliefs.shape
             belief = observed_belief(positions.reshape(n, 1, h, w), False)

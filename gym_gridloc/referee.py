@@ -111,21 +111,24 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
     return read_blocks(blocks, st, L)
 
 
-def readout_blocks(n: int, cells: int, threshold: float, pose: bool) -> tuple:
+def readout_blocks(n: int, cells: int, threshold: float, pose: bool, *, observed: bool = False) -> tuple:
     """What the compiled readout of N beliefs of ``cells`` positions fills, with its two
-    parameters: ``(pose, threshold, scratch, ints, confidence, estimate, flags)``
+    parameters: ``(pose, threshold, scratch, ints, confidence, estimate, flags, observed)``
     (``_numba_kernels.batch_readout``'s, or the engine's vector step's with them); then
-    :func:`read_blocks` gives the infos.  Few allocations: blocks whose rows are the arrays
-    (a vector env pays them at every step)."""
+    :func:`read_blocks` gives the infos.  ``observed``: the readout also writes the observed
+    position beliefs (float32 (N, cells), as ``observation.observed_belief`` makes them) in the
+    last block (else it has no rows).  Few allocations: blocks whose rows are the arrays (a
+    vector env pays them at every step)."""
     return (bool(pose), float(threshold), np.empty((2, n, cells)), np.empty((3, n), dtype=np.int64), np.empty(n),
-            np.empty((n, 2), dtype=np.int64), np.empty((2, n), dtype=bool))
+            np.empty((n, 2), dtype=np.int64), np.empty((2, n), dtype=bool),
+            np.empty((n if observed else 0, cells), dtype=np.float32))
 
 
 def read_blocks(blocks: tuple, states: np.ndarray, n_layers: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """:func:`readout`'s infos and position beliefs from the filled :func:`readout_blocks` of
     the beliefs of the true ``states`` (N, 3) int64 (the infos' positions and headings are
     copies): numpy's log2, then the entropies."""
-    pose, _, scratch, ints, confidence, estimate, flags = blocks
+    pose, _, scratch, ints, confidence, estimate, flags, _ = blocks
     pos, q = scratch
     n, cells = pos.shape
     if cells <= COMPILED_ENTROPY_CELLS:

@@ -115,6 +115,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._bank = engine.vector_bank(model, n)
         self._slots = np.zeros(n, dtype=np.int64)  # each environment's slot in the bank
         self._hw = model.shape[0] * model.shape[1]
+        # the engine's step writes the observation's belief with its readout (the plain position belief)
+        self._observed = self.builder is not None and self.builder.plain_positions
+        self._observed_now = None
         self._coded: dict[int, Any] = {}  # map code -> model, for maps drawn as codes (MapFactory.codes)
         fast = kernels.compiled(self._beliefs[0].size)  # (None: numpy, as the referee and the filter)
         self._below = None if fast is None else fast.all_below  # the actions' range check
@@ -214,13 +217,14 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         :meth:`_infos`'s infos and position beliefs; with ``restarted`` (a step: the rows that
         started an episode), how each row's step ends too (:func:`referee.outcomes`'s)."""
         n, t = self.num_envs, self.template
-        blocks = referee.readout_blocks(n, self._hw, t.localise_threshold, t.referee_pose)
+        blocks = referee.readout_blocks(n, self._hw, t.localise_threshold, t.referee_pose, observed=self._observed)
         ending = None if restarted is None else referee.ending_blocks(t.reward_kind, restarted, self._elapsed, self._limit,
                                                                      t.episode_length is not None)
         self._bank.advance(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1),
                            modes, self.np_random, self._slots, blocks, ending)
         self._beliefs, self._spare = self._spare, self._beliefs
         info, positions = referee.read_blocks(blocks, self._states, self._beliefs.shape[1])
+        self._observed_now = blocks[7] if self._observed else None  # (the observation's belief, read with them)
         return info, positions, None if ending is None else referee.ended(ending)
 
     def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
@@ -246,11 +250,13 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._beliefs[sub] = engine.step(model, self._beliefs[sub], actions[sub], self._readings[sub])[0]
 
     # -- observations and infos -------------------------------------------------------------------
-    def _observations(self, positions: np.ndarray | None = None):
-        """The N observations (``positions``: the position beliefs :meth:`_infos` read)."""
+    def _observations(self, positions: np.ndarray | None = None, observed: np.ndarray | None = None):
+        """The N observations (``positions``: the position beliefs :meth:`_infos` read;
+        ``observed``: their observed form, where the engine's step wrote it)."""
         obs = self.models[0].sensor.observations(self._readings)
         models = self.models[0] if self.template.map_factory is None else self.models
-        return obs if self.builder is None else self.builder.encode(models, obs, self._readings, self._beliefs, positions)
+        return obs if self.builder is None else self.builder.encode(models, obs, self._readings, self._beliefs, positions,
+                                                                    observed=observed)
 
     def _infos(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
         """The referee's infos and the position beliefs it read (:func:`referee.readout`)."""
@@ -303,9 +309,12 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         # self._autoreset is replaced, never changed in place, so no copy)
         resetting = np.zeros(n, dtype=bool) if same_step else self._autoreset
         acts = self._actions(actions, resetting)
-        redrawn = self._bank is not None and self.template.map_factory is not None and resetting.any()
-        if redrawn:  # maps first, then the one call's draws (moves, starts, readings)
-            self._redraw(np.flatnonzero(resetting))
+        redrawn = False
+        if self._bank is not None and self.template.map_factory is not None:  # maps first, then the one call's draws
+            starting = np.flatnonzero(resetting)
+            if starting.size:
+                self._redraw(starting)
+                redrawn = True
         if self._bank is not None:  # moves, new episodes, the referee's readout and outcomes in one engine call
             info, positions, (rewards, terminated, truncated, done) = self._advance(acts, resetting.view(np.int8), resetting)
         else:
@@ -318,7 +327,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             rewards, terminated, truncated, done = referee.outcomes(
                 self.template.reward_kind, info, resetting, self._elapsed, self._limit, self.template.episode_length is not None,
                 cells=self._beliefs[0].size)  # (and the step counts: +1, or 0 where restarted)
-        obs = self._observations(positions)
+        obs = self._observations(positions, self._observed_now if self._bank is not None else None)
         if same_step and done.any():
             ended = np.flatnonzero(done)
             final_obs = np.full(n, None, dtype=object)
