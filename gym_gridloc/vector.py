@@ -1,11 +1,10 @@
 """A native vector environment: N robots and N exact beliefs stepped by the engine in batches.
 
 ``gym.make_vec(ENV_ID, num_envs=N, vectorization_mode="vector_entry_point")`` builds a
-:class:`GridLocVectorEnv`.  A step is a few calls of :mod:`gym_gridloc.engine` over all N: sample
-the N moves, the N readings, update the N beliefs; and the N infos, rewards and terminations come
-from :mod:`gym_gridloc.referee`, as the single environment's do.  With a map redrawn at every
-reset (``new_map_each_reset=True``) each environment has its own model and the engine is called
-once per distinct model.
+:class:`GridLocVectorEnv`.  On small maps a step is one compiled call of the engine
+(:class:`engine.VectorBank`, each robot on its own model where maps are redrawn at reset): the N
+moves, readings and beliefs, the referee's readout and how each step ends; elsewhere, the engine
+once per distinct model, then :mod:`gym_gridloc.referee`.  The numbers of the single environment.
 
 Random numbers: like Gymnasium's own vector environments (``CartPoleVectorEnv``), ONE generator
 serves the whole batch (``reset(seed=s)`` seeds it), and each step draws for all N at once.  A
@@ -114,13 +113,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         #: engine.VectorBank of the environments' models (None: no compiled step; one engine call per model)
         self._bank = engine.vector_bank(model, n)
         self._slots = np.zeros(n, dtype=np.int64)  # each environment's slot in the bank
-        self._hw = model.shape[0] * model.shape[1]
-        # the engine's step writes the observation's belief with its readout (the plain position belief)
-        self._observed = self.builder is not None and self.builder.plain_positions
-        self._observed_now = None
-        self._coded: dict[int, Any] = {}  # map code -> model, for maps drawn as codes (MapFactory.codes)
-        fast = kernels.compiled(self._beliefs[0].size)  # (None: numpy, as the referee and the filter)
-        self._below = None if fast is None else fast.all_below  # the actions' range check
+        self._observed = self.builder is not None and self.builder.plain_positions  # (the engine's step writes it)
+        self._coded: dict[int, Any] = {}  # map code -> model: the last codes' (MapFactory.models), as many as the bank holds
+        self._below = getattr(kernels.compiled(self._beliefs[0].size), "all_below", None)  # the actions' check (None: numpy)
         length = template.episode_length
         #: The step count that truncates an episode (None: never): episode length or time limit, the first.
         self._limit = self.max_episode_steps if length is None else min(length, self.max_episode_steps or length)
@@ -165,16 +160,10 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             yield self.models[sub[0]], sub
 
     def _redraw(self, idx: np.ndarray) -> None:
-        """New maps for the environments ``idx`` (in index order, from the batch's generator; all
-        in one call where the family has map codes), each placed in the bank (dropped, for one
-        engine call per model, when it cannot hold one)."""
-        factory, rng, models, bank = self.template.map_factory, self.np_random, self.models, self._bank
-        codes = factory.codes(rng, idx.size)
-        if codes is None:
-            drawn = [factory(rng) for _ in range(idx.size)]
-        else:  # the models of the last codes, as many as the bank holds (a code's model is fixed)
-            coded = self._coded
-            drawn = [coded.get(c) or self._code_model(c) for c in codes.tolist()]
+        """New maps for the environments ``idx`` (in index order, from the batch's generator), each
+        placed in the bank (dropped, for one engine call per model, when it cannot hold one)."""
+        models, bank = self.models, self._bank
+        drawn = self.template.map_factory.models(self.np_random, idx.size, self._coded, None if bank is None else bank.limit)
         for i, model in zip(idx.tolist(), drawn):
             models[i] = model
             slot = None if bank is None else bank.slot(model, self._slots)
@@ -184,12 +173,6 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
                 self._slots[i] = slot
         if bank is None:
             self._regroup()
-
-    def _code_model(self, code: int):
-        model = self._coded[code] = self.template.map_factory.model_of_code(code)
-        if len(self._coded) > (self._bank.limit if self._bank is not None else engine.VectorBank.BYTES // 2**16):
-            del self._coded[next(iter(self._coded))]  # the oldest
-        return model
 
     def _restart(self, idx: np.ndarray, *, redrawn: bool = False) -> None:
         """Start new episodes in the environments ``idx``: maps (if redrawn, and not ``redrawn``
@@ -213,19 +196,18 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
 
     def _advance(self, actions: np.ndarray, modes: np.ndarray, restarted: np.ndarray | None = None):
         """Every environment in one engine call (:class:`engine.VectorBank`; ``modes`` as
-        :func:`engine.vector_advancer`'s), which reads the referee's readout of every row too:
-        :meth:`_infos`'s infos and position beliefs; with ``restarted`` (a step: the rows that
-        started an episode), how each row's step ends too (:func:`referee.outcomes`'s)."""
+        :func:`engine.vector_advancer`'s), with :meth:`_infos`'s infos and position beliefs, the
+        plain observation's belief (else None) and, given ``restarted``, :func:`referee.outcomes`'s."""
         n, t = self.num_envs, self.template
-        blocks = referee.readout_blocks(n, self._hw, t.localise_threshold, t.referee_pose, observed=self._observed)
+        blocks = referee.readout_blocks(n, self._beliefs.shape[2] * self._beliefs.shape[3], t.localise_threshold,
+                                        t.referee_pose, observed=self._observed)
         ending = None if restarted is None else referee.ending_blocks(t.reward_kind, restarted, self._elapsed, self._limit,
                                                                      t.episode_length is not None)
         self._bank.advance(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1),
                            modes, self.np_random, self._slots, blocks, ending)
         self._beliefs, self._spare = self._spare, self._beliefs
         info, positions = referee.read_blocks(blocks, self._states, self._beliefs.shape[1])
-        self._observed_now = blocks[7] if self._observed else None  # (the observation's belief, read with them)
-        return info, positions, None if ending is None else referee.ended(ending)
+        return info, positions, None if ending is None else referee.ended(ending), blocks[7] if self._observed else None
 
     def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
         """One step of the environments ``idx``: moves, readings, beliefs."""
@@ -251,8 +233,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
 
     # -- observations and infos -------------------------------------------------------------------
     def _observations(self, positions: np.ndarray | None = None, observed: np.ndarray | None = None):
-        """The N observations (``positions``: the position beliefs :meth:`_infos` read;
-        ``observed``: their observed form, where the engine's step wrote it)."""
+        """The N observations (``positions``, ``observed``: what :meth:`_infos` or :meth:`_advance` read)."""
         obs = self.models[0].sensor.observations(self._readings)
         models = self.models[0] if self.template.map_factory is None else self.models
         return obs if self.builder is None else self.builder.encode(models, obs, self._readings, self._beliefs, positions,
@@ -309,15 +290,13 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         # self._autoreset is replaced, never changed in place, so no copy)
         resetting = np.zeros(n, dtype=bool) if same_step else self._autoreset
         acts = self._actions(actions, resetting)
-        redrawn = False
-        if self._bank is not None and self.template.map_factory is not None:  # maps first, then the one call's draws
-            starting = np.flatnonzero(resetting)
-            if starting.size:
-                self._redraw(starting)
-                redrawn = True
+        starting = np.flatnonzero(resetting) if self._bank is not None and self.template.map_factory is not None else ()
+        if redrawn := len(starting) > 0:  # maps first, then the one call's draws (moves, starts, readings)
+            self._redraw(starting)
         if self._bank is not None:  # moves, new episodes, the referee's readout and outcomes in one engine call
-            info, positions, (rewards, terminated, truncated, done) = self._advance(acts, resetting.view(np.int8), resetting)
+            info, positions, (rewards, terminated, truncated, done), observed = self._advance(acts, resetting.view(np.int8), resetting)
         else:
+            observed = None
             moving = np.flatnonzero(~resetting)
             if moving.size:
                 self._move(moving, acts)
@@ -327,7 +306,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             rewards, terminated, truncated, done = referee.outcomes(
                 self.template.reward_kind, info, resetting, self._elapsed, self._limit, self.template.episode_length is not None,
                 cells=self._beliefs[0].size)  # (and the step counts: +1, or 0 where restarted)
-        obs = self._observations(positions, self._observed_now if self._bank is not None else None)
+        obs = self._observations(positions, observed)
         if same_step and done.any():
             ended = np.flatnonzero(done)
             final_obs = np.full(n, None, dtype=object)
@@ -366,15 +345,12 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     def _masked(cls, info: dict, mask: np.ndarray | None) -> dict:
         """``info`` with Gymnasium's ``_key`` mask beside each key (one block, a row per key;
         ``mask`` None: every environment)."""
-        keys = tuple(info)
-        names = cls._MASK_NAMES.get(keys)
+        names = cls._MASK_NAMES.get(keys := tuple(info))
         if names is None:
             names = cls._MASK_NAMES[keys] = tuple(f"_{k}" for k in keys if not k.startswith("_") and f"_{k}" not in info)
         n = info["confidence"].shape[0]
         rows = np.ones((len(names), n), dtype=bool) if mask is None else np.repeat(mask[None], len(names), axis=0)
-        out = dict(info)
-        out.update(zip(names, rows))
-        return out
+        return {**info, **dict(zip(names, rows))}
 
     # -- exposed for tests and tools ---------------------------------------------------------------
     @property

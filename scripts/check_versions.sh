@@ -44,7 +44,7 @@ TESTS=(tests/core tests/test_engine.py tests/test_filter.py tests/envs)
 # - tqdm: tests/test_filter.py imports scripts/long_run.py, which imports tqdm.
 TEST_TOOLS=(pytest pytest-xdist hypothesis pygame-ce tqdm)
 # With numba: the compiled kernels' tests against numpy and the vector env's.
-NUMBA_TESTS=(tests/test_kernels.py tests/test_readout.py tests/test_vector.py)
+NUMBA_TESTS=(tests/test_kernels.py tests/test_readout.py tests/test_vector.py tests/test_generators.py)
 # With `rl`: the extra's oldest declared versions (pyproject.toml), torch first (an unpinned torch
 # resolves to a CUDA build), and the agents' tests.
 RL_TORCH="torch==2.13.0"

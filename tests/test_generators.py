@@ -8,12 +8,15 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import gym_gridloc
+from gym_gridloc import kernels
 from gym_gridloc.generators import (
     COLOUR_SYMBOLS,
     colour_map,
     is_connected,
     maze_map,
     perfect_maze,
+    perfect_maze_codes,
+    perfect_maze_of_code,
 )
 
 
@@ -187,3 +190,46 @@ def test_a_small_perfect_maze_drawn_again_is_the_same_map():
         assert mazes.setdefault(m.labels.tobytes(), m) is m
         assert not m.labels.flags.writeable
     assert 150 <= len(mazes) <= 192
+
+
+@pytest.mark.parametrize("size", [5, 7, 9, 11, 13])
+@pytest.mark.parametrize("bits", [np.random.PCG64, np.random.MT19937, np.random.Philox])
+def test_perfect_maze_codes_draw_what_perfect_maze_draws(size, bits):
+    """perfect_maze_codes (a native vector env's resets: N mazes in one compiled call, from the
+    generator's bit stream): the same maps as N calls of perfect_maze (the very map objects), and
+    the generator left where those calls leave it; on any numpy bit generator."""
+    if kernels.compiled(1) is None:
+        assert perfect_maze_codes(size, np.random.default_rng(0), 3) is None
+        return
+    for seed in range(12):
+        a, b = np.random.Generator(bits(seed)), np.random.Generator(bits(seed))
+        b.random(seed % 3)  # (a generator part-way through its stream, a 32-bit half buffered too)
+        b.integers(2**32, size=seed % 2, dtype=np.uint32)
+        a.random(seed % 3)
+        a.integers(2**32, size=seed % 2, dtype=np.uint32)
+        codes = perfect_maze_codes(size, a, seed % 5)
+        assert codes.dtype == np.int64 and codes.shape == (seed % 5,)
+        assert [perfect_maze_of_code(size, c) for c in codes.tolist()] == [perfect_maze(size, seed=b) for _ in range(seed % 5)]
+        assert a.random() == b.random() and a.integers(2**32, dtype=np.uint32) == b.integers(2**32, dtype=np.uint32)
+
+
+def test_perfect_maze_codes_are_checked_and_say_none_where_a_code_cannot_hold_the_walls():
+    rng = np.random.default_rng(0)
+    assert perfect_maze_codes(15, rng, 2) is None  # 84 walls: more than an int64's 63 bits
+    for bad, match in (((6, rng, 1), "odd"), ((7, rng, -1), "count"), ((7, 3, 1), "Generator"), ((3, rng, 1), "size")):
+        with pytest.raises((ValueError, TypeError), match=match):
+            perfect_maze_codes(*bad)
+
+
+@pytest.mark.skipif(kernels.compiled(1) is None, reason="numba is not installed (or switched off)")
+def test_the_compiled_bounded_integers_are_numpys():
+    """The vector step's start states: numpy's Generator.integers(high, size=k) (Lemire's
+    multiply and reject on 32-bit draws), for highs from 2 to nearly 2**32."""
+    from gym_gridloc import _numba_kernels as fast
+
+    for high in (2, 3, 7, 68, 196, 1000, 2**20 + 3, 2**31 + 11, 2**32 - 5):
+        a, b = np.random.default_rng(high), np.random.default_rng(high)
+        functions = kernels.bit_functions(a.bit_generator)
+        drawn = [fast._bounded(functions[0], functions[2], high - 1) for _ in range(50)]
+        assert drawn == b.integers(high, size=50).tolist()
+        assert a.random() == b.random()

@@ -278,6 +278,26 @@ class MapFactory:
         """The model on the map of ``code`` (the model ``factory(rng)`` gives for that map)."""
         return _kept_model(self.build, self._of_code(code))
 
+    def models(self, rng: np.random.Generator, count: int, memo: dict | None = None, limit: int | None = None) -> list[GridModel]:
+        """``count`` models on newly drawn maps, as ``count`` calls of the factory draw them: at
+        once where the family has codes, each code's model then looked up first in ``memo`` (the
+        caller's: code -> model, the last ``limit``, default :data:`REDRAWN_MODELS`; quicker
+        than finding it among the kept ones)."""
+        codes = self.codes(rng, count)
+        if codes is None:
+            return [self(rng) for _ in range(count)]
+        if memo is None:
+            return [self.model_of_code(c) for c in codes.tolist()]
+        out = []
+        for c in codes.tolist():
+            model = memo.get(c)
+            if model is None:
+                model = memo[c] = self.model_of_code(c)
+                if len(memo) > (REDRAWN_MODELS if limit is None else limit):
+                    del memo[next(iter(memo))]  # the oldest
+            out.append(model)
+        return out
+
 
 def _kept_model(build: Callable[[Any], GridModel], grid: Any) -> GridModel:
     """``build(grid)``, or the model kept for that map (see :class:`MapFactory`)."""

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gym_gridloc import DepthMazeEnv, depth_maze_model
+from gym_gridloc import DepthMazeEnv, depth_maze_model, kernels
 from gym_gridloc.core.grid import DIRECTIONS
 from gym_gridloc.generators import perfect_maze
 from tests.helpers import PROPERTY_SETTINGS, bad_keywords, exercise, kwargs_for
@@ -156,3 +156,23 @@ def test_a_maze_drawn_once_keeps_nothing():
     a.reset(seed=5)
     b.reset(seed=5)
     assert a.model is b.model and any(m is a.model for m in base._REDRAWN.values())
+
+
+def test_the_map_factory_draws_mazes_as_codes_as_it_draws_them_one_by_one():
+    """MapFactory.codes (the native vector env's resets: all of a step's mazes in one call) and
+    model_of_code give the models that as many calls of the factory give, from the same draws;
+    a family without codes says None, and codes come with the map they stand for or not at all."""
+    from gym_gridloc.envs.base import MapFactory
+
+    factory = gym.make("DepthMaze-v0").unwrapped.map_factory
+    a, b = np.random.default_rng(3), np.random.default_rng(3)
+    codes = factory.codes(a, 6)
+    if codes is None:  # (no numba: the vector env calls the factory once per maze)
+        assert kernels.compiled(1) is None
+        return
+    one_by_one = [factory(b) for _ in range(6)]
+    assert [factory.model_of_code(c) for c in codes.tolist()] == one_by_one  # the same (kept) models
+    assert a.random() == b.random()
+    assert gym.make("WindyMaze-v0", new_map_each_reset=True).unwrapped.map_factory.codes(a, 2) is None
+    with pytest.raises(ValueError, match="both codes= and of_code="):
+        MapFactory(factory.build, factory.draw, codes=lambda rng, count: None)
