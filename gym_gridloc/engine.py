@@ -718,7 +718,7 @@ def _vector_tables(model: GridModel) -> tuple[tuple[int, ...], tuple[np.ndarray,
 
 def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], model_at: Callable[[int], GridModel]):
     """The vector step over ``stacked`` tables (a leading slot axis):
-    ``(states, readings, actions, beliefs, out, modes, rng, slots, readout=None)``;
+    ``(states, readings, actions, beliefs, out, modes, rng, slots, readout=None, ending=None)``;
     ``model_at(slot)`` names the model in an impossible reading's error.  ``readout``: the
     referee's blocks (:func:`referee.readout_blocks`), which the same call fills for every row;
     ``ending`` (with ``readout``): the referee's :func:`referee.ending_blocks`, the same for how
