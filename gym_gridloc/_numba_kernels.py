@@ -320,7 +320,6 @@ def _interval(next_u32, state, top):  # pragma: no cover - compiled
             return np.int64(value)
 
 
-
 # -- a batch of N: the native vector environment's step ---------------------------------------------
 @numba.njit(cache=True, nogil=True)
 def _move(weights, wo, keys, ko, K, hw, layer, r, c, u, width, cum, states, i):  # pragma: no cover - compiled

@@ -109,12 +109,11 @@ def batch_observation(model: GridModel, observations: Any, readings: np.ndarray,
 def observed_belief(full: np.ndarray, full_state: bool) -> np.ndarray:
     """The observed belief of hidden-state beliefs ``(..., L, H, W)``: float32 in [0, 1], over
     positions (``(..., H, W)``) unless ``full_state``."""
-    if full.dtype.char == "d" and (full.ndim == 3 or (full.ndim > 3 and full.shape[-3] == 1 and full.flags.c_contiguous)):
-        # one small belief, or small position beliefs (N, 1, H, W): one compiled pass, the same numbers
-        fast = kernels.compiled(full.size if full.ndim == 3 else full.shape[-2] * full.shape[-1])
+    if full.ndim == 3 and full.dtype.char == "d":  # one small belief: one compiled pass, the same numbers
+        fast = kernels.compiled(full.size)
         if fast is not None:
-            out = np.empty(full.shape if full_state else full.shape[:-3] + full.shape[-2:], dtype=np.float32)
-            fast.observed32(full.reshape(-1), 1 if full_state or full.ndim > 3 else full.shape[0], out.reshape(-1))
+            out = np.empty(full.shape if full_state else full.shape[1:], dtype=np.float32)
+            fast.observed32(full.reshape(-1), 1 if full_state else full.shape[0], out.reshape(-1))
             return out
     b = full if full_state else full[..., 0, :, :] if full.shape[-3] == 1 else full.sum(axis=-3)
     # beliefs are never negative: clip(0, 1) as min(float32, 1), cast and clipped in one pass

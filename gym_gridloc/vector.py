@@ -181,10 +181,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         if self.template.map_factory is not None and not redrawn:
             self._redraw(idx)
         if self._bank is not None:  # one compiled call; the other rows keep their beliefs
-            n = self.num_envs
-            modes = np.full(n, 2, dtype=np.int8)
+            modes = np.full(self.num_envs, 2, dtype=np.int8)
             modes[idx] = 1
-            self._advance(np.zeros(n, dtype=np.int64), modes)  # (its infos: the caller reads them again)
+            self._advance(np.zeros_like(self._readings), modes)
             self._elapsed[idx] = 0
             return
         for model, sub in self._by_model(idx):
@@ -195,19 +194,21 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._elapsed[idx] = 0
 
     def _advance(self, actions: np.ndarray, modes: np.ndarray, restarted: np.ndarray | None = None):
-        """Every environment in one engine call (:class:`engine.VectorBank`; ``modes`` as
-        :func:`engine.vector_advancer`'s), with :meth:`_infos`'s infos and position beliefs, the
-        plain observation's belief (else None) and, given ``restarted``, :func:`referee.outcomes`'s."""
-        n, t = self.num_envs, self.template
-        blocks = referee.readout_blocks(n, self._beliefs.shape[2] * self._beliefs.shape[3], t.localise_threshold,
-                                        t.referee_pose, observed=self._observed)
-        ending = None if restarted is None else referee.ending_blocks(t.reward_kind, restarted, self._elapsed, self._limit,
-                                                                     t.episode_length is not None)
+        """Every environment in one engine call (:class:`engine.VectorBank`; ``modes`` as :func:`engine.vector_advancer`'s).
+        A step (``restarted``: the rows that started an episode) reads in the same call, and returns, :meth:`_infos`'s
+        infos and position beliefs, :func:`referee.outcomes`'s, and the plain observation's belief (else None)."""
+        n, t, blocks, ending = self.num_envs, self.template, None, None
+        if restarted is not None:
+            blocks = referee.readout_blocks(n, self._beliefs.shape[2] * self._beliefs.shape[3], t.localise_threshold,
+                                            t.referee_pose, observed=self._observed)
+            ending = referee.ending_blocks(t.reward_kind, restarted, self._elapsed, self._limit, t.episode_length is not None)
         self._bank.advance(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1),
                            modes, self.np_random, self._slots, blocks, ending)
         self._beliefs, self._spare = self._spare, self._beliefs
+        if blocks is None:  # (a restart: the caller reads the infos)
+            return None
         info, positions = referee.read_blocks(blocks, self._states, self._beliefs.shape[1])
-        return info, positions, None if ending is None else referee.ended(ending), blocks[7] if self._observed else None
+        return info, positions, referee.ended(ending), blocks[7] if self._observed else None
 
     def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
         """One step of the environments ``idx``: moves, readings, beliefs."""
@@ -343,8 +344,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
 
     @classmethod
     def _masked(cls, info: dict, mask: np.ndarray | None) -> dict:
-        """``info`` with Gymnasium's ``_key`` mask beside each key (one block, a row per key;
-        ``mask`` None: every environment)."""
+        """``info`` with Gymnasium's ``_key`` mask beside each key (one block, a row per key; ``mask`` None: all)."""
         names = cls._MASK_NAMES.get(keys := tuple(info))
         if names is None:
             names = cls._MASK_NAMES[keys] = tuple(f"_{k}" for k in keys if not k.startswith("_") and f"_{k}" not in info)

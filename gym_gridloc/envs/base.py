@@ -286,8 +286,7 @@ class MapFactory:
         codes = self.codes(rng, count)
         if codes is None:
             return [self(rng) for _ in range(count)]
-        if memo is None:
-            return [self.model_of_code(c) for c in codes.tolist()]
+        memo = {} if memo is None else memo
         out = []
         for c in codes.tolist():
             model = memo.get(c)
