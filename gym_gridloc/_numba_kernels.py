@@ -152,74 +152,108 @@ def _argmax(a, o, n):  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def readout(flat, n_layers, pose, pos, q):  # pragma: no cover - compiled
     """For one hidden-state belief ``flat`` (L*H*W, layer-major): ``pos`` (H*W) = the position
-    belief (the layers summed in order), ``q`` (H*W) = ``pos + (pos <= 0)`` (the entropy's log2
-    argument); returns the index of the first largest value (the first NaN, as numpy's argmax)
-    of ``flat`` (``pose``) or of ``pos``."""
+    belief (the layers summed in order), ``q`` (H*W) = ``pos`` where ``pos`` is not ``<= 0``, else
+    1 (the entropy's log2 argument, every cell's: for one small belief, cheaper than listing the
+    cells with mass as :func:`batch_readout` does); returns the index of the first largest value
+    (the first NaN, as numpy's argmax) of ``flat`` (``pose``) or of ``pos``."""
     hw = flat.size // n_layers
     for i in range(hw):
         x = flat[i]
         for layer in range(1, n_layers):
             x += flat[layer * hw + i]
         pos[i] = x
-        q[i] = x + 1.0 if x <= 0.0 else x + 0.0
+        q[i] = 1.0 if x <= 0.0 else x
     tested = flat if pose else pos
     return _argmax(tested, _U(0), tested.size)
 
 
 @numba.njit(cache=True, nogil=True)
-def _block_product(p, q, lo, n):  # pragma: no cover - compiled
-    """numpy's pairwise sum of ``p[lo:lo+n] * q[lo:lo+n]`` for ``n <= 128`` (one block: eight
+def _kept_block(p, po, lq, cells, j, stop, lo, n):  # pragma: no cover - compiled
+    """numpy's pairwise sum of ``p * log2(q)`` over the cells ``lo..lo+n-1`` (``n <= 128``, one
+    block: eight running sums, then the rest in order) of the row at ``p[po:]``, ``q = p`` where
+    ``p > 0``, else 1 (the referee's entropy, ``0 log 0 = 0``), given the log2 of q
+    (``lq[j:stop]``) at the cells ``cells[j:stop]`` (ascending; every cell with mass among them).
+    The other cells' terms are zeros, and a zero changes no sum but a zero one's sign, which the
+    entropy's ``0.0 +`` drops: the same number, in work for the cells listed only (each term
+    added to its running sum by selects, no branch).  A block whose every cell is listed:
+    :func:`_dense_block`.  Returns the sum and the next ``j``."""
+    if stop - j >= n and cells[j] == lo and cells[j + n - 1] == lo + n - 1:  # (ascending: every cell)
+        return _dense_block(p, po + _U(lo), lq, _U(j), n), j + n
+    return _sparse_block(p, po, lq, cells, j, stop, lo, n)
+
+
+@numba.njit(cache=True, nogil=True)
+def _sparse_block(p, po, lq, cells, j, stop, lo, n):  # pragma: no cover - compiled
+    """:func:`_kept_block` where not every cell is listed."""
+    end = lo + n
+    r0 = r1 = r2 = r3 = r4 = r5 = r6 = r7 = res = 0.0
+    if n >= 8:
+        main = end - n % 8
+        while j < stop and cells[j] < main:
+            c = cells[j]
+            t = p[po + _U(c)] * lq[j]
+            m = (c - lo) & 7
+            r0 += t if m == 0 else 0.0
+            r1 += t if m == 1 else 0.0
+            r2 += t if m == 2 else 0.0
+            r3 += t if m == 3 else 0.0
+            r4 += t if m == 4 else 0.0
+            r5 += t if m == 5 else 0.0
+            r6 += t if m == 6 else 0.0
+            r7 += t if m == 7 else 0.0
+            j += 1
+        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while j < stop and cells[j] < end:
+        res += p[po + _U(cells[j])] * lq[j]
+        j += 1
+    return res, j
+
+
+@numba.njit(cache=True, nogil=True)
+def _dense_block(p, o, lq, t, n):  # pragma: no cover - compiled
+    """numpy's pairwise sum of ``p[o:o+n] * lq[t:t+n]`` for ``n <= 128`` (one block: eight
     running sums, then the rest in order)."""
-    o = _U(lo)
-    if n < 8:
-        res = 0.0
-        for i in range(_U(n)):
-            res += p[o + i] * q[o + i]
-        return res
-    r0 = p[o] * q[o]
-    r1 = p[o + _U(1)] * q[o + _U(1)]
-    r2 = p[o + _U(2)] * q[o + _U(2)]
-    r3 = p[o + _U(3)] * q[o + _U(3)]
-    r4 = p[o + _U(4)] * q[o + _U(4)]
-    r5 = p[o + _U(5)] * q[o + _U(5)]
-    r6 = p[o + _U(6)] * q[o + _U(6)]
-    r7 = p[o + _U(7)] * q[o + _U(7)]
-    end = n - n % 8
-    for i in range(8, end, 8):
-        j = o + _U(i)
-        r0 += p[j] * q[j]
-        r1 += p[j + _U(1)] * q[j + _U(1)]
-        r2 += p[j + _U(2)] * q[j + _U(2)]
-        r3 += p[j + _U(3)] * q[j + _U(3)]
-        r4 += p[j + _U(4)] * q[j + _U(4)]
-        r5 += p[j + _U(5)] * q[j + _U(5)]
-        r6 += p[j + _U(6)] * q[j + _U(6)]
-        r7 += p[j + _U(7)] * q[j + _U(7)]
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    for i in range(end, n):
-        res += p[o + _U(i)] * q[o + _U(i)]
+    r0 = r1 = r2 = r3 = r4 = r5 = r6 = r7 = res = 0.0
+    main = n - n % 8 if n >= 8 else 0
+    for i in range(0, main, 8):
+        a, b = o + _U(i), t + _U(i)
+        r0 += p[a] * lq[b]
+        r1 += p[a + _U(1)] * lq[b + _U(1)]
+        r2 += p[a + _U(2)] * lq[b + _U(2)]
+        r3 += p[a + _U(3)] * lq[b + _U(3)]
+        r4 += p[a + _U(4)] * lq[b + _U(4)]
+        r5 += p[a + _U(5)] * lq[b + _U(5)]
+        r6 += p[a + _U(6)] * lq[b + _U(6)]
+        r7 += p[a + _U(7)] * lq[b + _U(7)]
+    if n >= 8:
+        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    for i in range(main, n):
+        res += p[o + _U(i)] * lq[t + _U(i)]
     return res
 
 
 @numba.njit(cache=True, nogil=True)
-def _pairwise_product(p, q, lo, n):  # pragma: no cover - compiled
-    """numpy's pairwise sum (``DOUBLE_pairwise_sum``) of ``p[lo:lo+n] * q[lo:lo+n]``: blocks of
-    at most 128, larger ranges split in two halves (the first a multiple of 8) and the halves'
-    sums added.  The recursion is unrolled on a stack (numba's cache cannot hold a recursive
-    function)."""
+def _kept_sum(p, po, lq, cells, j, stop, n):  # pragma: no cover - compiled
+    """numpy's pairwise sum (``DOUBLE_pairwise_sum``) of :func:`_kept_block`'s terms over a row of
+    ``n`` cells: blocks of at most 128, larger ranges split in two halves (the first a multiple of
+    8) and the halves' sums added; the blocks are summed in order of their cells, so each takes
+    its run of ``cells``.  The recursion is unrolled on a stack (numba's cache cannot hold a
+    recursive function).  Returns the sum and the next ``j``.  (A row of at most 128 cells is
+    summed by :func:`_dense_block` or :func:`_sparse_block` at its caller: this function's arrays,
+    and each call of a compiled function that takes arrays, cost more than a small row.)"""
     if n <= 128:
-        return _block_product(p, q, lo, n)
+        return _kept_block(p, po, lq, cells, j, stop, 0, n)
     los = np.empty(64, dtype=np.int64)
     ns = np.empty(64, dtype=np.int64)
     stage = np.zeros(64, dtype=np.int64)
     left = np.empty(64)
     top = 0
-    los[0], ns[0] = lo, n
+    los[0], ns[0] = 0, n
     ret = 0.0
     while True:
         m = ns[top]
         if m <= 128:
-            ret = _block_product(p, q, los[top], m)
+            ret, j = _kept_block(p, po, lq, cells, j, stop, los[top], m)
             top -= 1
         elif stage[top] < 2:
             n2 = m // 2
@@ -235,14 +269,20 @@ def _pairwise_product(p, q, lo, n):  # pragma: no cover - compiled
             ret = left[top] + ret
             top -= 1
         if top < 0:
-            return ret
+            return ret, j
+
+
+#: Every cell, in order: the ``kept`` cells of a q that holds every cell's value (a compiled constant).
+_EVERY_CELL = np.arange(8192)
 
 
 @numba.njit(cache=True, nogil=True)
 def entropy_sum(p, log2q):  # pragma: no cover - compiled
-    """``-np.add.reduce(p * log2q) + 0.0`` (the referee's entropy, ``log2q`` = log2 of
-    :func:`readout`'s ``q``), with numpy's order of additions."""
-    return -(0.0 + _pairwise_product(p, log2q, 0, p.size)) + 0.0
+    """``-np.add.reduce(p * np.log2(q)) + 0.0`` (the referee's entropy) of at most 8192 values,
+    with numpy's order of additions, from ``log2q`` the log2 of :func:`readout`'s ``q``."""
+    n = p.size
+    res = _dense_block(p, _U(0), log2q, _U(0), n) if n <= 128 else _kept_sum(p, _U(0), log2q, _EVERY_CELL, 0, n, n)[0]
+    return -(0.0 + res) + 0.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -284,6 +324,15 @@ def _next_double(typingctx, function, state):  # pragma: no cover - compiled
         return builder.call(f, [builder.inttoptr(args[1], pointer)])
 
     return numba.types.float64(numba.types.uintp, numba.types.uintp), codegen
+
+
+@intrinsic
+def _trailing_zeros(typingctx, x):  # pragma: no cover - compiled
+    """The number of trailing zero bits of the uint64 ``x`` (``x`` > 0): the index of its lowest set bit."""
+    def codegen(context, builder, signature, args):
+        return builder.cttz(args[0], ir.Constant(ir.IntType(1), 0))
+
+    return numba.types.uint64(numba.types.uint64), codegen
 
 
 @numba.njit(cache=True, nogil=True)
@@ -386,7 +435,7 @@ def draw_reading(kind, cum, total, values, R, s, u, j):  # pragma: no cover - co
 @numba.njit(cache=True, nogil=True)
 def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
                    free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, bits, n_states,
-                   read, pose, threshold, rscratch, ints, confidence, estimate, flags, observed,
+                   walls, n_rooms, code_slots, codes, read, pose, threshold, rscratch, kept, ints, confidence, estimate, flags, observed,
                    end, restarted, elapsed, limit, fixed_length, belief_reward, rewards, ends):  # pragma: no cover - compiled
     """A vector step of N robots, row ``i`` on the model of slot ``slots[i]`` (every table has
     a leading slot axis: one model's tables, or a bank of models of the same sizes).  Row ``i``
@@ -400,6 +449,11 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
     the starting rows' states; ``Generator.random`` of their readings'.  With ``read``, every
     row's readout as :func:`batch_readout` fills it (``rscratch`` and the blocks after it); with
     ``end`` too, how every row's step ends, as :func:`batch_outcomes` (``restarted`` and after).
+    With ``codes`` of N places (else none), the starting rows' maps are drawn first, in the same
+    call: ``codes[j]`` the code of the ``j``-th starting row's maze (:func:`_maze_code` on ``walls`` (2, W), the rooms of
+    each wall, and ``n_rooms``), ``slots`` its slot ``code_slots[code]``; when a code has no
+    slot (-1), nothing else is drawn and the call returns -2 (the caller places those models,
+    sets the rows' slots, and calls again without ``codes``).
     Returns -1, or the first row whose reading is impossible (z not positive and finite: the
     caller raises).  Moves are drawn from the filter's own weights ``w`` with the ``keys`` (as
     :func:`sample_moves` draws them).  The tables are read flat, each row's at its slot's offset."""
@@ -415,6 +469,20 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
         n_moving += modes[i] == 0
         n_starting += modes[i] == 1
     u32, f64, state = bits[0], bits[1], bits[2]
+    if codes.shape[0]:
+        order = np.empty(walls.shape[1], dtype=np.int64)
+        parent = np.empty(n_rooms, dtype=np.int64)
+        j = 0
+        placed = True
+        for i in range(n):
+            if modes[i] == 1:
+                codes[j] = code = _maze_code(u32, state, walls[0], walls[1], n_rooms, order, parent)
+                if code_slots[code] < 0:
+                    placed = False
+                slots[i] = code_slots[code] if placed else slots[i]
+                j += 1
+        if not placed:
+            return -2
     u_move = np.empty(n_moving * (1 + per_draw))
     for j in range(u_move.size):
         u_move[j] = _next_double(f64, state)
@@ -469,20 +537,23 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
             for c in range(_U(size)):
                 of[oi + c] = bf[oi + c]
     if read:
-        batch_readout(out, n_layers, pose, width, states, threshold, rscratch, ints, confidence, estimate, flags, observed)
+        batch_readout(out, n_layers, pose, width, states, threshold, rscratch, kept, ints, confidence, estimate, flags, observed)
         if end:
             batch_outcomes(flags[0], confidence, restarted, elapsed, limit, fixed_length, belief_reward, rewards, ends)
     return bad
 
 
 @numba.njit(cache=True, nogil=True)
-def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints, confidence, estimate, flags, observed):  # pragma: no cover - compiled
+def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, kept, ints, confidence, estimate, flags, observed):  # pragma: no cover - compiled
     """:func:`readout` of N hidden-state beliefs ``flat`` (N, L*H*W) and the referee's arrays of
     ``referee.summarise`` (the same numbers), in blocks (few arguments and allocations: the vector
-    env pays them at every step): ``scratch`` (2, N, H*W) gets ``pos`` and ``q`` as :func:`readout`
-    fills them; per row, ``ints`` (3, N) the index of the largest tested value, the estimated
-    layer (pose) and the Manhattan error to the true ``states`` (layer, row, col);
-    ``confidence``, the ``estimate`` (row, column); ``flags`` (2, N) localised (confidence >=
+    env pays them at every step): ``scratch`` (2, N, H*W) gets ``pos`` as :func:`readout` fills
+    it, and in q's block the rows' log2 arguments one after the other, compactly: a row whose
+    cells mostly hold mass (not ``<= 0``) whole, as :func:`readout`'s ``q``, another its cells with
+    mass only (their cells in ``kept`` (N*H*W), at the same places; :func:`batch_entropy`); per
+    row, ``ints`` (5, N) the index of the largest tested value, the estimated layer (pose), the Manhattan error to the
+    true ``states`` (layer, row, col), where the row's values in q's block end and the true layer;
+    ``confidence``; ``estimate`` (2, N, 2) the estimated and the true (row, column); ``flags`` (2, N) localised (confidence >=
     threshold) and success; ``observed`` (N, H*W) float32, unless it has no rows, the observed
     position beliefs (:func:`observed32`'s numbers).  Rows are indexed in place, not sliced (a
     row's view costs more than its work on small maps): the arrays are read flat."""
@@ -490,6 +561,7 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints,
     hw = scratch.shape[2]
     ff, sc = flat.reshape(flat.size), scratch.reshape(scratch.size)
     qo = _U(n * hw)  # q's block, after pos's
+    k = _U(0)
     for i in range(n):
         fo, po = _U(i * size), _U(i * hw)
         for c in range(_U(hw)):
@@ -498,9 +570,27 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints,
             lo = fo + _U(lay * hw)
             for c in range(_U(hw)):
                 sc[po + c] += ff[lo + c]
+        # the entropy's log2 arguments, in q's block (batch_entropy reads them)
+        count = 0
         for c in range(_U(hw)):
-            x = sc[po + c]
-            sc[qo + po + c] = x + 1.0 if x <= 0.0 else x + 0.0
+            count += not sc[po + c] <= 0.0
+        if 2 * count > hw:  # mostly cells with mass: every cell's q, 1 where none (its term a zero)
+            for c in range(_U(hw)):
+                x = sc[po + c]
+                sc[qo + k + c] = 1.0 if x <= 0.0 else x
+            k += _U(hw)
+        else:  # the cells with mass only, and their cells in kept: 64 at a time, a bit per cell, lowest first
+            for w0 in range(0, hw, 64):
+                bits = _U(0)
+                for c in range(w0, min(w0 + 64, hw)):
+                    bits |= _U(not sc[po + _U(c)] <= 0.0) << _U(c - w0)
+                while bits:
+                    c = _U(w0) + _trailing_zeros(bits)
+                    sc[qo + k] = sc[po + c]
+                    kept[k] = c
+                    k += _U(1)
+                    bits &= bits - _U(1)
+        ints[3, i] = k
         if observed.shape[0]:
             for c in range(hw):
                 observed[i, c] = min(np.float32(sc[po + _U(c)]), np.float32(1.0))
@@ -513,9 +603,12 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints,
         ints[0, i] = j
         ints[1, i] = lay
         ints[2, i] = e
+        ints[4, i] = states[i, 0]
         confidence[i] = conf
-        estimate[i, 0] = er
-        estimate[i, 1] = ec
+        estimate[0, i, 0] = er
+        estimate[0, i, 1] = ec
+        estimate[1, i, 0] = states[i, 1]
+        estimate[1, i, 1] = states[i, 2]
         localised = conf >= threshold
         right = e == 0
         if pose:
@@ -525,13 +618,23 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, ints,
 
 
 @numba.njit(cache=True, nogil=True)
-def batch_entropy(pos, log2q, out):  # pragma: no cover - compiled
-    """:func:`entropy_sum` of each row: ``out[i] = -np.add.reduce(pos[i] * log2q[i]) + 0.0``
-    (C-contiguous ``(N, n)`` arrays, read flat: no row views)."""
+def batch_entropy(pos, log2q, kept, ends, out):  # pragma: no cover - compiled
+    """:func:`entropy_sum` of each row of ``pos`` (C-contiguous ``(N, n)``, read flat: no row
+    views): ``log2q`` is the log2 of :func:`batch_readout`'s compact ``q``, row ``i``'s ending at
+    ``ends[i]``: n values (every cell), or its cells with mass, listed in ``kept``."""
     n = pos.shape[1]
-    pf, lf = pos.reshape(pos.size), log2q.reshape(log2q.size)
+    pf = pos.reshape(pos.size)
+    j = 0
     for i in range(pos.shape[0]):
-        res = _block_product(pf, lf, i * n, n) if n <= 128 else _pairwise_product(pf, lf, i * n, n)
+        po = _U(i * n)
+        stop = ends[i]
+        if stop - j == n:  # a row of every cell (its kept not written)
+            res = _dense_block(pf, po, log2q, _U(j), n) if n <= 128 else _kept_sum(pf, po, log2q[j:stop], _EVERY_CELL, 0, n, n)[0]
+        elif n <= 128:
+            res = _sparse_block(pf, po, log2q, kept, j, stop, 0, n)[0]
+        else:
+            res = _kept_sum(pf, po, log2q, kept, j, stop, n)[0]
+        j = stop
         out[i] = -(0.0 + res) + 0.0
 
 
@@ -565,38 +668,45 @@ def all_below(a, k):  # pragma: no cover - compiled
 # -- maps: a batch of perfect mazes ---------------------------------------------------------------
 @numba.njit(cache=True, nogil=True)
 def perfect_maze_codes(next_u32, state, wall_a, wall_b, n_rooms, codes):  # pragma: no cover - compiled
-    """``codes.size`` perfect mazes in a row, drawn as ``generators.perfect_maze`` draws each: the
-    walls shuffled as numpy's ``Generator.permutation`` shuffles ``arange(n_walls)`` (from the
-    last position down, each swap partner by ``random_interval`` from the bit generator's
-    ``next_uint32`` at ``state``: both addresses), then Kruskal's union-find with path halving until the rooms
-    are one tree.  ``codes[i]``: maze ``i``'s opened walls, bit ``w`` for wall ``w`` (at most
-    63 walls)."""
-    n_walls = wall_a.shape[0]
-    order = np.empty(n_walls, dtype=np.int64)
+    """``codes.size`` perfect mazes in a row, each as :func:`_maze_code` draws it (at most 63
+    walls)."""
+    order = np.empty(wall_a.shape[0], dtype=np.int64)
     parent = np.empty(n_rooms, dtype=np.int64)
     for m in range(codes.shape[0]):
-        for i in range(n_walls):
-            order[i] = i
-        for i in range(n_walls - 1, 0, -1):
-            j = _interval(next_u32, state, i)
-            order[i], order[j] = order[j], order[i]
-        for r in range(n_rooms):
-            parent[r] = r
-        opened = 0
-        code = 0
-        for t in range(n_walls):
-            w = order[t]
-            a, b = wall_a[w], wall_b[w]
-            while parent[a] != a:
-                parent[a] = parent[parent[a]]
-                a = parent[a]
-            while parent[b] != b:
-                parent[b] = parent[parent[b]]
-                b = parent[b]
-            if a != b:
-                parent[a] = b
-                code |= np.int64(1) << w
-                opened += 1
-                if opened == n_rooms - 1:
-                    break
-        codes[m] = code
+        codes[m] = _maze_code(next_u32, state, wall_a, wall_b, n_rooms, order, parent)
+
+
+@numba.njit(cache=True, nogil=True)
+def _maze_code(next_u32, state, wall_a, wall_b, n_rooms, order, parent):  # pragma: no cover - compiled
+    """One perfect maze drawn as ``generators.perfect_maze`` draws it: the walls shuffled as
+    numpy's ``Generator.permutation`` shuffles ``arange(n_walls)`` (from the last position down,
+    each swap partner by ``random_interval`` from the bit generator's ``next_uint32`` at
+    ``state``: both addresses), then Kruskal's union-find with path halving until the rooms are
+    one tree.  Returns its code: bit ``w`` set for each opened wall ``w``.  ``order`` (walls) and
+    ``parent`` (rooms) are scratch."""
+    n_walls = wall_a.shape[0]
+    for i in range(n_walls):
+        order[i] = i
+    for i in range(n_walls - 1, 0, -1):
+        j = _interval(next_u32, state, i)
+        order[i], order[j] = order[j], order[i]
+    for r in range(n_rooms):
+        parent[r] = r
+    opened = 0
+    code = 0
+    for t in range(n_walls):
+        w = order[t]
+        a, b = wall_a[w], wall_b[w]
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        while parent[b] != b:
+            parent[b] = parent[parent[b]]
+            b = parent[b]
+        if a != b:
+            parent[a] = b
+            code |= np.int64(1) << w
+            opened += 1
+            if opened == n_rooms - 1:
+                break
+    return code

@@ -212,6 +212,20 @@ def perfect_maze_codes(size: int, rng: np.random.Generator, count: int) -> np.nd
     return codes
 
 
+def perfect_maze_graph(size: int) -> tuple[np.ndarray, int] | None:
+    """The graph whose random spanning trees :func:`perfect_maze_codes` draws for a side of
+    ``size``: ``(walls, rooms)``, ``walls`` (2, W) int64 read-only the two rooms of each wall (wall
+    ``w`` is bit ``w`` of a code), ``rooms`` how many; None when a code cannot hold the walls
+    (more than :data:`CODED_WALLS`).  (A compiled step can draw the codes itself:
+    ``engine.VectorBank.draw_maps``.)"""
+    k = (check_int("size", size, 5, MAX_SIDE) - 1) // 2
+    if 2 * k * (k - 1) > CODED_WALLS:
+        return None
+    walls = np.stack(_maze_wall_rooms(k))
+    walls.flags.writeable = False
+    return walls, k * k
+
+
 def perfect_maze_of_code(size: int, code: int) -> GridMap:
     """The perfect maze of side ``size`` whose opened walls are the bits of ``code`` (see
     :func:`perfect_maze_codes`): the same map object :func:`perfect_maze` returns for it while

@@ -108,40 +108,43 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
     st = np.ascontiguousarray(states, dtype=np.int64)
     blocks = readout_blocks(n, h * w, threshold, pose)
     fast.batch_readout(beliefs.reshape(n, -1), L, blocks[0], w, st, *blocks[1:])
-    return read_blocks(blocks, st, L)
+    return read_blocks(blocks, L)
 
 
 def readout_blocks(n: int, cells: int, threshold: float, pose: bool, *, observed: bool = False) -> tuple:
     """What the compiled readout of N beliefs of ``cells`` positions fills, with its two
-    parameters: ``(pose, threshold, scratch, ints, confidence, estimate, flags, observed)``
+    parameters: ``(pose, threshold, scratch, kept, ints, confidence, estimate, flags, observed)``
     (``_numba_kernels.batch_readout``'s, or the engine's vector step's with them); then
     :func:`read_blocks` gives the infos.  ``observed``: the readout also writes the observed
     position beliefs (float32 (N, cells), as ``observation.observed_belief`` makes them) in the
     last block (else it has no rows).  Few allocations: blocks whose rows are the arrays (a
     vector env pays them at every step)."""
-    return (bool(pose), float(threshold), np.empty((2, n, cells)), np.empty((3, n), dtype=np.int64), np.empty(n),
-            np.empty((n, 2), dtype=np.int64), np.empty((2, n), dtype=bool),
+    return (bool(pose), float(threshold), np.empty((2, n, cells)), np.empty(n * cells, dtype=np.int64),
+            np.empty((5, n), dtype=np.int64), np.empty(n),
+            np.empty((2, n, 2), dtype=np.int64), np.empty((2, n), dtype=bool),
             np.empty((n if observed else 0, cells), dtype=np.float32))
 
 
-def read_blocks(blocks: tuple, states: np.ndarray, n_layers: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+def read_blocks(blocks: tuple, n_layers: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """:func:`readout`'s infos and position beliefs from the filled :func:`readout_blocks` of
-    the beliefs of the true ``states`` (N, 3) int64 (the infos' positions and headings are
-    copies): numpy's log2, then the entropies."""
-    pose, _, scratch, ints, confidence, estimate, flags, _ = blocks
+    beliefs of ``n_layers`` layers (the readout copied the true positions and headings): numpy's
+    log2 (of the positive probabilities only: the others' terms are zeros), then the entropies."""
+    pose, _, scratch, kept, ints, confidence, estimates, flags, _ = blocks
     pos, q = scratch
     n, cells = pos.shape
+    _, layer, error, ends, heading = ints
     if cells <= COMPILED_ENTROPY_CELLS:
         ent = np.empty(n)
-        kernels.compiled(1).batch_entropy(pos, np.log2(q, out=q), ent)
+        q = q.reshape(-1)[:ends[-1]]
+        kernels.compiled(1).batch_entropy(pos, np.log2(q, out=q), kept, ends, ent)
     else:
         ent = entropy(pos)
-    _, layer, error = ints
     localised, success = flags
-    info = {"position": states[:, 1:3].copy(), "estimate": estimate, "confidence": confidence, "error": error,
+    estimate, position = estimates
+    info = {"position": position, "estimate": estimate, "confidence": confidence, "error": error,
             "localised": localised, "success": success, "entropy": ent}
     if n_layers > 1:
-        info["heading"] = states[:, 0].copy()
+        info["heading"] = heading
     if pose:
         info["estimate_heading"] = layer
     return info, pos
@@ -190,6 +193,20 @@ def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bo
     if pose:
         info["estimate_heading"] = layer
     return info
+
+
+_MASK_NAMES: dict[tuple, tuple[tuple[str, ...], np.ndarray]] = {}  # (info's keys, N) -> the mask keys, a block of ones
+
+
+def masked(info: dict[str, np.ndarray], mask: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The infos of N environments as a Gymnasium vector env reports them: ``info`` (arrays of N
+    rows) with a ``_key`` mask beside each key, ``mask`` (N booleans; None: all True), each its own
+    array (the rows of one block)."""
+    if (kept := _MASK_NAMES.get(keys := (tuple(info), info["confidence"].shape[0]))) is None:
+        names = tuple(f"_{k}" for k in keys[0] if not k.startswith("_") and f"_{k}" not in info)
+        kept = _MASK_NAMES[keys] = names, np.ones((len(names), keys[1]), dtype=bool)
+    (out := dict(info)).update(zip(kept[0], kept[1].copy() if mask is None else np.repeat(mask[None], len(kept[0]), axis=0)))
+    return out
 
 
 def ending_blocks(kind: str, restarted: np.ndarray, elapsed: np.ndarray, limit: int | None, fixed_length: bool) -> tuple:

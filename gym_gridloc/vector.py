@@ -104,7 +104,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
 
-        self.models = [model] * n
+        self._models, self._stale = [model] * n, False  # (stale: the bank's slots say which, see models)
         self._groups = [np.arange(n)]  # env indices per distinct model, in index order
         self._beliefs, self._spare = np.zeros((n, *model.belief_shape)), np.zeros((n, *model.belief_shape))
         self._states, self._readings = np.zeros((n, 3), dtype=np.int64), np.zeros(n, dtype=np.int64)
@@ -115,6 +115,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._slots = np.zeros(n, dtype=np.int64)  # each environment's slot in the bank
         self._observed = self.builder is not None and self.builder.plain_positions  # (the engine's step writes it)
         self._coded: dict[int, Any] = {}  # map code -> model: the last codes' (MapFactory.models), as many as the bank holds
+        factory = template.map_factory  # perfect mazes: the engine's step draws the new ones itself, in its one call
+        self._maps_in_call = bool(self._bank is not None and factory is not None and factory.graph is not None
+                                  and self._bank.draw_maps(*factory.graph, factory.model_of_code))
         self._below = getattr(kernels.compiled(self._beliefs[0].size), "all_below", None)  # the actions' check (None: numpy)
         length = template.episode_length
         #: The step count that truncates an episode (None: never): episode length or time limit, the first.
@@ -137,6 +140,13 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             raise ValueError("cannot switch the autoreset mode while an environment waits for its reset")
         self.autoreset_mode = self._mode(mode)
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
+
+    @property
+    def models(self) -> list:
+        """Each environment's model (on its current map)."""
+        if self._stale:  # (the engine's step drew maps: each row's model is its slot's)
+            self._models, self._stale = [self._bank.models[s] for s in self._slots.tolist()], False
+        return self._models
 
     # -- the batch through the engine --------------------------------------------------------------
     def _regroup(self) -> None:
@@ -178,12 +188,13 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         """Start new episodes in the environments ``idx``: maps (if redrawn, and not ``redrawn``
         already), states, readings, beliefs, drawn in the single environment's order."""
         rng = self.np_random
-        if self.template.map_factory is not None and not redrawn:
+        drawing = self.template.map_factory is not None and not redrawn
+        if drawing and not self._maps_in_call:
             self._redraw(idx)
         if self._bank is not None:  # one compiled call; the other rows keep their beliefs
             modes = np.full(self.num_envs, 2, dtype=np.int8)
             modes[idx] = 1
-            self._advance(np.zeros_like(self._readings), modes)
+            self._advance(np.zeros_like(self._readings), modes, maps=drawing and self._maps_in_call)
             self._elapsed[idx] = 0
             return
         for model, sub in self._by_model(idx):
@@ -193,22 +204,24 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             self._beliefs[sub] = engine.first_posterior(model, self._readings[sub])
         self._elapsed[idx] = 0
 
-    def _advance(self, actions: np.ndarray, modes: np.ndarray, restarted: np.ndarray | None = None):
-        """Every environment in one engine call (:class:`engine.VectorBank`; ``modes`` as :func:`engine.vector_advancer`'s).
-        A step (``restarted``: the rows that started an episode) reads in the same call, and returns, :meth:`_infos`'s
-        infos and position beliefs, :func:`referee.outcomes`'s, and the plain observation's belief (else None)."""
+    def _advance(self, actions: np.ndarray, modes: np.ndarray, restarted: np.ndarray | None = None, maps: bool = False):
+        """Every environment in one engine call (:class:`engine.VectorBank`; ``modes`` as :func:`engine.vector_advancer`'s;
+        ``maps``: the call draws the starting rows' maps). A step (``restarted``: the rows that started an episode)
+        reads in the same call, and returns :meth:`_infos`'s infos and position beliefs, :func:`referee.outcomes`'s,
+        and the plain observation's belief (else None)."""
         n, t, blocks, ending = self.num_envs, self.template, None, None
         if restarted is not None:
             blocks = referee.readout_blocks(n, self._beliefs.shape[2] * self._beliefs.shape[3], t.localise_threshold,
                                             t.referee_pose, observed=self._observed)
             ending = referee.ending_blocks(t.reward_kind, restarted, self._elapsed, self._limit, t.episode_length is not None)
         self._bank.advance(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1),
-                           modes, self.np_random, self._slots, blocks, ending)
+                           modes, self.np_random, self._slots, blocks, ending, maps)
         self._beliefs, self._spare = self._spare, self._beliefs
+        self._stale |= maps
         if blocks is None:  # (a restart: the caller reads the infos)
             return None
-        info, positions = referee.read_blocks(blocks, self._states, self._beliefs.shape[1])
-        return info, positions, referee.ended(ending), blocks[7] if self._observed else None
+        info, positions = referee.read_blocks(blocks, self._beliefs.shape[1])
+        return info, positions, referee.ended(ending), blocks[8] if self._observed else None
 
     def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
         """One step of the environments ``idx``: moves, readings, beliefs."""
@@ -235,8 +248,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     # -- observations and infos -------------------------------------------------------------------
     def _observations(self, positions: np.ndarray | None = None, observed: np.ndarray | None = None):
         """The N observations (``positions``, ``observed``: what :meth:`_infos` or :meth:`_advance` read)."""
-        obs = self.models[0].sensor.observations(self._readings)
-        models = self.models[0] if self.template.map_factory is None else self.models
+        model = self.template.model  # (the family's sensor; the plain observation made in the step needs no other)
+        obs = model.sensor.observations(self._readings)
+        models = model if self.template.map_factory is None or observed is not None else self.models
         return obs if self.builder is None else self.builder.encode(models, obs, self._readings, self._beliefs, positions,
                                                                     observed=observed)
 
@@ -252,17 +266,14 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         n = self.num_envs
         mask = np.ones(n, dtype=bool)
         if options:
-            unknown = set(options) - {"reset_mask"}
-            if unknown:
+            if unknown := set(options) - {"reset_mask"}:
                 raise ValueError(f"unknown reset option(s) {sorted(unknown)}; allowed: 'reset_mask'")
             mask = np.asarray(options["reset_mask"])
             if mask.shape != (n,) or mask.dtype != bool:
                 raise ValueError(f"options['reset_mask'] must be {n} booleans, got {options['reset_mask']!r}")
             if not self._started and not mask.all():
-                raise ValueError(
-                    f"the first reset must reset every environment: options['reset_mask'] leaves "
-                    f"environment(s) {np.flatnonzero(~mask).tolist()} without a state"
-                )
+                raise ValueError(f"the first reset must reset every environment: options['reset_mask'] leaves "
+                                 f"environment(s) {np.flatnonzero(~mask).tolist()} without a state")
         if seed is not None:
             self._np_random, self._np_random_seed = self._seeded(seed)
         idx = np.flatnonzero(mask)
@@ -270,7 +281,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._autoreset[idx] = False
         self._started = True
         info, positions = self._infos()
-        return self._observations(positions), self._masked(info, mask)
+        return self._observations(positions), referee.masked(info, mask)
 
     @staticmethod
     def _seeded(seed: Any) -> tuple[np.random.Generator, int]:
@@ -291,11 +302,12 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         # self._autoreset is replaced, never changed in place, so no copy)
         resetting = np.zeros(n, dtype=bool) if same_step else self._autoreset
         acts = self._actions(actions, resetting)
-        starting = np.flatnonzero(resetting) if self._bank is not None and self.template.map_factory is not None else ()
+        in_call = self._maps_in_call
+        starting = resetting.nonzero()[0] if self._bank is not None and self.template.map_factory is not None and not in_call else ()
         if redrawn := len(starting) > 0:  # maps first, then the one call's draws (moves, starts, readings)
             self._redraw(starting)
-        if self._bank is not None:  # moves, new episodes, the referee's readout and outcomes in one engine call
-            info, positions, (rewards, terminated, truncated, done), observed = self._advance(acts, resetting.view(np.int8), resetting)
+        if self._bank is not None:  # (new maps,) moves, new episodes, the referee's readout and outcomes in one engine call
+            info, positions, (rewards, terminated, truncated, done), observed = self._advance(acts, resetting.view(np.int8), resetting, in_call)
         else:
             observed = None
             moving = np.flatnonzero(~resetting)
@@ -322,7 +334,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
                     "final_info": final_info, "_final_info": done.copy()}
         else:
             self._autoreset = done
-        return obs, rewards, terminated, truncated, self._masked(info, None)
+        return obs, rewards, terminated, truncated, referee.masked(info, None)
 
     def _actions(self, actions: Any, resetting: np.ndarray) -> np.ndarray:
         n, k = self.num_envs, self.single_action_space.n
@@ -339,18 +351,6 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             i = int(np.flatnonzero(bad)[0])
             raise ValueError(f"action {int(acts[i])} of env {i} is not in the action space {self.single_action_space} ({self.models[i].action_legend})")
         return np.where(resetting, 0, acts).astype(np.int64)
-
-    _MASK_NAMES: dict[tuple[str, ...], tuple[str, ...]] = {}
-
-    @classmethod
-    def _masked(cls, info: dict, mask: np.ndarray | None) -> dict:
-        """``info`` with Gymnasium's ``_key`` mask beside each key (one block, a row per key; ``mask`` None: all)."""
-        names = cls._MASK_NAMES.get(keys := tuple(info))
-        if names is None:
-            names = cls._MASK_NAMES[keys] = tuple(f"_{k}" for k in keys if not k.startswith("_") and f"_{k}" not in info)
-        n = info["confidence"].shape[0]
-        rows = np.ones((len(names), n), dtype=bool) if mask is None else np.repeat(mask[None], len(names), axis=0)
-        return {**info, **dict(zip(names, rows))}
 
     # -- exposed for tests and tools ---------------------------------------------------------------
     @property

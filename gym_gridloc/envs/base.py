@@ -248,7 +248,9 @@ class MapFactory:
 
     A family whose maps have integer codes also gives ``codes(rng, count)`` (``count`` maps drawn
     at once, as ``count`` calls of ``draw`` draw them, as their codes) and ``of_code(code)`` (the
-    map): the native vector env draws its resets' maps so, one call for all of them.
+    map): the native vector env draws its resets' maps so, one call for all of them.  Perfect
+    mazes give ``graph`` too (:func:`~gym_gridloc.generators.perfect_maze_graph`: the codes are
+    its random spanning trees): the native vector env's compiled step then draws them itself.
 
     A small map drawn again is not built again: a map (of at most :data:`REDRAWN_CELLS` cells)
     drawn for the second time among the last :data:`REDRAWN_SEEN` keeps its model, the last
@@ -261,10 +263,14 @@ class MapFactory:
 
     def __init__(self, build: Callable[[Any], GridModel], draw: Callable[[np.random.Generator], Any], *,
                  codes: Callable[[np.random.Generator, int], np.ndarray | None] | None = None,
-                 of_code: Callable[[int], Any] | None = None) -> None:
+                 of_code: Callable[[int], Any] | None = None, graph: tuple[np.ndarray, int] | None = None) -> None:
         if (codes is None) != (of_code is None):
             raise ValueError("give both codes= and of_code= (a map's code and the map it stands for), or neither")
+        if graph is not None and codes is None:
+            raise ValueError("graph= describes how the codes are drawn: give codes= and of_code= too")
         self.build, self.draw, self._codes, self._of_code = build, draw, codes, of_code
+        #: ``(walls, rooms)`` when the codes are perfect mazes on that graph (see :func:`~gym_gridloc.generators.perfect_maze_graph`), else None.
+        self.graph = graph
 
     def __call__(self, rng: np.random.Generator) -> GridModel:
         return _kept_model(self.build, self.draw(rng))

@@ -6,7 +6,7 @@ import numpy as np
 
 from gym_gridloc.core.validation import check_int
 from gym_gridloc.envs.base import GridLocEnv, MapFactory
-from gym_gridloc.generators import perfect_maze, perfect_maze_codes, perfect_maze_of_code
+from gym_gridloc.generators import perfect_maze, perfect_maze_codes, perfect_maze_graph, perfect_maze_of_code
 from gym_gridloc.models import depth_maze_model
 
 
@@ -105,7 +105,8 @@ class DepthMazeEnv(GridLocEnv):
                                   max_depth=n - 2 if layout is None else None, kidnap_prob=kidnap_prob)
         draw = functools.partial(_draw, size=n)
 
-        factory = MapFactory(build, draw, codes=functools.partial(_codes, size=n), of_code=functools.partial(_of_code, size=n))
+        factory = MapFactory(build, draw, codes=functools.partial(_codes, size=n), of_code=functools.partial(_of_code, size=n),
+                             graph=perfect_maze_graph(n))
         first = layout if layout is not None else draw(0 if map_seed is None else map_seed)
         if layout is not None and size is not None:  # the layout's size is the maze's: a different size= is no size
             model = build(layout)

@@ -176,3 +176,81 @@ def test_the_map_factory_draws_mazes_as_codes_as_it_draws_them_one_by_one():
     assert gym.make("WindyMaze-v0", new_map_each_reset=True).unwrapped.map_factory.codes(a, 2) is None
     with pytest.raises(ValueError, match="both codes= and of_code="):
         MapFactory(factory.build, factory.draw, codes=lambda rng, count: None)
+    with pytest.raises(ValueError, match="give codes= and of_code= too"):
+        MapFactory(factory.build, factory.draw, graph=factory.graph)
+
+
+def test_the_map_factorys_graph_is_the_one_its_codes_are_trees_of():
+    """MapFactory.graph (generators.perfect_maze_graph): each wall's two rooms, in the codes' bit
+    order; a code's opened walls join all the rooms into one tree; too many walls: None."""
+    from gym_gridloc.generators import perfect_maze_graph
+
+    factory = gym.make("DepthMaze-v0").unwrapped.map_factory
+    walls, rooms = factory.graph
+    assert walls.shape == (2, 12) and rooms == 9 and not walls.flags.writeable
+    assert perfect_maze_graph(13)[0].shape == (2, 60) and perfect_maze_graph(15) is None
+    assert gym.make("DepthMaze-v0", size=15).unwrapped.map_factory.graph is None
+    codes = factory.codes(np.random.default_rng(4), 20)
+    if codes is None:
+        return
+    for code in codes.tolist():
+        opened = [w for w in range(walls.shape[1]) if code >> w & 1]
+        assert len(opened) == rooms - 1
+        parent = list(range(rooms))
+
+        def root(a):
+            while parent[a] != a:
+                a = parent[a]
+            return a
+
+        for w in opened:
+            a, b = root(walls[0, w]), root(walls[1, w])
+            assert a != b  # no cycle: a tree
+            parent[a] = b
+
+
+@pytest.mark.skipif(kernels.compiled(1) is None, reason="numba is not installed (or switched off)")
+@pytest.mark.parametrize("autoreset", ["NextStep", "SameStep"])
+@pytest.mark.parametrize("full", [False, True])
+def test_the_vector_steps_own_map_draws_are_those_of_the_map_factory(autoreset, full, monkeypatch):
+    """The native vector env's compiled step draws its new episodes' mazes itself (a code per maze,
+    a table from code to the bank's slot): the same mazes, episodes and numbers, and the
+    generator left where they leave it, as the map factory's draws before the call; with a full
+    bank too (``full``: N + 1 slots), whose reused slots' codes are dropped from the table."""
+    from gym_gridloc import engine
+
+    if full:
+        monkeypatch.setattr(engine.VectorBank, "BYTES", 1)
+    n, steps = 6, 250
+
+    def run(in_call):
+        if not in_call:
+            monkeypatch.setattr(engine.VectorBank, "CODE_WALLS", 0)  # (no table: the factory's draws)
+        env = gym.make_vec("DepthMaze-v0", num_envs=n, vectorization_mode="vector_entry_point", autoreset_mode=autoreset,
+                           max_episode_steps=12).unwrapped
+        monkeypatch.setattr(engine.VectorBank, "CODE_WALLS", 16)
+        assert env._maps_in_call == in_call
+        out = [env.reset(seed=9)]
+        rng = np.random.default_rng(0)
+        for _ in range(steps):
+            out.append(env.step(rng.integers(0, 3, size=n)))
+            out.append([m.grid.labels.tobytes() for m in env.models])
+        out.append(env.reset(seed=10, options={"reset_mask": np.arange(n) % 2 == 0}))
+        out.append([m.grid.labels.tobytes() for m in env.models])
+        out.append(env.np_random.random())
+        if full:
+            assert len(env._bank.models) == n + 1
+        return out
+
+    def same(a, b):
+        if isinstance(a, dict):
+            return a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
+        if isinstance(a, (list, tuple)):
+            return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
+        if isinstance(a, np.ndarray) and a.dtype != object:
+            return a.dtype == b.dtype and a.tobytes() == b.tobytes()
+        if isinstance(a, np.ndarray):
+            return same(a.tolist(), b.tolist())
+        return a == b
+
+    assert same(run(True), run(False))
