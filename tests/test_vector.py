@@ -47,6 +47,8 @@ ONE_CASES = [(env_id, {}, {}) for env_id in ENV_IDS] + [
     ("RingSensor8x8-v0", {"max_episode_steps": 7}, {}),
     ("DepthMaze-v0", {"p_turn_fail": 0.1, "p_move_fail": 0.1, "p_depth_error": 0.1, "kidnap_prob": 0.02}, {"map": True}),
     ("DepthMaze-v0", {"episode_length": 12, "reward": "belief"}, {}),
+    ("DepthMaze-v0", {"size": 5}, {"map": True}),  # (the mazes drawn in the step's call; each env's map observed)
+    ("DepthMaze-v0", {"size": 9}, {}),  # (too many walls for the step's table: the map factory's codes)
     ("ColourGrid-v0", {"size": (6, 6), "new_map_each_reset": True}, {"map": True, "lookahead": 2}),
     ("WindyMaze-v0", {"kidnap_prob": 0.1}, {"flatten": True, "lookahead": 1}),
 ]
