@@ -151,9 +151,7 @@ def perfect_maze(size: int, *, seed: Any = None) -> GridMap:
     rooms on its two sides are not yet joined (a union-find forest over the rooms tells).  Each
     opened wall joins two trees, so the result is one spanning tree of the rooms.
     """
-    n = check_int("size", size, 5, MAX_SIDE)
-    if n % 2 == 0:
-        raise ValueError(f"size must be odd (rooms at odd coordinates, walls all round), got {size!r}")
+    n = _maze_side(size)
     rng = as_rng(seed)
     k = (n - 1) // 2  # rooms per side
     walls, cells = _maze_walls(k)
@@ -193,10 +191,8 @@ def perfect_maze_codes(size: int, rng: np.random.Generator, count: int) -> np.nd
     None when there is no compiled path (numba missing) or a code cannot hold the walls (more
     than :data:`CODED_WALLS`: a side above 13)."""
     # (a vector env calls this at most steps: plain ints pass without check_int's work)
-    n = size if type(size) is int and 5 <= size <= MAX_SIDE else check_int("size", size, 5, MAX_SIDE)
+    n = size if type(size) is int and 5 <= size <= MAX_SIDE and size % 2 else _maze_side(size)
     count = count if type(count) is int and count >= 0 else check_int("count", count, 0)
-    if n % 2 == 0:
-        raise ValueError(f"size must be odd (rooms at odd coordinates, walls all round), got {size!r}")
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng must be a numpy Generator, got {rng!r}")
     k = (n - 1) // 2
@@ -218,12 +214,20 @@ def perfect_maze_graph(size: int) -> tuple[np.ndarray, int] | None:
     ``w`` is bit ``w`` of a code), ``rooms`` how many; None when a code cannot hold the walls
     (more than :data:`CODED_WALLS`).  (A compiled step can draw the codes itself:
     ``engine.VectorBank.draw_maps``.)"""
-    k = (check_int("size", size, 5, MAX_SIDE) - 1) // 2
+    k = (_maze_side(size) - 1) // 2
     if 2 * k * (k - 1) > CODED_WALLS:
         return None
     walls = np.stack(_maze_wall_rooms(k))
     walls.flags.writeable = False
     return walls, k * k
+
+
+def _maze_side(size: Any) -> int:
+    """A perfect maze's side, checked: an odd integer in 5..MAX_SIDE."""
+    n = check_int("size", size, 5, MAX_SIDE)
+    if n % 2 == 0:
+        raise ValueError(f"size must be odd (rooms at odd coordinates, walls all round), got {size!r}")
+    return n
 
 
 def perfect_maze_of_code(size: int, code: int) -> GridMap:

@@ -190,6 +190,8 @@ def test_the_map_factorys_graph_is_the_one_its_codes_are_trees_of():
     assert walls.shape == (2, 12) and rooms == 9 and not walls.flags.writeable
     assert perfect_maze_graph(13)[0].shape == (2, 60) and perfect_maze_graph(15) is None
     assert gym.make("DepthMaze-v0", size=15).unwrapped.map_factory.graph is None
+    with pytest.raises(ValueError, match="size must be odd"):
+        perfect_maze_graph(8)
     codes = factory.codes(np.random.default_rng(4), 20)
     if codes is None:
         return
