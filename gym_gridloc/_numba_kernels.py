@@ -241,8 +241,6 @@ def _kept_sum(p, po, lq, cells, j, stop, n):  # pragma: no cover - compiled
     recursive function).  Returns the sum and the next ``j``.  (A row of at most 128 cells is
     summed by :func:`_dense_block` or :func:`_sparse_block` at its caller: this function's arrays,
     and each call of a compiled function that takes arrays, cost more than a small row.)"""
-    if n <= 128:
-        return _kept_block(p, po, lq, cells, j, stop, 0, n)
     los = np.empty(64, dtype=np.int64)
     ns = np.empty(64, dtype=np.int64)
     stage = np.zeros(64, dtype=np.int64)
@@ -272,7 +270,8 @@ def _kept_sum(p, po, lq, cells, j, stop, n):  # pragma: no cover - compiled
             return ret, j
 
 
-#: Every cell, in order: the ``kept`` cells of a q that holds every cell's value (a compiled constant).
+#: Every cell, in order: the ``kept`` cells of a q that holds every cell's value (a compiled constant;
+#: as many as the longest row summed here, ``referee.COMPILED_ENTROPY_CELLS``).
 _EVERY_CELL = np.arange(8192)
 
 
