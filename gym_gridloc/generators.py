@@ -1,5 +1,6 @@
 """Generated maps, reproducible from a seed: random colour grids, mazes of any size, and perfect
-mazes (Kruskal's algorithm).
+mazes (Kruskal's algorithm, or Eller's row-by-row construction), with or without the mazes that
+equal their own rotation.
 
 Every generator takes a ``numpy.random.Generator`` (or an int seed) and returns a
 :class:`~gym_gridloc.core.grid.GridMap` whose free cells are connected (4-neighbourhood).  The same
@@ -175,6 +176,98 @@ def perfect_maze(size: int, *, seed: Any = None) -> GridMap:
                 break
     opened.sort()
     return _maze_map(n, tuple(opened))
+
+
+def eller_maze(size: int, *, seed: Any = None) -> GridMap:
+    """A perfect maze of odd side ``size`` (>= 5) built row by row (Eller's algorithm), the
+    construction of the mazes Active Neural Localization (Chaplot et al., 2018) trained on.
+
+    The rooms are the cells at odd (row, col); each room of the current row belongs to a set (the
+    rooms it is already joined with).  Row by row, top to bottom:
+
+    1. each wall between two neighbouring rooms of the row that lie in different sets is opened
+       with probability 1/2 (the two sets merge); in the last row every such wall is opened;
+    2. (not in the last row) each room opens the wall to the room below with probability 1/2; a
+       set none of whose rooms did opens one of its rooms' walls, chosen uniformly; the rooms
+       below take the set of the room above them, the others a new set of their own.
+
+    Walls are opened only between different sets, and the last row joins every set left, so the
+    result is one spanning tree of the rooms (connected, no cycle), like :func:`perfect_maze`'s;
+    the distribution differs (Eller's mazes have more short horizontal corridors).  The draws,
+    per row: ``k - 1`` uniforms for step 1 (one per wall, used where the sets differ), ``k``
+    uniforms for step 2, then one integer per set without a passage down, in the order of the
+    sets' leftmost rooms.
+    """
+    n = _maze_side(size)
+    rng = as_rng(seed)
+    k = (n - 1) // 2
+    labels = np.full((n, n), -1, dtype=np.int64)
+    labels[1::2, 1::2] = 0
+    sets = list(range(k))
+    fresh = k
+    for r in range(k):
+        y = 2 * r + 1
+        last = r == k - 1
+        joins = [True] * (k - 1) if last else (rng.random(k - 1) < 0.5).tolist()
+        for c in range(k - 1):
+            if joins[c] and sets[c] != sets[c + 1]:
+                labels[y, 2 * c + 2] = 0
+                old, keep = sets[c + 1], sets[c]
+                sets = [keep if s == old else s for s in sets]
+        if last:
+            break
+        down = (rng.random(k) < 0.5).tolist()
+        members: dict[int, list[int]] = {}
+        for c, s in enumerate(sets):
+            members.setdefault(s, []).append(c)
+        for cols in members.values():  # in the order of the sets' leftmost rooms
+            if not any(down[c] for c in cols):
+                down[cols[int(rng.integers(len(cols)))]] = True
+        below = []
+        for c in range(k):
+            if down[c]:
+                labels[y + 1, 2 * c + 1] = 0
+                below.append(sets[c])
+            else:
+                below.append(fresh)
+                fresh += 1
+        sets = below
+    return GridMap(labels, ("O",))
+
+
+#: The generators of perfect mazes, by the name DepthMaze's ``generator=`` keyword takes.
+MAZE_GENERATORS = ("kruskal", "eller")
+
+
+def is_rotation_symmetric(grid: GridMap) -> bool:
+    """True when the map equals itself turned by 90 or 180 degrees.  In such a maze every pose has
+    a twin (the pose turned with the maze) that reads the same depths after every sequence of
+    actions, so no policy can tell the two apart: localisation fails there half the time or more."""
+    labels = grid.labels
+    if labels.shape[0] != labels.shape[1]:
+        return bool(np.array_equal(labels, labels[::-1, ::-1]))
+    return bool(np.array_equal(labels, np.rot90(labels, 2)) or np.array_equal(labels, np.rot90(labels, 1)))
+
+
+def random_maze(size: int, rng: Any = None, *, generator: str = "kruskal", reject_symmetric: bool = False) -> GridMap:
+    """A perfect maze from ``generator`` (``"kruskal"``: :func:`perfect_maze`, ``"eller"``:
+    :func:`eller_maze`); with ``reject_symmetric``, mazes equal to their own 90- or 180-degree
+    rotation (:func:`is_rotation_symmetric`) are drawn again from the same generator until one is
+    not.  ``random_maze(size, rng)`` draws what ``perfect_maze(size, seed=rng)`` draws."""
+    draw = _maze_generator(generator)
+    rng = as_rng(rng)
+    maze = draw(size, seed=rng)
+    while reject_symmetric and is_rotation_symmetric(maze):
+        maze = draw(size, seed=rng)
+    return maze
+
+
+def _maze_generator(generator: Any):
+    if generator == "kruskal":
+        return perfect_maze
+    if generator == "eller":
+        return eller_maze
+    raise ValueError(f"generator must be one of {', '.join(map(repr, MAZE_GENERATORS))} (how perfect mazes are drawn), got {generator!r}")
 
 
 #: The most walls a perfect maze may have for :func:`perfect_maze_codes` (a code is an int64).

@@ -18,6 +18,7 @@ import gym_gridloc
 from gym_gridloc.core.validation import whole_numbers
 from gym_gridloc.envs.base import GridLocEnv
 from gym_gridloc.vector import GridLocVectorEnv
+from gym_gridloc_agents.history import History, HistoryWrapper, episode_limit, history_options
 
 
 def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, error: type[Exception]) -> gym.Space:
@@ -77,14 +78,19 @@ def _parameters(env_id: str) -> list | None:
 def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, wrapper: dict[str, Any] | None = None) -> gym.Env:
     """``gym.make(env_id, **env_kwargs)``, behind ``HMMBeliefWrapper(**wrapper)`` unless
     ``wrapper["belief"]`` is false (raw readings; behind :class:`gym_gridloc.PreviousActionWrapper`
-    with ``wrapper["previous_action"]``).  ``wrapper=None``: the Dict belief observation
-    every policy of the benchmark reads."""
+    with ``wrapper["previous_action"]``), and behind :class:`~gym_gridloc_agents.history.HistoryWrapper`
+    with ``wrapper["past_actions"]`` or ``wrapper["steps_left"]``.  ``wrapper=None``: the Dict
+    belief observation every policy of the benchmark reads."""
     env = gym.make(env_id, **dict(env_kwargs or {}))
     opts = {"belief": True} if wrapper is None else dict(wrapper)
+    k, h = history_options(opts)
+    opts.pop("past_actions", None), opts.pop("steps_left", None)
     previous = opts.pop("previous_action", False)
     if opts.pop("belief", True) is False:
-        return gym_gridloc.PreviousActionWrapper(env) if previous else env
-    return gym_gridloc.HMMBeliefWrapper(env, **opts)
+        env = gym_gridloc.PreviousActionWrapper(env) if previous else env
+    else:
+        env = gym_gridloc.HMMBeliefWrapper(env, **opts)
+    return HistoryWrapper(env, past_actions=k, steps_left=h) if k or h else env
 
 
 def served_env(env: gym.Env, policy: Any) -> gym.Env:
@@ -109,9 +115,10 @@ def make_training_env(cfg: dict[str, Any]):
     through :class:`SB3VecEnv`)."""
     if cfg.get("vec_env", "dummy") == "native":
         wrapper = dict(cfg["wrapper"])
+        k, h = history_options(wrapper)
+        wrapper.pop("past_actions", None), wrapper.pop("steps_left", None)
         venv = SB3VecEnv.make(cfg["env_id"], cfg["n_envs"], belief="exact" if wrapper.pop("belief", True) else None,
-                              **wrapper,
-                              **cfg["env_kwargs"])
+                              history={"past_actions": k, "steps_left": h}, **wrapper, **cfg["env_kwargs"])
         venv.seed(cfg["seed"])
         return venv
     return make_vec_env(env_thunk(cfg), n_envs=cfg["n_envs"], seed=cfg["seed"])
@@ -127,32 +134,42 @@ class SB3VecEnv(VecEnv):
     vector env is switched to ``AutoresetMode.SAME_STEP`` for this.
 
     >>> import gymnasium as gym, gym_gridloc
-    >>> from gym_gridloc_agents.envs import SB3VecEnv
+    >>> from gym_gridloc_agents.history import History, HistoryWrapper, episode_limit, history_options
+from gym_gridloc_agents.envs import SB3VecEnv
     >>> venv = SB3VecEnv(gym.make_vec("WindyMaze-v0", num_envs=8, vectorization_mode="vector_entry_point"))
     >>> venv.num_envs
     8
 
     ``SB3VecEnv.make(env_id, num_envs, **kwargs)`` builds the native env and the adapter.
+    ``history={"past_actions": K, "steps_left": H}`` appends each episode's
+    :class:`~gym_gridloc_agents.history.History` to its observations (as :class:`HistoryWrapper` does).
     """
 
-    def __init__(self, venv) -> None:
+    def __init__(self, venv, *, history: dict[str, int] | None = None) -> None:
         env = getattr(venv, "unwrapped", venv)
         if not isinstance(env, GridLocVectorEnv):
             raise TypeError(f"SB3VecEnv needs a gym_gridloc native vector env (GridLocVectorEnv), got {type(venv).__name__}")
         env.set_autoreset_mode(AutoresetMode.SAME_STEP)
         self.venv = env
-        super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
+        k, h = history_options(history)
+        self.history = (History(int(env.single_action_space.n), actions=k, horizon=h, n=env.num_envs,
+                                limit=episode_limit(env) if h else None) if k or h else None)
+        space = env.single_observation_space if self.history is None else self.history.space(env.single_observation_space)
+        super().__init__(env.num_envs, space, env.single_action_space)
         self._actions: np.ndarray | None = None
 
     @classmethod
-    def make(cls, env_id: str, num_envs: int, **kwargs: Any) -> "SB3VecEnv":
-        return cls(gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs))
+    def make(cls, env_id: str, num_envs: int, *, history: dict[str, int] | None = None, **kwargs: Any) -> "SB3VecEnv":
+        return cls(gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs), history=history)
 
     def reset(self):
         obs, _ = self.venv.reset(seed=next((s for s in self._seeds if s is not None), None))
         self._reset_seeds()
         self._reset_options()
         self.reset_infos = [{} for _ in range(self.num_envs)]
+        if self.history is not None:
+            self.history.reset()
+            obs = self.history.attach(obs)
         return obs
 
     def step_async(self, actions: np.ndarray) -> None:
@@ -164,9 +181,16 @@ class SB3VecEnv(VecEnv):
     def step_wait(self):
         obs, rewards, terminated, truncated, info = self.venv.step(self._actions)
         dones = terminated | truncated
+        final = None
+        if self.history is not None:
+            self.history.record(self._actions)
+            final = self.history.features()  # the finished episodes' last features
+            self.history.reset(dones)
+            obs = self.history.attach(obs)
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
         for i in np.flatnonzero(dones):
-            infos[i] = {**info["final_info"][i], "terminal_observation": info["final_obs"][i],
+            last = info["final_obs"][i] if final is None else self.history.attach(info["final_obs"][i], final[i : i + 1], batched=False)
+            infos[i] = {**info["final_info"][i], "terminal_observation": last,
                         "TimeLimit.truncated": bool(truncated[i] and not terminated[i])}
         return obs, rewards.astype(np.float32), dones, infos
 

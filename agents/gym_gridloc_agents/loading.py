@@ -97,8 +97,9 @@ def model_method(meta: dict[str, Any]) -> str:
 
 
 #: Environment keywords that shape episodes, not the model a policy acts on: they may differ
-#: between training and use (e.g. a policy trained for 15 steps, benchmarked at 30).
-EPISODE_KWARGS = ("episode_length", "reward", "render_mode", "new_map_each_reset")
+#: between training and use (e.g. a policy trained for 15 steps, benchmarked at 30, or trained on
+#: Kruskal's mazes and tested on Eller's).
+EPISODE_KWARGS = ("episode_length", "reward", "render_mode", "new_map_each_reset", "generator", "reject_symmetric")
 
 
 def expand_models(items: Sequence[str | Path], flag: str = "--ppo-model") -> list[Path]:

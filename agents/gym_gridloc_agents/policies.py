@@ -26,6 +26,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
@@ -34,6 +35,7 @@ from gym_gridloc.observation import BeliefObservation
 from gym_gridloc.wrappers import previous_action_space, with_previous_action
 from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.files import read_metadata
+from gym_gridloc_agents.history import History, history_options
 from gym_gridloc_agents.loading import METHODS, load_model, model_kwargs, model_method
 from gym_gridloc.lookahead import Lookahead
 
@@ -168,6 +170,7 @@ class PPOPolicy(Policy):
             self.path, self.sb3, self.meta = None, sb3_model, {}
             self.trained_wrapper = dict(wrapper or {})
             self.wrapper = _wrapper_options(wrapper)
+            self._history_for(env_id, env_kwargs)
             return
         if path is None:
             if env_id is None:
@@ -184,9 +187,26 @@ class PPOPolicy(Policy):
                                          observation_space=expected)
         if deterministic is None:  # how the model was meant to act (its config's ``deterministic``)
             self.deterministic = bool(self.meta.get("deterministic", True))
+        self._history_for(env_id, env_kwargs)
+
+    def _history_for(self, env_id: str | None, env_kwargs: dict[str, Any] | None) -> None:
+        """The model's :class:`~gym_gridloc_agents.history.History` (None when it sees none): its
+        steps left count down from the episode length of the environment it acts in."""
+        k, h = history_options(self.trained_wrapper)
+        self.history = None
+        if k or h:
+            limit = None
+            if h:
+                kwargs = env_kwargs or {}
+                limit = kwargs.get("episode_length") or (gym.spec(env_id).max_episode_steps if env_id else None)
+                if not limit:
+                    raise ValueError(f"{self.path or 'this model'} sees the steps left: give env_id= or env_kwargs with an episode_length")
+            self.history = History(self.model.n_actions, actions=k, horizon=h, limit=limit)
 
     def reset(self, seed: int | None = None, model: GridModel | None = None) -> None:
         super().reset(seed, model)
+        if getattr(self, "history", None) is not None:
+            self.history.reset()
         if not self.deterministic:  # sampled actions: torch's generator seeded from the episode's seed
             import torch
 
@@ -206,7 +226,9 @@ class PPOPolicy(Policy):
         return self.builder.options
 
     def expected_space(self, model: GridModel) -> spaces.Space:
-        return BeliefObservation(model, **self.wrapper).space
+        space = BeliefObservation(model, **self.wrapper).space
+        k, h = history_options(self.trained_wrapper)
+        return History(model.n_actions, actions=k, horizon=h, limit=1).space(space) if k or h else space
 
     def encode(self, observation: Any, belief: np.ndarray) -> Any:
         """The observation the model's ``HMMBeliefWrapper`` would give."""
@@ -217,7 +239,11 @@ class PPOPolicy(Policy):
         holds it (an environment with the same wrapper options), else built here."""
         if encoded is None:
             encoded = self.encode(observation, belief)
-        return int(self.sb3.predict(encoded, deterministic=self.deterministic)[0])
+        if self.history is None:
+            return int(self.sb3.predict(encoded, deterministic=self.deterministic)[0])
+        action = int(self.sb3.predict(self.history.attach(encoded, batched=False), deterministic=self.deterministic)[0])
+        self.history.record(np.array([action]))
+        return action
 
 
 def _wrapper_options(wrapper: dict[str, Any] | None) -> dict[str, Any]:

@@ -6,7 +6,8 @@ import numpy as np
 
 from gym_gridloc.core.validation import check_int
 from gym_gridloc.envs.base import GridLocEnv, MapFactory
-from gym_gridloc.generators import perfect_maze, perfect_maze_codes, perfect_maze_graph, perfect_maze_of_code
+from gym_gridloc.generators import (MAZE_GENERATORS, perfect_maze, perfect_maze_codes, perfect_maze_graph, perfect_maze_of_code,
+                                    random_maze)
 from gym_gridloc.models import depth_maze_model
 
 
@@ -17,6 +18,25 @@ def _build(grid, *, p_turn_fail, p_move_fail, p_depth_error, max_depth, kidnap_p
 
 def _draw(rng, *, size):
     return perfect_maze(size, seed=rng)
+
+
+def _draw_maze(rng, *, size, generator, reject_symmetric):
+    return random_maze(size, rng, generator=generator, reject_symmetric=reject_symmetric)
+
+
+def map_options(env_kwargs: dict) -> dict:
+    """How a DepthMaze with these keywords draws its mazes: ``{"generator": ..., "reject_symmetric": ...}``
+    (the defaults resolved: mazes equal to their rotation are rejected under the research protocol,
+    ``episode_length`` given).  The held-out sets of :mod:`gym_gridloc.maps` take the same options."""
+    generator = env_kwargs.get("generator", "kruskal")
+    if generator not in MAZE_GENERATORS:
+        raise ValueError(f"generator must be one of {', '.join(map(repr, MAZE_GENERATORS))} (how perfect mazes are drawn), got {generator!r}")
+    reject = env_kwargs.get("reject_symmetric")
+    if reject is None:
+        reject = env_kwargs.get("episode_length") is not None
+    if not isinstance(reject, (bool, np.bool_)):
+        raise TypeError(f"reject_symmetric must be True, False or None, got {reject!r}")
+    return {"generator": generator, "reject_symmetric": bool(reject)}
 
 
 def _codes(rng, count, *, size):
@@ -88,7 +108,8 @@ class DepthMazeEnv(GridLocEnv):
     def __init__(self, size: int | None = None, *, layout=None, map_seed: int | None = None,
                  new_map_each_reset: bool | None = None, p_turn_fail: float = 0.0, p_move_fail: float = 0.0,
                  p_depth_error: float = 0.0, localise_threshold: float = 0.9, episode_length: int | None = None,
-                 reward: str = "step", kidnap_prob: float = 0.0, render_mode: str | None = None) -> None:
+                 reward: str = "step", kidnap_prob: float = 0.0, generator: str = "kruskal",
+                 reject_symmetric: bool | None = None, render_mode: str | None = None) -> None:
         if new_map_each_reset is None:
             new_map_each_reset = layout is None and map_seed is None
         if not isinstance(new_map_each_reset, (bool, np.bool_)):
@@ -103,10 +124,14 @@ class DepthMazeEnv(GridLocEnv):
         # Module-level functions bound with partial: the environment pickles with them.
         build = functools.partial(_build, p_turn_fail=p_turn_fail, p_move_fail=p_move_fail, p_depth_error=p_depth_error,
                                   max_depth=n - 2 if layout is None else None, kidnap_prob=kidnap_prob)
-        draw = functools.partial(_draw, size=n)
-
-        factory = MapFactory(build, draw, codes=functools.partial(_codes, size=n), of_code=functools.partial(_of_code, size=n),
-                             graph=perfect_maze_graph(n))
+        options = map_options({"generator": generator, "reject_symmetric": reject_symmetric, "episode_length": episode_length})
+        if options == {"generator": "kruskal", "reject_symmetric": False}:  # Kruskal's codes: the vector env draws them in its step
+            draw = functools.partial(_draw, size=n)
+            factory = MapFactory(build, draw, codes=functools.partial(_codes, size=n), of_code=functools.partial(_of_code, size=n),
+                                 graph=perfect_maze_graph(n))
+        else:
+            draw = functools.partial(_draw_maze, size=n, **options)
+            factory = MapFactory(build, draw)
         first = layout if layout is not None else draw(0 if map_seed is None else map_seed)
         if layout is not None and size is not None:  # the layout's size is the maze's: a different size= is no size
             model = build(layout)
@@ -116,3 +141,5 @@ class DepthMazeEnv(GridLocEnv):
                          map_factory=factory if new_map_each_reset else None,
                          referee_pose=True, episode_length=episode_length, reward=reward)
         self.size = n
+        #: How the mazes are drawn (:func:`map_options`): ``generator`` and ``reject_symmetric``.
+        self.map_options = options

@@ -73,7 +73,8 @@ class BenchmarkInterrupted(KeyboardInterrupt):
 
 def episode_specs(env_id: str, env_kwargs: dict, episodes: int, seed_start: int, test_set: bool) -> list[tuple[int, Any]]:
     """``(seed, reset options)`` of the benchmark's episodes: seeds ``seed_start + i``; with
-    ``test_set``, the held-out map ``i`` and its start state as reset options."""
+    ``test_set``, the held-out map ``i`` and its start state as reset options (DepthMaze's: the
+    set of the maze variant ``env_kwargs`` choose, :func:`gym_gridloc.envs.depth_maze.map_options`)."""
     if not test_set:
         return [(seed_start + i, None) for i in range(episodes)]
     from gym_gridloc import maps
@@ -82,7 +83,12 @@ def episode_specs(env_id: str, env_kwargs: dict, episodes: int, seed_start: int,
     if size is None:
         raise ValueError(f"--test-set needs --size: the held-out maps of {env_id} are drawn per size")
     side = size if is_int(size) else size[0]
-    return [(seed_start + m.index, {"map": m.grid, "state": m.state}) for m in maps.test_set(env_id, side, episodes)]
+    variant = {}
+    if env_id == "DepthMaze-v0":
+        from gym_gridloc.envs.depth_maze import map_options
+
+        variant = map_options(env_kwargs)
+    return [(seed_start + m.index, {"map": m.grid, "state": m.state}) for m in maps.test_set(env_id, side, episodes, **variant)]
 
 
 class _Timed:

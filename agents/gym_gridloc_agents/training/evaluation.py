@@ -25,7 +25,8 @@ def evaluation_episodes(env, cfg: dict[str, Any], episodes: int) -> list[tuple[i
     reset, also the validation maps of :func:`gym_gridloc.maps.validation_set` (never the test set)."""
     unwrapped = env.unwrapped
     if unwrapped.map_factory is not None and cfg["env_id"] in maps.families():
-        held = maps.validation_set(cfg["env_id"], unwrapped.model.shape[0], episodes)
+        # (DepthMaze's validation mazes drawn as its mazes are: generator, symmetric ones rejected or not)
+        held = maps.validation_set(cfg["env_id"], unwrapped.model.shape[0], episodes, **getattr(unwrapped, "map_options", {}))
         return [(EVAL_SEED_BASE + m.index, {"map": m.grid, "state": m.state}) for m in held]
     return [(EVAL_SEED_BASE + i, None) for i in range(episodes)]
 
@@ -39,7 +40,8 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
 
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
     cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy  # (RecurrentPolicy ignores the wrapper)
-    policy = cls(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"], deterministic=cfg.get("deterministic", True))
+    policy = cls(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"], deterministic=cfg.get("deterministic", True),
+                 env_id=cfg["env_id"], env_kwargs=cfg["env_kwargs"])
     env = served_env(env, policy)
     with torch.random.fork_rng():
         eps = [rollout(env, policy, seed, reset_options=opts) for seed, opts in evaluation_episodes(env, cfg, episodes)]
