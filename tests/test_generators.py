@@ -233,3 +233,100 @@ def test_the_compiled_bounded_integers_are_numpys():
         drawn = [fast._bounded(functions[0], functions[2], high - 1) for _ in range(50)]
         assert drawn == b.integers(high, size=50).tolist()
         assert a.random() == b.random()
+
+
+# -- Eller's mazes and the rotation-symmetric ones -------------------------------------------------
+def _room_edges(grid):
+    """The opened walls of a perfect maze as edges between rooms (row, col of the room lattice)."""
+    free = grid.free
+    n = free.shape[0]
+    edges = []
+    for y in range(1, n - 1):
+        for x in range(1, n - 1):
+            if free[y, x] and (y % 2) != (x % 2):  # a wall cell between two rooms, opened
+                a, b = ((y - 1) // 2, x // 2), ((y + 1) // 2, x // 2)
+                if y % 2:  # between rooms left and right
+                    a, b = (y // 2, (x - 1) // 2), (y // 2, (x + 1) // 2)
+                edges.append((a, b))
+    return edges
+
+
+@pytest.mark.parametrize("size", [5, 7, 9, 15, 21])
+def test_eller_mazes_are_reproducible_spanning_trees(size):
+    from gym_gridloc.generators import eller_maze
+
+    k = (size - 1) // 2
+    for seed in range(60):
+        m = eller_maze(size, seed=seed)
+        assert np.array_equal(m.labels, eller_maze(size, seed=seed).labels)
+        assert m.shape == (size, size) and m.symbols == ("O",)
+        assert not m.free[0].any() and not m.free[-1].any() and not m.free[:, 0].any() and not m.free[:, -1].any()
+        assert m.free[1::2, 1::2].all() and not m.free[::2, ::2].any()  # rooms free, pillars walls
+        edges = _room_edges(m)
+        assert len(edges) == k * k - 1 and m.n_free == k * k + k * k - 1  # a tree's edge count...
+        assert is_connected(m.free)  # ...and connected: no cycle, every room reachable
+
+
+def test_eller_mazes_have_the_documented_distribution():
+    """On 5x5 mazes (2 x 2 rooms: four spanning trees, each leaving one of the four walls shut),
+    Eller's steps as documented give: the top wall shut 1/2 (the top rooms not joined, each then
+    goes down), the bottom one 1/2 * 1/4 (joined, both went down), each side 1/2 * 3/8 (joined, only
+    the other side went down, by its own draw or as the set's one forced passage).  Kruskal's
+    order is uniform: 1/4 each."""
+    from gym_gridloc.generators import eller_maze
+
+    shut = {"top": (1, 2), "bottom": (3, 2), "left": (2, 1), "right": (2, 3)}
+    expected = {"eller": {"top": 0.5, "bottom": 0.125, "left": 0.1875, "right": 0.1875},
+                "kruskal": {"top": 0.25, "bottom": 0.25, "left": 0.25, "right": 0.25}}
+    rng = np.random.default_rng(7)
+    n = 8000
+    for name, draw in (("eller", eller_maze), ("kruskal", perfect_maze)):
+        counts = dict.fromkeys(shut, 0)
+        for _ in range(n):
+            free = draw(5, seed=rng).free
+            closed = [w for w, (y, x) in shut.items() if not free[y, x]]
+            assert len(closed) == 1
+            counts[closed[0]] += 1
+        for w, p in expected[name].items():  # within 4.5 standard errors
+            assert abs(counts[w] / n - p) < 4.5 * np.sqrt(p * (1 - p) / n), (name, w, counts)
+
+
+def test_eller_first_row_walls_open_with_probability_one_half():
+    from gym_gridloc.generators import eller_maze
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    opened = np.zeros(4)
+    for _ in range(n):
+        opened += eller_maze(11, seed=rng).free[1, 2:10:2]  # the four walls between the first row's five rooms
+    assert np.all(np.abs(opened / n - 0.5) < 4.5 * np.sqrt(0.25 / n)), opened / n
+
+
+def test_rotation_symmetric_mazes_are_found_and_rejected():
+    from gym_gridloc.generators import eller_maze, is_rotation_symmetric, random_maze
+
+    pinwheel = np.full((7, 7), -1)
+    pinwheel[1::2, 1::2] = 0
+    for y, x in ((2, 3), (3, 4), (4, 3), (3, 2), (1, 4), (4, 5), (5, 2), (2, 1)):  # centre to every side, then turning
+        pinwheel[y, x] = 0
+    grid = gym_gridloc.GridMap(pinwheel, ("O",))
+    assert is_rotation_symmetric(grid)  # equal to its 90-degree turn
+    half = perfect_maze(7, seed=next(s for s in range(10_000) if is_rotation_symmetric(perfect_maze(7, seed=s))))
+    assert np.array_equal(half.labels, np.rot90(half.labels, 2))
+    assert not is_rotation_symmetric(perfect_maze(7, seed=0)) or not is_rotation_symmetric(perfect_maze(7, seed=1))
+    for generator, draw in (("kruskal", perfect_maze), ("eller", eller_maze)):
+        seed = next(s for s in range(10_000) if is_rotation_symmetric(draw(7, seed=s)))
+        rng, again = np.random.default_rng(seed), np.random.default_rng(seed)
+        kept = random_maze(7, np.random.default_rng(seed), generator=generator)
+        assert np.array_equal(kept.labels, draw(7, seed=seed).labels)  # without rejection: the plain draw
+        m = random_maze(7, rng, generator=generator, reject_symmetric=True)
+        assert not is_rotation_symmetric(m)
+        first = draw(7, seed=again)  # the symmetric one, drawn and dropped...
+        while is_rotation_symmetric(first):
+            first = draw(7, seed=again)
+        assert np.array_equal(m.labels, first.labels)  # ...then the next draws of the same generator
+        assert rng.random() == again.random()
+        drawn = [random_maze(7, rng, generator=generator, reject_symmetric=True) for _ in range(600)]
+        assert not any(is_rotation_symmetric(x) for x in drawn)
+    with pytest.raises(ValueError, match="generator must be one of 'kruskal', 'eller'"):
+        random_maze(7, 0, generator="prim")

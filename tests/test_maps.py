@@ -63,3 +63,30 @@ def test_a_held_out_map_is_an_episodes_map(env_id, size):
         assert env._referee.model is env.model
     env.reset(seed=0)  # without the option: the environment's own map again (or a redrawn one)
     assert env.model is first or env._map_factory is not None
+
+
+@pytest.mark.parametrize("generator", ["kruskal", "eller"])
+@pytest.mark.parametrize("size", [7, 15, 21])
+def test_depth_maze_variant_sets_are_stored_asymmetric_and_their_own(generator, size):
+    from gym_gridloc.generators import is_rotation_symmetric
+
+    name = maps.set_name("DepthMaze-v0", generator, True)
+    for purpose, draw in (("test", maps.test_set), ("validation", maps.validation_set)):
+        held = draw("DepthMaze-v0", size, 1000, generator=generator, reject_symmetric=True)
+        assert maps.checksum(held) == maps.CHECKSUMS[(name, purpose, size)]
+        assert not any(is_rotation_symmetric(m.grid) for m in held)
+    plain = maps.test_set("DepthMaze-v0", size, 50)
+    variant = maps.test_set("DepthMaze-v0", size, 50, generator=generator, reject_symmetric=True)
+    assert sum(np.array_equal(a.grid.labels, b.grid.labels) and a.state == b.state for a, b in zip(plain, variant)) < 10
+
+
+def test_the_default_depth_maze_set_keeps_its_symmetric_mazes_and_variants_are_checked():
+    from gym_gridloc.generators import is_rotation_symmetric
+
+    held = maps.test_set("DepthMaze-v0", 7)  # today's set, as it always was (its checksum above)
+    assert 0.02 < np.mean([is_rotation_symmetric(m.grid) for m in held]) < 0.1
+    assert maps.set_name("DepthMaze-v0") == "DepthMaze-v0"
+    with pytest.raises(ValueError, match="generator= and reject_symmetric= choose DepthMaze's maze variants"):
+        maps.test_set("WindyMaze-v0", 9, 3, generator="eller")
+    with pytest.raises(ValueError, match="generator must be 'kruskal' or 'eller'"):
+        maps.test_set("DepthMaze-v0", 7, 3, generator="prim", reject_symmetric=True)

@@ -256,3 +256,48 @@ def test_the_vector_steps_own_map_draws_are_those_of_the_map_factory(autoreset, 
         return a == b
 
     assert same(run(True), run(False))
+
+
+# -- maze variants: the generator and the rotation-symmetric mazes --------------------------------
+def test_the_protocol_rejects_rotation_symmetric_mazes_by_default():
+    from gym_gridloc.generators import is_rotation_symmetric
+
+    def symmetric_share(**kwargs):
+        env = gym.make("DepthMaze-v0", size=7, **kwargs).unwrapped
+        env.reset(seed=5)
+        count = 0
+        for _ in range(600):
+            env.reset()
+            count += is_rotation_symmetric(env.model.grid)
+        return count / 600
+
+    assert symmetric_share() > 0.02  # about 5% of 7x7 mazes equal their own rotation
+    assert symmetric_share(episode_length=15) == 0.0  # the research protocol: drawn again
+    assert symmetric_share(episode_length=15, reject_symmetric=False) > 0.02
+    assert symmetric_share(reject_symmetric=True, generator="eller") == 0.0
+    env = gym.make("DepthMaze-v0", episode_length=15).unwrapped
+    assert env.map_options == {"generator": "kruskal", "reject_symmetric": True}
+    assert env.map_factory.graph is None  # the vector env draws these mazes through the factory
+    assert gym.make("DepthMaze-v0").unwrapped.map_factory.graph is not None
+
+
+@pytest.mark.parametrize("generator", ["kruskal", "eller"])
+def test_the_generator_keyword_draws_its_mazes_from_the_reset_seed(generator):
+    from gym_gridloc.generators import random_maze
+
+    env = gym.make("DepthMaze-v0", size=9, generator=generator, reject_symmetric=False).unwrapped
+    for seed in (0, 3, 11):
+        env.reset(seed=seed)
+        a = env.model.grid.labels.copy()
+        env.reset(seed=seed)
+        assert np.array_equal(a, env.model.grid.labels)
+    fixed = gym.make("DepthMaze-v0", size=9, generator=generator, map_seed=4).unwrapped
+    assert np.array_equal(fixed.model.grid.labels, random_maze(9, 4, generator=generator).labels)
+    assert fixed.map_factory is None
+
+
+def test_maze_variant_keywords_are_checked():
+    with pytest.raises(ValueError, match=r"generator must be one of 'kruskal', 'eller' \(how perfect mazes are drawn\), got 'prim'"):
+        gym.make("DepthMaze-v0", generator="prim")
+    with pytest.raises(TypeError, match=r"reject_symmetric must be True, False or None, got 'yes'"):
+        gym.make("DepthMaze-v0", reject_symmetric="yes")
