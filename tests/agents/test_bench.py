@@ -254,10 +254,12 @@ def test_test_set_protocol_rows_report_accuracy_at_L(tmp_path, capsys):
     short = capsys.readouterr().out
     assert "| acc@L " in short and max(len(line) for line in short.splitlines() if line.startswith("|")) <= 100
     table = md.read_text()
-    assert "acc@L (95% CI)" in table and "DepthMaze-v0 episode_length=6, size=7, test maps | greedy |" in table
+    assert "acc@L (95% CI)" in table
+    assert "DepthMaze-v0 episode_length=6, generator=kruskal, reject_symmetric=True, size=7, test maps | greedy |" in table
     rows = json.loads(js.read_text())
-    for r in rows:
-        assert r["test_set"] and r["episode_length"] == 6 and r["env_kwargs"] == {"size": 7, "episode_length": 6}
+    for r in rows:  # the rows name the maze variant of their test set (the protocol rejects symmetric mazes)
+        assert r["test_set"] and r["episode_length"] == 6
+        assert r["env_kwargs"] == {"size": 7, "episode_length": 6, "generator": "kruskal", "reject_symmetric": True}
         assert 0 <= r["accuracy_at_L"] <= r["argmax_accuracy_at_L"] <= 1
         lo, hi = r["accuracy_at_L_ci95"]
         assert lo <= r["accuracy_at_L"] <= hi
@@ -271,7 +273,7 @@ def test_test_set_protocol_rows_report_accuracy_at_L(tmp_path, capsys):
     from gym_gridloc_agents.policies import make_policy
     from gym_gridloc_agents.evaluation.rollout import rollout
 
-    m = maps.test_set("DepthMaze-v0", 7, 5)[2]
+    m = maps.test_set("DepthMaze-v0", 7, 5, reject_symmetric=True)[2]
     env = HMMBeliefWrapper(gym.make("DepthMaze-v0", size=7, episode_length=6), full_state=True)
     ep = rollout(env, make_policy("greedy", env.unwrapped.model, pose=True), m.index, keep=True,
                  reset_options={"map": m.grid, "state": m.state})
@@ -444,3 +446,17 @@ def test_warm_up_changes_nothing_but_the_timings(env_id, policy):
     for key in cold:
         if key not in ("seconds", "decision_seconds"):
             assert np.array_equal(np.asarray(cold[key]), np.asarray(warm[key])), key
+
+
+def test_depth_maze_test_sets_follow_the_maze_variant():
+    from gym_gridloc import maps
+    from gym_gridloc_agents.evaluation.bench import episode_specs
+
+    for kwargs, variant in (({"size": 7, "episode_length": 15, "generator": "eller"}, {"generator": "eller", "reject_symmetric": True}),
+                            ({"size": 7, "episode_length": 15}, {"generator": "kruskal", "reject_symmetric": True}),
+                            ({"size": 7, "episode_length": 15, "reject_symmetric": False}, {}),
+                            ({"size": 7}, {})):
+        specs = episode_specs("DepthMaze-v0", kwargs, 4, 10, True)
+        held = maps.test_set("DepthMaze-v0", 7, 4, **variant)
+        assert [s for s, _ in specs] == [10 + m.index for m in held]
+        assert all(np.array_equal(o["map"].labels, m.grid.labels) and o["state"] == m.state for (_, o), m in zip(specs, held))
