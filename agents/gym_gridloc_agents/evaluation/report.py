@@ -28,8 +28,8 @@ def read_rows(path: str | Path) -> list[dict[str, Any]]:
 
 
 def public_row(row: dict[str, Any]) -> dict[str, Any]:
-    """A row without its curves (for tables)."""
-    return {k: v for k, v in row.items() if not k.endswith("_curve")}
+    """A row without its curves and its per-episode results (for tables)."""
+    return {k: v for k, v in row.items() if not k.endswith("_curve") and k != "per_episode"}
 
 
 def row_key(row: dict[str, Any]) -> tuple[str, str, str]:
@@ -71,8 +71,8 @@ def policy_label(row: dict[str, Any]) -> str:
     label = row["policy"]
     if row.get("options"):
         label += " (" + ", ".join(f"{k}={_short(v)}" for k, v in sorted(row["options"].items())) + ")"
-    if "seeds" in row:
-        label += f" ({row['seeds']} seeds, IQM {row['mean_steps_iqm']:.2f})"
+    if "seeds" in row:  # below 4 seeds the IQM trims nothing: it is the mean, not worth a second number
+        label += f" ({row['seeds']} seeds, IQM {row['mean_steps_iqm']:.2f})" if row["seeds"] >= 4 else f" ({row['seeds']} seeds)"
     return label
 
 
