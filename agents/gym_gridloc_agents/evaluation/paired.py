@@ -90,6 +90,18 @@ def pairs(rows: Sequence[dict[str, Any]], **kwargs: Any) -> list[dict[str, Any]]
     return out
 
 
+def attach_pairs(rows: Sequence[dict[str, Any]], **kwargs: Any) -> list[dict[str, Any]]:
+    """:func:`pairs` of ``rows``, each also kept in its row A's ``pairs`` list (``gridloc bench --compare``)."""
+    found = []
+    for a in rows:
+        a.pop("pairs", None)
+    for a, b in itertools.combinations(rows, 2):
+        if task_key(a) == task_key(b) and (c := compare(a, b, **kwargs)) is not None:
+            a.setdefault("pairs", []).append(c)
+            found.append(c)
+    return found
+
+
 def pairs_table(found: Sequence[dict[str, Any]]) -> str:
     """The pairs as a markdown table (A - B with its interval, what the interval is over, the
     probability that A does better on an episode, the verdict, McNemar's p under the protocol)."""
@@ -106,4 +118,4 @@ def pairs_table(found: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["compare", "mcnemar", "pairs", "pairs_table", "verdict"]
+__all__ = ["attach_pairs", "compare", "mcnemar", "pairs", "pairs_table", "verdict"]

@@ -93,15 +93,17 @@ def _or_dash(value: Any, spec: str) -> str:
 
 def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     """The rows as a markdown table.  Columns that no row has (accuracy at the episode length,
-    the gap to the best planner) are left out."""
+    the gap to the best planner, the normalised score) are left out."""
     budgets = list(rows[0]["accuracy_at"]) if rows else []
     with_L = any("accuracy_at_L" in r for r in rows)
     with_gap = any(r.get("gap_to_best_planner") is not None for r in rows)
     with_ms = any("ms_per_decision" in r for r in rows)
+    with_score = any(r.get("normalised_score") is not None for r in rows)
     head = ["env", "policy", "episodes", "mean steps (95% CI)", "median", "success", "truncated", "correct if localised",
             *[f"acc@{b}" for b in budgets]]
     head += ["acc@L (95% CI)", "argmax acc@L", "L"] if with_L else []
     head += ["/ best planner"] if with_gap else []
+    head += ["normalised score"] if with_score else []
     head += ["ms/decision"] if with_ms else []
     head += ["seconds"]
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] * len(head)) + "|"]
@@ -120,6 +122,8 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
                 cells += ["-", "-", "-"]
         if with_gap:
             cells.append(_or_dash(r.get("gap_to_best_planner"), ".3f"))
+        if with_score:
+            cells.append(_or_dash(r.get("normalised_score"), ".3f"))
         if with_ms:
             cells.append(_or_dash(r.get("ms_per_decision"), ".3g"))
         cells.append(f"{r['seconds']:.1f}")
@@ -134,7 +138,7 @@ TERMINAL_WIDTH = 100
 def terminal_table(rows: Sequence[dict[str, Any]], width: int = TERMINAL_WIDTH) -> str:
     """The rows as a short, aligned markdown table that fits ``width`` characters: env, policy,
     mean steps (95% CI), success, acc@10, ms/decision, and, where rows have them, the gap to the
-    best planner and the accuracy at the episode length L.  The full table (every budget, median,
+    best planner, the normalised score (``norm.``) and the accuracy at the episode length L.  The full table (every budget, median,
     truncated, ...) is :func:`markdown_table` (``gridloc bench --markdown PATH``; every number:
     ``--json PATH``).  To fit, long labels are shortened (``~`` marks the cut), then the optional
     columns dropped from the right (the gap first, acc@L last), then the labels shortened more."""
@@ -149,6 +153,8 @@ def terminal_table(rows: Sequence[dict[str, Any]], width: int = TERMINAL_WIDTH) 
     optional: list[tuple[str, Any]] = []  # the first ones are kept longest
     if with_L:
         optional.append(("acc@L", lambda r: _or_dash(r.get("accuracy_at_L"), ".3f")))
+    if any(r.get("normalised_score") is not None for r in rows):
+        optional.append(("norm.", lambda r: _or_dash(r.get("normalised_score"), ".2f")))
     optional.append(("ms/dec", lambda r: _or_dash(r.get("ms_per_decision"), ".3g")))
     if with_gap:
         optional.append(("/ best", lambda r: _or_dash(r.get("gap_to_best_planner"), ".2f")))

@@ -1,0 +1,101 @@
+"""``gridloc report``: every marked table of the repository's markdown files is what the results
+files give (a number edited by hand fails here), and the command's check, rewrite and errors."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from gym_gridloc_agents.cli import main
+from gym_gridloc_agents.evaluation.report_command import OPEN, markers, report
+
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS = ROOT / "results"
+
+
+def marked_files() -> list[Path]:
+    """The repository's markdown files that hold gridloc-report markers (README.md once it has them)."""
+    found = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    return [p for p in found if p.is_file() and OPEN.search(p.read_text(encoding="utf-8"))]
+
+
+def test_results_page_has_generated_tables():
+    assert ROOT / "docs" / "results.md" in marked_files()
+    names = [name for name, _, _ in markers((ROOT / "docs" / "results.md").read_text(encoding="utf-8"))]
+    assert {"rows:bench", "rows:bench_10k"} <= set(names) and any(n.startswith("aggregate:") for n in names)
+
+
+@pytest.mark.parametrize("path", marked_files(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_marked_tables_are_what_gridloc_report_writes(path):
+    stale = report([path], RESULTS, check=True)
+    assert not stale, f"{path.relative_to(ROOT)}: a table differs from the results files; run `gridloc report`"
+
+
+def _edited(tmp_path) -> tuple[Path, str]:
+    """A copy of docs/results.md with one number inside a generated table changed."""
+    text = (ROOT / "docs" / "results.md").read_text(encoding="utf-8")
+    name, start, end = next(m for m in markers(text) if m[0] == "rows:bench")
+    block = text[start:end]
+    changed = re.sub(r"\| 5\.79 \(", "| 5.71 (", block, count=1)
+    assert changed != block
+    copy = tmp_path / "results.md"
+    copy.write_text(text[:start] + changed + text[end:], encoding="utf-8")
+    return copy, text
+
+
+def test_check_fails_on_a_hand_edited_number_and_the_report_mends_it(tmp_path, capsys):
+    copy, original = _edited(tmp_path)
+    assert main(["report", str(copy), "--results", str(RESULTS), "--check"]) == 1
+    assert "stale" in capsys.readouterr().err
+    assert copy.read_text(encoding="utf-8") != original  # --check writes nothing
+    assert main(["report", str(copy), "--results", str(RESULTS)]) == 0
+    assert copy.read_text(encoding="utf-8") == original
+    assert main(["report", str(copy), "--results", str(RESULTS), "--check"]) == 0
+
+
+def test_text_outside_the_markers_is_kept_and_a_new_table_is_filled(tmp_path):
+    doc = tmp_path / "doc.md"
+    doc.write_text("before 1.23\n<!-- gridloc-report:rows:bench_depthmaze7 -->\nold\n<!-- /gridloc-report:rows:bench_depthmaze7 -->\nafter\n")
+    assert report([doc], RESULTS) == [doc]
+    text = doc.read_text()
+    assert text.startswith("before 1.23\n<!-- gridloc-report:rows:bench_depthmaze7 -->\n| task |") and text.endswith(
+        "|\n<!-- /gridloc-report:rows:bench_depthmaze7 -->\nafter\n")
+    rows = json.loads((RESULTS / "bench_depthmaze7.json").read_text())
+    assert f"{rows[0]['accuracy_at_L']:.3f}" in text and "old" not in text
+    assert report([doc], RESULTS, check=True) == []
+
+
+@pytest.mark.parametrize("body, message", [
+    ("<!-- gridloc-report:rows:bench -->\nno end\n", "has no closing"),
+    ("<!-- gridloc-report:nosuch:bench -->\n<!-- /gridloc-report:nosuch:bench -->\n", "unknown table"),
+    ("<!-- gridloc-report:rows:missing_file -->\n<!-- /gridloc-report:rows:missing_file -->\n", "no such results file"),
+])
+def test_bad_markers_get_one_line_and_exit_status_2(tmp_path, capsys, body, message):
+    doc = tmp_path / "doc.md"
+    doc.write_text(body)
+    assert main(["report", str(doc), "--results", str(RESULTS)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("gridloc report: error: ") and message in err and str(doc) in err
+    assert doc.read_text() == body
+
+
+def test_bench_compare_prints_pairs_and_keeps_them_in_the_rows(tmp_path, capsys):
+    out = tmp_path / "rows.json"
+    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "random,greedy2", "--episodes", "40", "--no-progress",
+                 "--compare", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| ColourGrid-v0 | random | greedy2 | steps | 40 |" in printed
+    rows = json.loads(out.read_text())
+    pair = rows[0]["pairs"][0]
+    steps = [[int(v) for v in r["per_episode"]["steps"][0].split()] for r in rows]
+    assert pair["difference"] == pytest.approx(sum(a - b for a, b in zip(*steps)) / 40)
+    lo, hi = pair["ci95"]
+    assert pair["verdict"] == ("worse" if lo > 0 else "better" if hi < 0 else "tie")
+    assert rows[0]["normalised_score"] == 0.0 and "pairs" not in rows[1]
+    # the pairs table of the report reads the same rows
+    doc = tmp_path / "doc.md"
+    doc.write_text("<!-- gridloc-report:pairs:rows -->\n<!-- /gridloc-report:pairs:rows -->\n")
+    assert report([doc], tmp_path) == [doc] and "| ColourGrid-v0 | random | greedy2 | steps | 40 |" in doc.read_text()
