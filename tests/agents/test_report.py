@@ -99,3 +99,32 @@ def test_bench_compare_prints_pairs_and_keeps_them_in_the_rows(tmp_path, capsys)
     doc = tmp_path / "doc.md"
     doc.write_text("<!-- gridloc-report:pairs:rows -->\n<!-- /gridloc-report:pairs:rows -->\n")
     assert report([doc], tmp_path) == [doc] and "| ColourGrid-v0 | random | greedy2 | steps | 40 |" in doc.read_text()
+
+
+def test_bench_plot_legend_names_the_episodes_of_curves_on_different_counts(tmp_path, monkeypatch):
+    from gym_gridloc_agents.evaluation import report as rep
+
+    seen = {}
+    monkeypatch.setattr(rep, "save_figure", lambda fig, path, title=None, **kw: seen.update(fig=fig, title=title))
+    rows = json.loads((RESULTS / "bench.json").read_text())
+    ring = [r for r in rows if r["env"] == "RingSensor8x8-v0" and r["policy"] in ("random", "pomcp")]
+    assert [r["episodes"] for r in ring] == [1000, 20]
+    rep.plot(ring, tmp_path / "x.png")
+    labels = [t.get_text() for t in seen["fig"].axes[0].get_legend().get_texts()]
+    assert "episodes 0-999" in labels[0] and "episodes 0-19" in labels[1] and "legend" in seen["title"]
+    rep.plot(ring[:1], tmp_path / "x.png")
+    assert "the same 1000 episodes" in seen["title"]
+
+
+def test_learning_curves_legend_says_which_episodes_curves_and_lines_use(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    from gym_gridloc_agents.evaluation import curves
+
+    seen = []
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig",
+                        lambda fig, *a, **k: seen.extend(t.get_text() for t in fig.axes[0].get_legend().get_texts()))
+    c = {"label": "ppo", "seeds": [0, 1], "steps": [0, 10], "wall_time_seconds": [1.0, 2.0], "iqm": [5.0, 4.0],
+         "ci95": [[4.5, 5.5], [3.5, 4.5]], "metric": "mean_steps", "env_id": "WindyMaze-v0"}
+    curves.plot_curves([c], {"greedy2": 4.6}, tmp_path / "c.png")
+    assert any("validation episodes" in t for t in seen) and any("greedy2" in t and "benchmark episodes" in t for t in seen)

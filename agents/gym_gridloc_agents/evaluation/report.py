@@ -221,9 +221,11 @@ def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None 
     if len(envs) != 1:
         raise ValueError(f"plot() takes the rows of one environment, got {sorted(envs)}")
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(9, 3.4), dpi=90)
+    counts = {r["episodes"] for r in rows}  # curves on different numbers of episodes: each says its own
     for r in rows:
         x = np.arange(len(r["localised_curve"]))
-        (line,) = ax1.plot(x, r["localised_curve"], label=f"{policy_label(r)} (mean {r['mean_steps']:.1f})")
+        episodes = "" if len(counts) == 1 else f", episodes {r.get('seed_start', 0)}-{r.get('seed_start', 0) + r['episodes'] - 1}"
+        (line,) = ax1.plot(x, r["localised_curve"], label=f"{policy_label(r)} (mean {r['mean_steps']:.1f}{episodes})")
         ax2.plot(np.arange(len(r["accuracy_curve"])), r["accuracy_curve"], color=line.get_color(), label=r["policy"])
         ks = [int(k) for k in r["accuracy_at"]]
         ax2.plot(ks, [r["accuracy_at"][str(k)] for k in ks], "o", color=line.get_color(), ms=4)
@@ -240,7 +242,8 @@ def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None 
     for ax in (ax1, ax2):
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
-    save_figure(fig, path, title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy")
+    same = f"the same {rows[0]['episodes']} episodes per policy" if len(counts) == 1 else "the first episodes of one seed list (legend)"
+    save_figure(fig, path, title or f"{next(iter(envs))}: {same}")
 
 
 def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None = None) -> None:
