@@ -128,3 +128,10 @@ def test_learning_curves_legend_says_which_episodes_curves_and_lines_use(tmp_pat
          "ci95": [[4.5, 5.5], [3.5, 4.5]], "metric": "mean_steps", "env_id": "WindyMaze-v0"}
     curves.plot_curves([c], {"greedy2": 4.6}, tmp_path / "c.png")
     assert any("validation episodes" in t for t in seen) and any("greedy2" in t and "benchmark episodes" in t for t in seen)
+
+
+def test_a_marker_quoted_inside_a_line_is_no_marker(tmp_path):
+    doc = tmp_path / "doc.md"
+    body = "Tables sit between `<!-- gridloc-report:rows:bench -->` and its closing marker.\n"
+    doc.write_text(body)
+    assert markers(body) == [] and report([doc], RESULTS, check=True) == []

@@ -1,6 +1,6 @@
 """``gridloc report``: the result tables of markdown files, written from the results files.
 
-A markdown file asks for a table with a pair of markers::
+A markdown file asks for a table with a pair of markers, each a line of its own::
 
     <!-- gridloc-report:rows:bench -->
     (the table; gridloc report replaces everything between the markers)
@@ -23,8 +23,8 @@ from typing import Callable
 
 #: The markdown files ``gridloc report`` updates by default.
 DEFAULT_FILES = ("README.md", "docs/results.md")
-#: An opening marker, its name, and (after it) the closing marker of the same name.
-OPEN = re.compile(r"<!-- gridloc-report:(?P<name>[^\s>]+) -->")
+#: An opening marker (a line of its own) and its name; the closing marker of the same name follows it.
+OPEN = re.compile(r"^<!-- gridloc-report:(?P<name>[^\s>]+) -->[ \t]*$", re.M)
 
 
 def markers(text: str) -> list[tuple[str, int, int]]:
@@ -34,7 +34,8 @@ def markers(text: str) -> list[tuple[str, int, int]]:
     while (m := OPEN.search(text, pos)) is not None:
         name = m.group("name")
         close = f"<!-- /gridloc-report:{name} -->"
-        end = text.find(close, m.end())
+        closing = re.compile(rf"^{re.escape(close)}[ \t]*$", re.M).search(text, m.end())
+        end = closing.start() if closing is not None else -1
         inner = OPEN.search(text, m.end())
         line = text.count("\n", 0, m.start()) + 1
         if end < 0:
