@@ -90,3 +90,28 @@ def test_bad_suite_arguments_get_one_line_and_exit_status_2(tmp_path, capsys, ar
     err = capsys.readouterr().err
     assert err.startswith("gridloc suite: error: ") and message in err
     assert not (tmp_path / "s.json").exists()
+
+
+def test_jobs_address_and_a_models_folder_reach_the_benchmark(tmp_path, monkeypatch):
+    import shutil
+
+    from gym_gridloc_agents.evaluation import bench
+    from gym_gridloc_agents.policies import default_model_path
+
+    seeds = tmp_path / "models" / "DepthMaze-v0-size7-ppo"  # one model per seed, in a directory of the shipped name
+    seeds.mkdir(parents=True)
+    shipped = default_model_path("DepthMaze-v0", "ppo", {"size": 7})
+    for i in range(2):
+        shutil.copy(shipped, seeds / f"seed{i}.zip")
+        meta = json.loads(shipped.with_suffix(".json").read_text())
+        (seeds / f"seed{i}.json").write_text(json.dumps({**meta, "seed": i}))
+    seen = []
+    monkeypatch.setattr(bench, "run_benchmark", lambda env_ids, policies, episodes, **kw: seen.append((policies, kw)) or [])
+    suite.run_suite(["random", "ppo", "distilled"], 5, tmp_path / "s.json", tasks=["depthmaze7-L15-eller"], jobs=2,
+                    address=None, models=tmp_path / "models", progress=False)
+    suite.run_suite(["random"], 5, tmp_path / "s.json", tasks=["windymaze"], address="auto", progress=False)
+    (policies, kw), (_, kw2) = seen
+    assert policies == ["random", "ppo", "distilled"] and kw["jobs"] == 2 and kw2["address"] == "auto"
+    assert kw["ppo_model"] == [seeds / "seed0.zip", seeds / "seed1.zip"]  # the row across the folder's seeds
+    assert kw["distilled_model"] == [default_model_path("DepthMaze-v0", "distilled", {"size": 7})]  # none there: shipped
+    assert kw["test_set"] and kw["env_kwargs"]["generator"] == "eller"
