@@ -135,3 +135,16 @@ def test_a_marker_quoted_inside_a_line_is_no_marker(tmp_path):
     body = "Tables sit between `<!-- gridloc-report:rows:bench -->` and its closing marker.\n"
     doc.write_text(body)
     assert markers(body) == [] and report([doc], RESULTS, check=True) == []
+
+
+def test_rows_across_seeds_of_older_files_show_the_seeds_range_not_an_interval():
+    from gym_gridloc_agents.evaluation import tables
+
+    text = tables.table("rows:bench_10k", RESULTS)
+    rows = json.loads((RESULTS / "bench_10k.json").read_text())
+    ppo = next(r for r in rows if r["policy"] == "ppo" and r["env"] == "WindyMaze-v0")
+    assert "iqm_trimmed" not in ppo  # written before intervals resampled seeds and episodes
+    values = [s["mean_steps"] for s in ppo["per_seed"]]
+    lo, hi = ppo["mean_steps_ci95"]
+    assert f"{ppo['mean_steps']:.2f} (seeds {min(values):.2f}-{max(values):.2f})" in text
+    assert f"({lo:.2f}-{hi:.2f})" not in text

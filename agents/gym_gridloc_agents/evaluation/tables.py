@@ -5,7 +5,7 @@ A table is named ``KIND:SOURCES``: ``SOURCES`` is one or more results files join
 the stem of a bench JSON in the results directory (``bench`` is ``results/bench.json``).  Kinds:
 
 - ``rows``: one line per row: mean steps (or accuracy at L under the protocol) with its 95%
-  interval, median, success, ms per decision, the ratio to the best planner, the normalised score;
+  interval (a row across seeds from an older file: the seeds' range instead), median, success, ms per decision, the ratio to the best planner, the normalised score;
 - ``seeds``: the rows across training seeds: each seed's value, their mean, their IQM (only from 4
   seeds on: below, nothing is trimmed), and the 95% interval with what it is over;
 - ``references``: per task, the metric and the two points of the normalised score;
@@ -69,7 +69,11 @@ def rows_table(files) -> str:
         for r in rows:
             col, _lower = metric(r)
             digits = 3 if col == "accuracy_at_L" else 2
-            value = f"{r[col]:.{digits}f} ({_ci(r.get(f'{col}_ci95'), digits)})" + (" acc@L" if col == "accuracy_at_L" else "")
+            interval = _ci(r.get(f"{col}_ci95"), digits)
+            if "seeds" in r and "iqm_trimmed" not in r:  # an older file's interval over the seeds' means alone: their range
+                values = [s[col] for s in r.get("per_seed", []) if s.get(col) is not None]
+                interval = f"seeds {min(values):.{digits}f}-{max(values):.{digits}f}" if values else "-"
+            value = f"{r[col]:.{digits}f} ({interval})" + (" acc@L" if col == "accuracy_at_L" else "")
             episodes = f"{r['episodes']} x {r['seeds']}" if "seeds" in r else str(r["episodes"])
             lines.append(f"| {_label(r)} | {_name(r)} | {episodes} | {value} | {r['median_steps']:g} | {r['success_rate']:.3f} | "
                          f"{_f(r.get('ms_per_decision'), '.3g')} | {_f(r.get('gap_to_best_planner'), '.3f')} | "
