@@ -148,3 +148,18 @@ def test_rows_across_seeds_of_older_files_show_the_seeds_range_not_an_interval()
     lo, hi = ppo["mean_steps_ci95"]
     assert f"{ppo['mean_steps']:.2f} (seeds {min(values):.2f}-{max(values):.2f})" in text
     assert f"({lo:.2f}-{hi:.2f})" not in text
+
+
+def test_bench_tables_show_the_normalised_score_where_rows_have_one():
+    from gym_gridloc_agents.evaluation.report import markdown_table, terminal_table
+    from gym_gridloc_agents.evaluation.rows import add_gaps
+
+    rows = add_gaps([r for r in json.loads((RESULTS / "bench.json").read_text())
+                     if r["env"] == "WindyMaze-v0" and r["policy"] in ("random", "greedy2", "expectimax")])
+    assert [r["normalised_score"] for r in rows][0] == 0.0 and rows[2]["normalised_score"] is not None
+    short, full = terminal_table(rows, width=200), markdown_table(rows)
+    assert "norm." in short.splitlines()[0] and f"{rows[2]['normalised_score']:.2f}" in short
+    assert "normalised score" in full.splitlines()[0] and f"{rows[2]['normalised_score']:.3f}" in full
+    for r in rows:
+        r.pop("normalised_score")
+    assert "norm." not in terminal_table(rows, width=200) and "normalised" not in markdown_table(rows)
