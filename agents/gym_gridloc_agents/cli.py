@@ -10,6 +10,8 @@
     gridloc bench --env WindyMaze-v0 --policies greedy2,expectimax,ppo --option expectimax.depth=3 --frontier f.png
     gridloc bound ColourGrid-v0 --depth 5   # no policy can localise faster than this
     gridloc plot [results/bench.json]
+    gridloc suite --episodes 1000 --jobs 2 # every task of the benchmark into results/suite.json (resumable)
+    gridloc report [--check]               # the result tables of README.md and docs/results.md from results/
     gridloc view WindyMaze-v0 --policy ppo       # step through an episode (the render extra: pygame-ce)
     gridloc play DepthMaze-v0                    # drive the robot with the arrow keys
     gridloc sweep configs/ppo_colourgrid.yml --seeds 5 --grid hyperparams.learning_rate=1e-4,3e-4 \
@@ -78,6 +80,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--address", metavar="ADDRESS",
                    help="run the chunks of episodes as Ray tasks on this running Ray cluster (HOST:PORT, or auto; the 'sweep' "
                         "extra): the same rows as a local run, each saying where its chunks ran (docs/cluster.md)")
+    b.add_argument("--compare", action="store_true",
+                   help="also compare every two policies of a task on their common episodes: the mean difference with a "
+                        "paired bootstrap 95%% interval, the probability of improvement and a verdict (better, tie, worse: "
+                        "whether the interval excludes 0); kept in the JSON rows as 'pairs'")
     b.add_argument("--update", action="store_true",
                    help="merge the new rows into the existing JSON file (the same environment, policy and options: replaced) and plot the merged rows")
     b.add_argument("--force", action="store_true", help="replace an existing results JSON (default: refused; see --update)")
@@ -132,6 +138,30 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--curves-json", metavar="PATH.json", help="with --curves: also write the curves and sample efficiency as JSON")
     q.add_argument("--out", metavar="PATH.png", default=None,
                    help="the --training or --curves plot (default results/training.png, results/curves.png)")
+
+    st = sub.add_parser("suite", help="run every task of the benchmark (fixed maps, random maps, DepthMaze test sets) "
+                                      "into one results JSON, resumable")
+    st.add_argument("--policies", default=None,
+                    help="comma-separated policy names (default per task: random, greedy2, the task's optimum or best "
+                         "planner, distilled, ppo)")
+    st.add_argument("--tasks", default=None, help="comma-separated suite tasks (default: all; the names are in docs/results.md)")
+    st.add_argument("--episodes", type=int, default=1000, help="episodes per task and policy (default 1000)")
+    st.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode i uses seed+i)")
+    st.add_argument("--json", default=str(RESULTS / "suite.json"), metavar="PATH",
+                    help="the results JSON, merged into after every task (default results/suite.json)")
+    st.add_argument("--models", metavar="DIR",
+                    help="a folder of models named as the shipped ones (<env_id>[-size<N>]-<method>.zip), or of directories of "
+                         "that stem holding one model per seed; the shipped models otherwise")
+    st.add_argument("--jobs", type=int, default=1, help="parallel processes, each running chunks of episodes (default 1)")
+    st.add_argument("--address", metavar="ADDRESS", help="run the chunks as Ray tasks on this Ray cluster (HOST:PORT or auto)")
+    st.add_argument("--torch-threads", type=int, default=1, metavar="N", help="torch threads of the learned policies (default 1)")
+    st.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+    rp = sub.add_parser("report", help="write the result tables of markdown files from the results files (between "
+                                       "<!-- gridloc-report:NAME --> markers)")
+    rp.add_argument("files", nargs="*", metavar="FILE.md", help="markdown files (default: README.md and docs/results.md)")
+    rp.add_argument("--results", default=str(RESULTS), metavar="DIR", help="the results files' directory (default results)")
+    rp.add_argument("--check", action="store_true", help="write nothing; exit 1 if a file's tables differ from the results files")
     return p
 
 
@@ -240,6 +270,18 @@ def _plot_curves(args) -> int:
     return 0
 
 
+def _report(args) -> int:
+    from gym_gridloc_agents.evaluation.report_command import report_main
+
+    return report_main(args)
+
+
+def _suite(args) -> int:
+    from gym_gridloc_agents.evaluation.suite import suite_main
+
+    return suite_main(args)
+
+
 def _train(args) -> int:
     from gym_gridloc.core.validation import check_int
     from gym_gridloc_agents.training.config import ConfigError
@@ -297,8 +339,10 @@ def _sweep(args) -> int:
 RL_MODULES = ("tqdm", "yaml", "matplotlib", "torch", "stable_baselines3", "sb3_contrib")
 #: The modules each subcommand needs beyond the core install.
 NEEDS = {"train": RL_MODULES, "bench": RL_MODULES, "render": ("matplotlib",), "plot": ("matplotlib",), "reproduce": (),
-         "bound": ("yaml",), "sweep": (*RL_MODULES, "ray", "optuna")}
-COMMANDS = {"train": "_train", "bench": "bench_main", "render": "_render", "plot": "_plot", "sweep": "_sweep", "bound": "bound_main"}
+         "bound": ("yaml",), "sweep": (*RL_MODULES, "ray", "optuna"), "report": (),
+         "suite": RL_MODULES}
+COMMANDS = {"train": "_train", "bench": "bench_main", "render": "_render", "plot": "_plot", "sweep": "_sweep", "bound": "bound_main",
+            "report": "_report", "suite": "_suite"}
 
 
 def missing_modules(command: str) -> list[str]:

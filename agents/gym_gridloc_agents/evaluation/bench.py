@@ -25,10 +25,14 @@ its start state.  A row holds:
 
 Several PPO models (one per training seed, e.g. a sweep's ``models/<configuration>/``) give one
 ``ppo`` row across seeds: every model plays the same episodes; ``mean_steps`` is the mean of the
-per-seed mean steps, ``mean_steps_iqm`` their interquartile mean and ``mean_steps_ci95`` a
-bootstrap 95% interval across seeds (:mod:`gym_gridloc_agents.evaluation.stats`; so are ``success_rate_ci95``
-and ``accuracy_at_ci95``); rates, curves and ``median_steps`` pool the episodes of all seeds;
-``per_seed`` holds each model's own numbers.  Tables and figures: :mod:`gym_gridloc_agents.evaluation.report`.
+per-seed mean steps, ``mean_steps_iqm`` their interquartile mean (the mean below 4 seeds) and
+``mean_steps_ci95`` a 95% interval resampling the seeds, then the common episodes
+(:func:`gym_gridloc_agents.evaluation.stats.hierarchical_ci`; so are ``success_rate_ci95``,
+``accuracy_at_ci95`` and ``accuracy_at_L_ci95``), ``mean_steps_seed_range`` the seeds' lowest and
+highest; rates, curves and ``median_steps`` pool the episodes of all seeds; ``per_seed`` holds each
+model's own numbers.  Every row also keeps its episodes' results (``per_episode``, for paired
+comparisons) and its ``normalised_score`` (:mod:`gym_gridloc_agents.evaluation.scores`).  Tables and
+figures: :mod:`gym_gridloc_agents.evaluation.report`.
 """
 
 from __future__ import annotations

@@ -212,6 +212,11 @@ def _write_bench(args, rows, labels, json_path, frontier, table, here) -> int:
     mine = [r for r in rows if env_label(r) in labels]
 
     print(terminal_table(rows))  # fits 100 columns; the full table: --markdown, every number: --json
+    if getattr(args, "compare", False):  # every pair of rows of a task, on their common episodes
+        from gym_gridloc_agents.evaluation.paired import attach_pairs, pairs_table
+
+        found = attach_pairs(rows)
+        print("\n" + pairs_table(found) if found else "(no pairs: no two rows of one task keep their episodes' results)")
     if not (args.markdown or json_path):
         print("(a short table; every column: --markdown PATH, every number: --json PATH)", file=sys.stderr)
     # (path or None, write, what, text before "wrote"); --all: a plot per environment

@@ -135,7 +135,8 @@ def sample_efficiency(c: dict[str, Any], lines: dict[str, float]) -> dict[str, A
 
 def plot_curves(curves: Sequence[dict[str, Any]], lines: dict[str, float], out: str | Path, *, title: str = "") -> None:
     """IQM curves with their 95% bands against environment steps (left) and wall time (right),
-    the baselines as horizontal lines."""
+    the baselines as horizontal lines; the legend says which episodes each uses (the curves: the
+    trainings' validation episodes; the lines: the benchmark's)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -160,12 +161,13 @@ def plot_curves(curves: Sequence[dict[str, Any]], lines: dict[str, float], out: 
             xs = np.array([x[i] for i in keep], dtype=float)
             lo = [c["ci95"][i][0] for i in keep]
             hi = [c["ci95"][i][1] for i in keep]
-            line, = ax.plot(xs, [c["iqm"][i] for i in keep], marker=".", label=f"{c['label']} (IQM of {len(c['seeds'])} seeds)")
+            line, = ax.plot(xs, [c["iqm"][i] for i in keep], marker=".",
+                            label=f"{c['label']} (IQM of {len(c['seeds'])} seeds, validation episodes)")
             ax.fill_between(xs, lo, hi, color=line.get_color(), alpha=0.2)
         for name, value in lines.items():
             colour, style = styles.get(name, ("black", ":"))
             if lo_y <= value <= hi_y:
-                ax.axhline(value, color=colour, linestyle=style, linewidth=1.2, label=f"{name} {value:.4g}")
+                ax.axhline(value, color=colour, linestyle=style, linewidth=1.2, label=f"{name} {value:.4g} (benchmark episodes)")
             else:  # far off the curves (the random walk, usually): named at the edge, not drawn
                 ax.annotate(f"{name} {value:.4g} ({'above' if value > hi_y else 'below'})", xy=(0.99, 0.98 if value > hi_y else 0.02),
                             xycoords="axes fraction", ha="right", va="top" if value > hi_y else "bottom", color=colour, fontsize=8)

@@ -28,8 +28,8 @@ def read_rows(path: str | Path) -> list[dict[str, Any]]:
 
 
 def public_row(row: dict[str, Any]) -> dict[str, Any]:
-    """A row without its curves (for tables)."""
-    return {k: v for k, v in row.items() if not k.endswith("_curve")}
+    """A row without its curves and its per-episode results (for tables)."""
+    return {k: v for k, v in row.items() if not k.endswith("_curve") and k != "per_episode"}
 
 
 def row_key(row: dict[str, Any]) -> tuple[str, str, str]:
@@ -71,8 +71,8 @@ def policy_label(row: dict[str, Any]) -> str:
     label = row["policy"]
     if row.get("options"):
         label += " (" + ", ".join(f"{k}={_short(v)}" for k, v in sorted(row["options"].items())) + ")"
-    if "seeds" in row:
-        label += f" ({row['seeds']} seeds, IQM {row['mean_steps_iqm']:.2f})"
+    if "seeds" in row:  # below 4 seeds the IQM trims nothing: it is the mean, not worth a second number
+        label += f" ({row['seeds']} seeds, IQM {row['mean_steps_iqm']:.2f})" if row["seeds"] >= 4 else f" ({row['seeds']} seeds)"
     return label
 
 
@@ -93,15 +93,17 @@ def _or_dash(value: Any, spec: str) -> str:
 
 def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
     """The rows as a markdown table.  Columns that no row has (accuracy at the episode length,
-    the gap to the best planner) are left out."""
+    the gap to the best planner, the normalised score) are left out."""
     budgets = list(rows[0]["accuracy_at"]) if rows else []
     with_L = any("accuracy_at_L" in r for r in rows)
     with_gap = any(r.get("gap_to_best_planner") is not None for r in rows)
     with_ms = any("ms_per_decision" in r for r in rows)
+    with_score = any(r.get("normalised_score") is not None for r in rows)
     head = ["env", "policy", "episodes", "mean steps (95% CI)", "median", "success", "truncated", "correct if localised",
             *[f"acc@{b}" for b in budgets]]
     head += ["acc@L (95% CI)", "argmax acc@L", "L"] if with_L else []
     head += ["/ best planner"] if with_gap else []
+    head += ["normalised score"] if with_score else []
     head += ["ms/decision"] if with_ms else []
     head += ["seconds"]
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join(["---"] * len(head)) + "|"]
@@ -120,6 +122,8 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
                 cells += ["-", "-", "-"]
         if with_gap:
             cells.append(_or_dash(r.get("gap_to_best_planner"), ".3f"))
+        if with_score:
+            cells.append(_or_dash(r.get("normalised_score"), ".3f"))
         if with_ms:
             cells.append(_or_dash(r.get("ms_per_decision"), ".3g"))
         cells.append(f"{r['seconds']:.1f}")
@@ -134,7 +138,7 @@ TERMINAL_WIDTH = 100
 def terminal_table(rows: Sequence[dict[str, Any]], width: int = TERMINAL_WIDTH) -> str:
     """The rows as a short, aligned markdown table that fits ``width`` characters: env, policy,
     mean steps (95% CI), success, acc@10, ms/decision, and, where rows have them, the gap to the
-    best planner and the accuracy at the episode length L.  The full table (every budget, median,
+    best planner, the normalised score (``norm.``) and the accuracy at the episode length L.  The full table (every budget, median,
     truncated, ...) is :func:`markdown_table` (``gridloc bench --markdown PATH``; every number:
     ``--json PATH``).  To fit, long labels are shortened (``~`` marks the cut), then the optional
     columns dropped from the right (the gap first, acc@L last), then the labels shortened more."""
@@ -149,6 +153,8 @@ def terminal_table(rows: Sequence[dict[str, Any]], width: int = TERMINAL_WIDTH) 
     optional: list[tuple[str, Any]] = []  # the first ones are kept longest
     if with_L:
         optional.append(("acc@L", lambda r: _or_dash(r.get("accuracy_at_L"), ".3f")))
+    if any(r.get("normalised_score") is not None for r in rows):
+        optional.append(("norm.", lambda r: _or_dash(r.get("normalised_score"), ".2f")))
     optional.append(("ms/dec", lambda r: _or_dash(r.get("ms_per_decision"), ".3g")))
     if with_gap:
         optional.append(("/ best", lambda r: _or_dash(r.get("gap_to_best_planner"), ".2f")))
@@ -215,9 +221,11 @@ def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None 
     if len(envs) != 1:
         raise ValueError(f"plot() takes the rows of one environment, got {sorted(envs)}")
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(9, 3.4), dpi=90)
+    counts = {r["episodes"] for r in rows}  # curves on different numbers of episodes: each says its own
     for r in rows:
         x = np.arange(len(r["localised_curve"]))
-        (line,) = ax1.plot(x, r["localised_curve"], label=f"{policy_label(r)} (mean {r['mean_steps']:.1f})")
+        episodes = "" if len(counts) == 1 else f", episodes {r.get('seed_start', 0)}-{r.get('seed_start', 0) + r['episodes'] - 1}"
+        (line,) = ax1.plot(x, r["localised_curve"], label=f"{policy_label(r)} (mean {r['mean_steps']:.1f}{episodes})")
         ax2.plot(np.arange(len(r["accuracy_curve"])), r["accuracy_curve"], color=line.get_color(), label=r["policy"])
         ks = [int(k) for k in r["accuracy_at"]]
         ax2.plot(ks, [r["accuracy_at"][str(k)] for k in ks], "o", color=line.get_color(), ms=4)
@@ -234,7 +242,8 @@ def plot(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None 
     for ax in (ax1, ax2):
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
-    save_figure(fig, path, title or f"{next(iter(envs))}: {rows[0]['episodes']} episodes per policy")
+    same = f"the same {rows[0]['episodes']} episodes per policy" if len(counts) == 1 else "the first episodes of one seed list (legend)"
+    save_figure(fig, path, title or f"{next(iter(envs))}: {same}")
 
 
 def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path, *, title: str | None = None) -> None:
