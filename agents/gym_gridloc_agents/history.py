@@ -23,7 +23,7 @@ from gymnasium import spaces
 
 from gym_gridloc.core.validation import check_int
 
-__all__ = ["History", "HistoryWrapper", "history_options", "episode_limit"]
+__all__ = ["History", "HistoryWrapper", "history_options", "episode_limit", "acting_history", "with_history_space"]
 
 #: The most past actions and the longest horizon a history may have.
 MAX_ACTIONS, MAX_HORIZON = 32, 10_000
@@ -52,6 +52,29 @@ def episode_limit(env: Any) -> int:
     if not found:
         raise ValueError("steps_left needs an episode that ends: give the environment an episode_length or a step limit")
     return min(found)
+
+
+def acting_history(wrapper: dict[str, Any] | None, n_actions: int, env_id: str | None, env_kwargs: dict[str, Any] | None,
+                   path: Any = None) -> "History | None":
+    """The :class:`History` a learned policy keeps while it acts, for a model trained with the
+    wrapper options ``wrapper`` (None when it sees none): its steps left count down from the
+    episode length of the environment it acts in (``env_kwargs``' ``episode_length``, else the
+    registered step limit of ``env_id``)."""
+    k, h = history_options(wrapper)
+    if not (k or h):
+        return None
+    limit = None
+    if h:
+        limit = (env_kwargs or {}).get("episode_length") or (gym.spec(env_id).max_episode_steps if env_id else None)
+        if not limit:
+            raise ValueError(f"{path or 'this model'} sees the steps left: give env_id= or env_kwargs with an episode_length")
+    return History(n_actions, actions=k, horizon=h, limit=limit)
+
+
+def with_history_space(wrapper: dict[str, Any] | None, n_actions: int, space: spaces.Space) -> spaces.Space:
+    """``space`` with the history of a model trained with ``wrapper`` appended (as it is, without one)."""
+    k, h = history_options(wrapper)
+    return History(n_actions, actions=k, horizon=h, limit=1).space(space) if k or h else space
 
 
 class History:

@@ -26,7 +26,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
@@ -35,7 +34,7 @@ from gym_gridloc.observation import BeliefObservation
 from gym_gridloc.wrappers import previous_action_space, with_previous_action
 from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.files import read_metadata
-from gym_gridloc_agents.history import History, history_options
+from gym_gridloc_agents.history import acting_history, with_history_space
 from gym_gridloc_agents.loading import METHODS, load_model, model_kwargs, model_method
 from gym_gridloc.lookahead import Lookahead
 
@@ -170,7 +169,7 @@ class PPOPolicy(Policy):
             self.path, self.sb3, self.meta = None, sb3_model, {}
             self.trained_wrapper = dict(wrapper or {})
             self.wrapper = _wrapper_options(wrapper)
-            self._history_for(env_id, env_kwargs)
+            self.history = acting_history(self.trained_wrapper, self.model.n_actions, env_id, env_kwargs)
             return
         if path is None:
             if env_id is None:
@@ -187,21 +186,8 @@ class PPOPolicy(Policy):
                                          observation_space=expected)
         if deterministic is None:  # how the model was meant to act (its config's ``deterministic``)
             self.deterministic = bool(self.meta.get("deterministic", True))
-        self._history_for(env_id, env_kwargs)
-
-    def _history_for(self, env_id: str | None, env_kwargs: dict[str, Any] | None) -> None:
-        """The model's :class:`~gym_gridloc_agents.history.History` (None when it sees none): its
-        steps left count down from the episode length of the environment it acts in."""
-        k, h = history_options(self.trained_wrapper)
-        self.history = None
-        if k or h:
-            limit = None
-            if h:
-                kwargs = env_kwargs or {}
-                limit = kwargs.get("episode_length") or (gym.spec(env_id).max_episode_steps if env_id else None)
-                if not limit:
-                    raise ValueError(f"{self.path or 'this model'} sees the steps left: give env_id= or env_kwargs with an episode_length")
-            self.history = History(self.model.n_actions, actions=k, horizon=h, limit=limit)
+        #: the steps left and past actions the model sees (:mod:`gym_gridloc_agents.history`), or None
+        self.history = acting_history(self.trained_wrapper, self.model.n_actions, env_id, env_kwargs, self.path)
 
     def reset(self, seed: int | None = None, model: GridModel | None = None) -> None:
         super().reset(seed, model)
@@ -226,9 +212,7 @@ class PPOPolicy(Policy):
         return self.builder.options
 
     def expected_space(self, model: GridModel) -> spaces.Space:
-        space = BeliefObservation(model, **self.wrapper).space
-        k, h = history_options(self.trained_wrapper)
-        return History(model.n_actions, actions=k, horizon=h, limit=1).space(space) if k or h else space
+        return with_history_space(self.trained_wrapper, model.n_actions, BeliefObservation(model, **self.wrapper).space)
 
     def encode(self, observation: Any, belief: np.ndarray) -> Any:
         """The observation the model's ``HMMBeliefWrapper`` would give."""
