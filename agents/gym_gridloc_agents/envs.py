@@ -142,9 +142,7 @@ from gym_gridloc_agents.envs import SB3VecEnv
 
     ``SB3VecEnv.make(env_id, num_envs, **kwargs)`` builds the native env and the adapter.
     ``history={"past_actions": K, "steps_left": H}`` appends each episode's
-    :class:`~gym_gridloc_agents.history.History` to its observations (as :class:`HistoryWrapper` does);
-    with the steps left seen (``H`` > 0), an episode's end at its length is the task's end, not a
-    time limit (``TimeLimit.truncated`` false: PPO does not bootstrap past it).
+    :class:`~gym_gridloc_agents.history.History` to its observations (as :class:`HistoryWrapper` does).
     """
 
     def __init__(self, venv, *, history: dict[str, int] | None = None) -> None:
@@ -190,13 +188,10 @@ from gym_gridloc_agents.envs import SB3VecEnv
             self.history.reset(dones)
             obs = self.history.attach(obs)
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
-        # An agent that sees the steps left knows the episode ends there: its end is part of the
-        # task, not a cut-off to bootstrap past (Pardo et al., "Time limits in reinforcement learning").
-        timed = self.history is not None and self.history.horizon > 0
         for i in np.flatnonzero(dones):
             last = info["final_obs"][i] if final is None else self.history.attach(info["final_obs"][i], final[i : i + 1], batched=False)
             infos[i] = {**info["final_info"][i], "terminal_observation": last,
-                        "TimeLimit.truncated": bool(truncated[i] and not terminated[i] and not timed)}
+                        "TimeLimit.truncated": bool(truncated[i] and not terminated[i])}
         return obs, rewards.astype(np.float32), dones, infos
 
     def close(self) -> None:
