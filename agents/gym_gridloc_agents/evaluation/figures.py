@@ -34,8 +34,10 @@ def episode_frames(env_id: str, seed: int, max_frames: int, env_kwargs: dict | N
 LABEL_PX, CAPTION_PX, GAP_PX, STRIP_DPI = 24, 18, 8, 100
 
 
-def episode_strips(env_ids: Sequence[str], seed: int, n_frames: int, out: str | Path) -> None:
-    """One row of ``n_frames`` frames per environment, written to the PNG ``out`` (atomically).
+def episode_strips(env_ids: Sequence[str], seed: int, n_frames: int, out: str | Path, *,
+                   env_kwargs: dict | None = None) -> None:
+    """One row of ``n_frames`` frames per environment, written to the PNG ``out`` (atomically);
+    ``env_kwargs``: keywords of every environment (e.g. ``render_shading``).
 
     Each frame is placed pixel for pixel (``figimage``, never resampled), so its grid lines stay
     one pixel wide in every cell; the figure is as large as its frames need."""
@@ -43,7 +45,7 @@ def episode_strips(env_ids: Sequence[str], seed: int, n_frames: int, out: str | 
     from gym_gridloc_agents.files import atomic_path
 
     plt = pyplot()
-    rows = [episode_frames(env_id, seed, n_frames) for env_id in env_ids]
+    rows = [episode_frames(env_id, seed, n_frames, env_kwargs) for env_id in env_ids]
     col_w = max(image.shape[1] for row in rows for image, _ in row) + GAP_PX
     row_h = [max(image.shape[0] for image, _ in row) + CAPTION_PX + GAP_PX for row in rows]
     width, height = LABEL_PX + col_w * max(len(r) for r in rows), sum(row_h)
