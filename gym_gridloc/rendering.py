@@ -4,9 +4,9 @@ Everything here draws a :class:`Frame` (the model, a position belief, the true s
 reading and action), whoever holds them: an environment, a recorded episode, the viewer.
 
 The key of an RGB frame (docs/environments.md, "Reading a frame", shows it): dark grey cells are
-obstacles; the belief is the shading of the free cells (:attr:`Frame.shading`); the orange dot is
+obstacles; the belief is the shading of the free cells (``Frame.shading``); the orange dot is
 the true position, an orange triangle the true pose of a model with a heading (pointing along it);
-white triangles at a cell's sides are the belief's headings there (:attr:`Frame.headings`); a
+white triangles at a cell's sides are the belief's headings there (``Frame.headings``); a
 grey square is an estimate, a magenta line a path; a cyan outline is the cell a ring sensor
 reported.  The strip under the grid is the last reading: the colour read (ColourGrid), the four
 wall bits W N E S (WindyMaze: dark = a wall sensed), cyan for a reported cell or white for

@@ -36,7 +36,7 @@ class GridLocEnv(gym.Env):
     probable hidden state rather than position); ``episode_length`` (a fixed number of steps:
     truncated there, never terminated early); ``reward`` (``"step"``: -1 per step, or
     ``"belief"``: the referee's confidence); ``render_shading`` (how ``rgb_array`` and ``human``
-    frames shade the belief, :attr:`gym_gridloc.rendering.Frame.shading`: ``"relative"``, the
+    frames shade the belief, ``gym_gridloc.rendering.Frame.shading``: ``"relative"``, the
     default, darkens each free cell towards navy by its probability relative to the most probable
     cell's, so a belief spread thin is still seen (under ``"absolute"`` a uniform belief over 60
     cells is nearly white); ``"absolute"`` draws each cell in its own colour, the map colour on

@@ -103,6 +103,13 @@ class DepthMazeEnv(GridLocEnv):
     algorithm (:func:`gym_gridloc.generators.perfect_maze`).  Held-out test mazes:
     :func:`gym_gridloc.maps.test_set`.
 
+    ## Vector Environments
+    ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` (the native
+    :class:`~gym_gridloc.GridLocVectorEnv`) observes the reading and the exact belief, as
+    :class:`~gym_gridloc.HMMBeliefWrapper` does; ``"sync"`` and ``"async"`` vectorize this class, whose
+    observation is the reading alone.  To make them agree: ``wrappers=[HMMBeliefWrapper]`` for
+    ``"sync"``/``"async"``, or ``belief=None`` (a keyword of ``make_vec``) for the native one.
+
     ## Version History
     * v0: initial version.
     """

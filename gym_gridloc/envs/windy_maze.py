@@ -57,6 +57,13 @@ class WindyMazeEnv(GridLocEnv):
     a new maze at every reset from the environment's ``np_random``, so the same reset seed gives
     the same maze).  See :func:`gym_gridloc.generators.maze_map`.
 
+    ## Vector Environments
+    ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` (the native
+    :class:`~gym_gridloc.GridLocVectorEnv`) observes the reading and the exact belief, as
+    :class:`~gym_gridloc.HMMBeliefWrapper` does; ``"sync"`` and ``"async"`` vectorize this class, whose
+    observation is the reading alone.  To make them agree: ``wrappers=[HMMBeliefWrapper]`` for
+    ``"sync"``/``"async"``, or ``belief=None`` (a keyword of ``make_vec``) for the native one.
+
     ## Version History
     * v0: initial version.
     """
