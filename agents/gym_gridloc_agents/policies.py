@@ -30,7 +30,6 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from gym_gridloc.core.validation import unknown_names
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.observation import BeliefObservation
 from gym_gridloc.wrappers import previous_action_space, with_previous_action
@@ -377,7 +376,7 @@ def make_policy(
     """
     takes = {"optimal": ("horizon",), "random": (), "greedy": (), "greedy2": (), "ppo": (), "recurrent": ()}.get(name)
     if takes is not None and (extra := sorted(set(options) - set(takes))):  # never ignored (nor printed in a row's label)
-        raise ValueError(f"policy {name!r} takes no option {unknown_names(extra, takes)}"
+        raise ValueError(f"policy {name!r} takes no option {', '.join(map(repr, extra))}"
                          f" ({'its options: ' + ', '.join(takes) if takes else 'it takes no options'})")
     if name == "random":
         return RandomPolicy(model, seed=seed)
@@ -399,7 +398,7 @@ def make_policy(
         return PomcpPolicy(model, seed=seed, threshold=threshold, pose=pose, **options)
     if name in LEARNED_POLICIES:
         return LEARNED_POLICIES[name](model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
-    raise ValueError(f"unknown policy {unknown_names([name], POLICY_NAMES)}; allowed: {', '.join(POLICY_NAMES)}")
+    raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")
 
 
 #: The learned policies by name (each loads a model file; the name says how the model was made).
