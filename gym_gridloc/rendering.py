@@ -6,9 +6,9 @@ reading and action), whoever holds them: an environment, a recorded episode, the
 The key of an RGB frame (docs/environments.md, "Reading a frame", shows it): dark grey cells are
 obstacles; the belief is the shading of the free cells (``Frame.shading``); the orange dot is
 the true position, an orange triangle the true pose of a model with a heading (pointing along it);
-white triangles at a cell's sides are the belief's headings there (``Frame.headings``); a
-grey square is an estimate, a magenta line a path; a cyan outline is the cell a ring sensor
-reported.  The strip under the grid is the last reading: the colour read (ColourGrid), the four
+small triangles at a cell's sides (white, navy on a light cell) are the belief's headings there
+(``Frame.headings``); a grey square is an estimate, a magenta line a path; a cyan outline is the
+cell a ring sensor reported.  The strip under the grid is the last reading: the colour read (ColourGrid), the four
 wall bits W N E S (WindyMaze: dark = a wall sensed), cyan for a reported cell or white for
 nothing (RingSensor), or the depth ahead (DepthMaze: the robot's cell with a grey triangle, the
 free cells it sees, then the wall it reads, dark).
@@ -36,6 +36,8 @@ READING_RGB = (0, 200, 220)
 ESTIMATE_RGB = (150, 150, 150)
 PATH_RGB = (200, 0, 200)
 HEADING_RGB = (255, 255, 255)
+HEADING_ON_LIGHT_RGB = (20, 30, 120)  # (the heading marks on a cell lighter than LIGHT: navy)
+LIGHT = 170
 VIEWPOINT_RGB = (120, 120, 120)
 
 
@@ -78,8 +80,9 @@ class Frame(NamedTuple):
     #: coloured cell keeps its map colour, so the map stays readable.
     shading: str = "relative"
     #: The (L, H, W) belief over hidden states, for a model with a heading (``heading=True``, four
-    #: layers): at each cell with belief, a small white triangle at each side, pointing out along
-    #: that heading (N up), whose opacity is the heading's probability given the cell.  None: not drawn.
+    #: layers): at each cell with belief, a small triangle at each side, pointing out along that
+    #: heading (N up), whose opacity is the heading's probability given the cell (white, or navy on
+    #: a light cell).  None: not drawn.
     headings: np.ndarray | None = None
 
 
@@ -226,15 +229,18 @@ def _triangle(t: int, heading: int, tip: float, base: float, half: float) -> np.
 
 
 def _heading_marks(frame: np.ndarray, headings: np.ndarray, t: int) -> None:
-    """Each cell's heading belief: a white triangle at each side, opacity P(heading | cell)."""
+    """Each cell's heading belief: a triangle at each side, opacity P(heading | cell), white on a
+    dark cell and :data:`HEADING_ON_LIGHT_RGB` on a light one (e.g. a thin belief under
+    ``shading="absolute"``)."""
     mass = headings.sum(axis=0)
     masks = [_triangle(t, h, 0.94, 0.5, 0.34) for h in range(4)]
     for r, c in zip(*np.nonzero(mass > 0)):
         tile = frame[r * t : (r + 1) * t, c * t : (c + 1) * t]
+        ink = np.asarray(HEADING_RGB if tile[t // 4, t // 4].mean() < LIGHT else HEADING_ON_LIGHT_RGB, dtype=np.float64)
         for h in range(min(4, headings.shape[0])):
             p = float(headings[h, r, c] / mass[r, c])
             if p > 0:
-                tile[masks[h]] = np.rint((1 - p) * tile[masks[h]] + p * np.asarray(HEADING_RGB)).astype(np.uint8)
+                tile[masks[h]] = np.rint((1 - p) * tile[masks[h]] + p * ink).astype(np.uint8)
 
 
 def _depth_strip(strip: np.ndarray, depth: int, max_depth: int, t: int) -> None:

@@ -177,6 +177,11 @@ def test_a_frame_with_headings_draws_the_true_heading_and_the_beliefs_headings()
             assert np.allclose(half[k], cell, atol=1.01)
         plain = rendering.rgb_frame(rendering.Frame(model, belief.sum(axis=0), (h, 3, 2), heading=True, tile=t))
         assert at(plain, 3, 4, h, 0.75) != rendering.HEADING_RGB  # headings=None: no marks
+        thin = belief.copy()
+        thin[h, 1, 1] = 0.02  # a light cell under absolute shading: the mark in navy, not white
+        img = rendering.rgb_frame(rendering.Frame(model, thin.sum(axis=0), None, heading=True, tile=t, headings=thin,
+                                                  shading="absolute"))
+        assert at(img, 1, 1, h, 0.75) == rendering.HEADING_ON_LIGHT_RGB and at(img, 3, 4, h, 0.75) == rendering.HEADING_RGB
 
 
 @pytest.mark.parametrize("depth", [1, 2, 4])

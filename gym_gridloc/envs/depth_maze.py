@@ -95,8 +95,8 @@ class DepthMazeEnv(GridLocEnv):
     (None), ``reward`` (``"step"`` or ``"belief"``), ``kidnap_prob`` (0.0), ``render_mode``,
     ``render_shading`` (``"relative"`` or ``"absolute"``, see :class:`~gym_gridloc.GridLocEnv`).
     An ``rgb_array`` frame draws the true pose as an orange triangle pointing along the heading,
-    the belief's headings as white triangles at each cell's sides (opacity: the heading's
-    probability given the cell), and the depth read in the strip under the maze (the robot's
+    the belief's headings as small triangles at each cell's sides (white, navy on a light cell;
+    opacity: the heading's probability given the cell), and the depth read in the strip under the maze (the robot's
     cell, the free cells it sees, the wall).
 
     Mazes are perfect (one path between any two cells, walls all round), drawn by Kruskal's

@@ -209,7 +209,7 @@ class App(Inspector):
                  "(absolute: p = 1 full colour, 0.5 half, 0 white)",
                  "p or '% numbers': each cell's probability in percent",
                  "orange: the true position" + (" and heading" if s.model.n_layers == 4 else ""),
-                 *(["white triangles at a cell's sides: its headings' probabilities"] if s.model.n_layers == 4 else []),
+                 *(["triangles at a cell's sides: its headings' probabilities"] if s.model.n_layers == 4 else []),
                  "grey square: the estimate (most probable position)"]
         if s.path is not None:
             lines.append("magenta: the Viterbi path up to now (ringed)")
