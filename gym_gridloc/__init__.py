@@ -1,7 +1,8 @@
 """gym_gridloc: active localisation on grid maps, with exact HMM beliefs.
 
 Importing the package registers ``ColourGrid-v0``, ``RingSensor8x8-v0``, ``WindyMaze-v0`` and
-``DepthMaze-v0``.
+``DepthMaze-v0``, each also in the package's namespace (``gym.make("gym_gridloc/WindyMaze-v0")``,
+:data:`NAMESPACED_IDS`): the same environment under two names.
 """
 
 from gymnasium.envs.registration import register, registry
@@ -40,6 +41,10 @@ __version__ = "0.1.0"
 
 #: The registered environment ids.
 ENV_IDS = ("ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0", "DepthMaze-v0")
+#: The namespace the ids are registered in as well, as Gymnasium's namespaced ids.
+NAMESPACE = "gym_gridloc"
+#: The same environments under their namespaced ids (``gym_gridloc/WindyMaze-v0``).
+NAMESPACED_IDS = tuple(f"{NAMESPACE}/{env_id}" for env_id in ENV_IDS)
 
 
 def _register() -> None:
@@ -52,15 +57,16 @@ def _register() -> None:
         "DepthMaze-v0": ("envs.depth_maze:DepthMazeEnv", 100, {}, "vector:DepthMazeVectorEnv"),
     }
     for env_id, (entry_point, steps, kwargs, vector) in specs.items():
-        if env_id not in registry:
-            register(id=env_id, entry_point=f"gym_gridloc.{entry_point}", max_episode_steps=steps, kwargs=kwargs,
-                     vector_entry_point=f"gym_gridloc.{vector}")
+        for name in (env_id, f"{NAMESPACE}/{env_id}"):
+            if name not in registry:
+                register(id=name, entry_point=f"gym_gridloc.{entry_point}", max_episode_steps=steps, kwargs=kwargs,
+                         vector_entry_point=f"gym_gridloc.{vector}")
 
 
 _register()
 
 __all__ = [
-    "ENV_IDS", "DIRECTIONS", "ColourGridEnv", "ColourSensor", "DepthMazeEnv", "DepthSensor", "depth_maze_model", "ForwardFilter", "GridLocEnv",
+    "ENV_IDS", "NAMESPACE", "NAMESPACED_IDS", "DIRECTIONS", "ColourGridEnv", "ColourSensor", "DepthMazeEnv", "DepthSensor", "depth_maze_model", "ForwardFilter", "GridLocEnv",
     "GridLocError", "GridMap", "GridModel", "HMMBeliefWrapper", "ImpossibleObservationError", "PreviousActionWrapper",
     "MapError", "RingSensor", "RingSensorEnv", "Sensor", "Term", "WallSensor", "WindyMazeEnv",
     "colour_grid_model", "parse_colour_map", "parse_maze", "ring_sensor_model", "windy_maze_model",

@@ -2,6 +2,16 @@
 
 Everything here draws a :class:`Frame` (the model, a position belief, the true state, the last
 reading and action), whoever holds them: an environment, a recorded episode, the viewer.
+
+The key of an RGB frame (docs/environments.md, "Reading a frame", shows it): dark grey cells are
+obstacles; the belief is the shading of the free cells (``Frame.shading``); the orange dot is
+the true position, an orange triangle the true pose of a model with a heading (pointing along it);
+small triangles at a cell's sides (white, navy on a light cell) are the belief's headings there
+(``Frame.headings``); a grey square is an estimate, a magenta line a path; a cyan outline is the
+cell a ring sensor reported.  The strip under the grid is the last reading: the colour read (ColourGrid), the four
+wall bits W N E S (WindyMaze: dark = a wall sensed), cyan for a reported cell or white for
+nothing (RingSensor), or the depth ahead (DepthMaze: the robot's cell with a grey triangle, the
+free cells it sees, then the wall it reads, dark).
 """
 
 from __future__ import annotations
@@ -13,6 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from gym_gridloc.core.model import GridModel
+from gym_gridloc.core.depth import DepthSensor
 from gym_gridloc.core.ring import RingSensor
 from gym_gridloc.core.sensors import ColourSensor, WallSensor
 
@@ -24,6 +35,10 @@ TRUTH_RGB = (255, 140, 0)
 READING_RGB = (0, 200, 220)
 ESTIMATE_RGB = (150, 150, 150)
 PATH_RGB = (200, 0, 200)
+HEADING_RGB = (255, 255, 255)
+HEADING_ON_LIGHT_RGB = (20, 30, 120)  # (the heading marks on a cell lighter than LIGHT: navy)
+LIGHT = 170
+VIEWPOINT_RGB = (120, 120, 120)
 
 
 def belief_table(belief: np.ndarray, free: np.ndarray, mark: tuple[int, int] | None = None) -> str:
@@ -64,6 +79,11 @@ class Frame(NamedTuple):
     #: so a sure cell is fully coloured and a cell of probability 0.5 half; a small corner of every
     #: coloured cell keeps its map colour, so the map stays readable.
     shading: str = "relative"
+    #: The (L, H, W) belief over hidden states, for a model with a heading (``heading=True``, four
+    #: layers): at each cell with belief, a small triangle at each side, pointing out along that
+    #: heading (N up), whose opacity is the heading's probability given the cell (white, or navy on
+    #: a light cell).  None: not drawn.
+    headings: np.ndarray | None = None
 
 
 def ansi(frame: Frame) -> str:
@@ -135,6 +155,8 @@ def rgb_frame(frame: Frame) -> np.ndarray:
     if t >= 4:  # grid lines
         image[::t, :, :] = 90
         image[:, ::t, :] = 90
+    if frame.headings is not None and frame.heading and t >= 8:
+        _heading_marks(image, np.asarray(frame.headings, dtype=np.float64), t)
     reading = frame.reading
     sensor = model.sensor
     if isinstance(sensor, RingSensor) and reading is not None and reading != sensor.nothing:
@@ -158,6 +180,8 @@ def rgb_frame(frame: Frame) -> np.ndarray:
             strip[:, i * q : (i + 1) * q - 1] = OBSTACLE_RGB if b else FREE_RGB
     elif isinstance(sensor, RingSensor):
         strip[:] = FREE_RGB if reading == sensor.nothing else READING_RGB
+    elif isinstance(sensor, DepthSensor) and reading is not None:
+        _depth_strip(strip, int(reading), sensor.max_depth, t)
     return np.ascontiguousarray(np.concatenate([image, strip], axis=0))
 
 
@@ -193,6 +217,48 @@ def _arrow(frame: np.ndarray, r: int, c: int, heading: int, t: int, rgb) -> None
     along, across = {0: (-v, u), 1: (u, v), 2: (v, u), 3: (-u, v)}[int(heading) % 4]
     mask = (along <= 1.0) & (along >= -0.7) & (np.abs(across) <= (1.0 - along) * 0.45)
     frame[r * t : (r + 1) * t, c * t : (c + 1) * t][mask] = rgb
+
+
+def _triangle(t: int, heading: int, tip: float, base: float, half: float) -> np.ndarray:
+    """A (t, t) mask: a triangle pointing along ``heading`` (0 = N, 1 = E, 2 = S, 3 = W), its tip
+    and base at these distances from the cell's centre (fractions of half a cell), ``half`` its
+    half-width at the base (same unit)."""
+    v, u = _centred(t) / (t / 2)
+    along, across = {0: (-v, u), 1: (u, v), 2: (v, u), 3: (-u, v)}[int(heading) % 4]
+    return (along <= tip) & (along >= base) & (np.abs(across) <= half * (tip - along) / (tip - base))
+
+
+def _heading_marks(frame: np.ndarray, headings: np.ndarray, t: int) -> None:
+    """Each cell's heading belief: a triangle at each side, opacity P(heading | cell), white on a
+    dark cell and :data:`HEADING_ON_LIGHT_RGB` on a light one (e.g. a thin belief under
+    ``shading="absolute"``)."""
+    mass = headings.sum(axis=0)
+    masks = [_triangle(t, h, 0.94, 0.5, 0.34) for h in range(4)]
+    for r, c in zip(*np.nonzero(mass > 0)):
+        tile = frame[r * t : (r + 1) * t, c * t : (c + 1) * t]
+        ink = np.asarray(HEADING_RGB if tile[t // 4, t // 4].mean() < LIGHT else HEADING_ON_LIGHT_RGB, dtype=np.float64)
+        for h in range(min(4, headings.shape[0])):
+            p = float(headings[h, r, c] / mass[r, c])
+            if p > 0:
+                tile[masks[h]] = np.rint((1 - p) * tile[masks[h]] + p * ink).astype(np.uint8)
+
+
+def _depth_strip(strip: np.ndarray, depth: int, max_depth: int, t: int) -> None:
+    """The depth read, as a row of cells: the robot's cell (a grey triangle pointing along the
+    row), the ``depth - 1`` free cells it sees, then the wall (dark); white beyond."""
+    w = max(2, min(t, strip.shape[1] // (max_depth + 1)))
+    h = strip.shape[0]
+    cells = [None] + [FREE_RGB] * (depth - 1) + [OBSTACLE_RGB]
+    for i, rgb in enumerate(cells[: strip.shape[1] // w]):
+        seg = strip[:, i * w : (i + 1) * w]
+        seg[:] = FREE_RGB if rgb is None else rgb
+        seg[:, 0] = 90  # the cells' borders, like the grid lines
+        seg[[0, -1]] = 90
+        if rgb is None:
+            v, u = np.mgrid[0:h, 0:w] + 0.5
+            v, u = (v - h / 2) / (h / 2), (u - w / 2) / (w / 2)
+            seg[(u >= -0.6) & (u <= 0.7) & (np.abs(v) <= 0.6 * (0.7 - u) / 1.3)] = VIEWPOINT_RGB
+    strip[:, len(cells) * w : len(cells) * w + 1] = 90
 
 
 def _path(frame: np.ndarray, cells: Sequence[tuple[int, int]], t: int, rgb) -> None:

@@ -46,6 +46,8 @@ from gym_gridloc.generators import perfect_maze
 
 # -- the registry ------------------------------------------------------------------------------------
 ENV_IDS = list(gym_gridloc.ENV_IDS)
+#: The same environments under their namespaced ids (``gym_gridloc/WindyMaze-v0``).
+NAMESPACED_IDS = list(gym_gridloc.NAMESPACED_IDS)
 #: The environment class of every registered id.
 ENV_CLASSES = {env_id: load_env_creator(gym.spec(env_id).entry_point) for env_id in ENV_IDS}
 #: Every registered id, plus the ring sensor's other dynamics (hidden heading).

@@ -142,3 +142,84 @@ def test_absolute_shading_draws_a_sure_cell_in_its_own_colour_and_half_a_belief_
         assert not np.array_equal(relative, img)
     with pytest.raises(ValueError, match="shading"):
         rendering.rgb_frame(rendering.Frame(model, belief, None, shading="bright"))
+
+
+def test_a_frame_with_headings_draws_the_true_heading_and_the_beliefs_headings():
+    """A DepthMaze frame: the truth as an orange triangle pointing along its heading, a white
+    triangle at a cell's side for each heading the belief gives that cell (opacity: its
+    probability given the cell), none for a heading of probability 0."""
+    from gym_gridloc import depth_maze_model
+
+    model = depth_maze_model(["#######", "#OOOOO#", "#O###O#", "#OOOOO#", "#######"])
+    t = 32
+    along = {0: (-1, 0), 1: (0, 1), 2: (1, 0), 3: (0, -1)}
+
+    def at(img, r, c, h, d):  # the pixel d half-cells from (r, c)'s centre along heading h
+        dy, dx = along[h]
+        return tuple(img[int(r * t + t / 2 + dy * d * t / 2), int(c * t + t / 2 + dx * d * t / 2)])
+
+    for h in range(4):
+        belief = np.zeros(model.belief_shape)
+        belief[h, 1, 2] = 0.5
+        belief[(h + 1) % 4, 1, 2] = 0.5
+        belief[h, 3, 4] = 1.0
+        belief /= belief.sum()
+        img = rendering.rgb_frame(rendering.Frame(model, belief.sum(axis=0), (h, 3, 2), heading=True, tile=t,
+                                                  headings=belief))
+        assert at(img, 3, 2, h, 0.6) == rendering.TRUTH_RGB and at(img, 3, 2, (h + 2) % 4, 0.6) != rendering.TRUTH_RGB
+        assert at(img, 3, 4, h, 0.75) == rendering.HEADING_RGB  # sure: fully white
+        assert all(at(img, 3, 4, k, 0.75) != rendering.HEADING_RGB for k in range(4) if k != h)
+        half = [at(img, 1, 2, k, 0.75) for k in range(4)]
+        cell = np.array(img[1 * t + 4, 2 * t + 4], dtype=float)  # the cell's shade, off the marks
+        for k in (h, (h + 1) % 4):  # half white over the shade
+            assert np.allclose(half[k], 0.5 * cell + 0.5 * np.array(rendering.HEADING_RGB), atol=1.01)
+        for k in ((h + 2) % 4, (h + 3) % 4):
+            assert np.allclose(half[k], cell, atol=1.01)
+        plain = rendering.rgb_frame(rendering.Frame(model, belief.sum(axis=0), (h, 3, 2), heading=True, tile=t))
+        assert at(plain, 3, 4, h, 0.75) != rendering.HEADING_RGB  # headings=None: no marks
+        thin = belief.copy()
+        thin[h, 1, 1] = 0.02  # a light cell under absolute shading: the mark in navy, not white
+        img = rendering.rgb_frame(rendering.Frame(model, thin.sum(axis=0), None, heading=True, tile=t, headings=thin,
+                                                  shading="absolute"))
+        assert at(img, 1, 1, h, 0.75) == rendering.HEADING_ON_LIGHT_RGB and at(img, 3, 4, h, 0.75) == rendering.HEADING_RGB
+
+
+@pytest.mark.parametrize("depth", [1, 2, 4])
+def test_the_strip_of_a_depth_reading_shows_the_free_cells_ahead_then_the_wall(depth):
+    from gym_gridloc import depth_maze_model
+
+    model = depth_maze_model(["#######", "#OOOOO#", "#O###O#", "#OOOOO#", "#######"])
+    t = 32
+    img = rendering.rgb_frame(rendering.Frame(model, model.prior()[0], None, reading=depth, tile=t))
+    assert img.shape == (5 * t + t, 7 * t, 3)
+    strip = img[5 * t :]
+    mid = t // 2
+    assert tuple(strip[mid, mid]) == rendering.VIEWPOINT_RGB  # the robot's cell, looking along the row
+    for i in range(1, depth):
+        assert tuple(strip[mid, i * t + mid]) == rendering.FREE_RGB
+    assert tuple(strip[mid, depth * t + mid]) == rendering.OBSTACLE_RGB
+    assert tuple(strip[mid, (depth + 1) * t + mid]) == (255, 255, 255)
+
+
+def test_env_frames_draw_headings_and_take_the_shading_keyword():
+    """``render_shading`` (``"relative"`` by default, or ``"absolute"``) reaches the frame; a
+    DepthMaze frame draws the true heading, the belief's headings and the depth read."""
+    import gymnasium as gym
+
+    env = gym.make("DepthMaze-v0", render_mode="rgb_array").unwrapped
+    env.reset(seed=4)
+    env.step(2)
+    frame = rendering.Frame(env.model, env.posterior, env.state, env.last_reading, 2, heading=True,
+                            headings=env.exact_filter.full_belief)
+    assert np.array_equal(env.render(), rendering.rgb_frame(frame))
+    for env_id in ("ColourGrid-v0", "WindyMaze-v0", "RingSensor8x8-v0", "DepthMaze-v0"):
+        for shading in ("relative", "absolute"):
+            env = gym.make(env_id, render_mode="rgb_array", render_shading=shading).unwrapped
+            env.reset(seed=1)
+            heading = env.model.n_layers == 4
+            want = rendering.rgb_frame(rendering.Frame(env.model, env.posterior, env.state, env.last_reading, None,
+                                                       heading=heading, shading=shading,
+                                                       headings=env.exact_filter.full_belief if heading else None))
+            assert np.array_equal(env.render(), want), (env_id, shading)
+        with pytest.raises(ValueError, match="render_shading"):
+            gym.make(env_id, render_shading="bright")

@@ -3,13 +3,13 @@
     gridloc train configs/ppo_windymaze.yml [--force] [--resume CKPT] [--tensorboard DIR]
     gridloc bench --env WindyMaze-v0 --policies random,greedy,greedy2,ppo --episodes 200 \\
                   --json out.json --plot out.png
-    gridloc bench --all            # the README's table: 3 environments x 5 policies x 1000 episodes
+    gridloc bench --all            # the README's table: the 3 fixed-map environments x the default policies x 1000 episodes
     gridloc reproduce [--quiet]    # the seed documents' numbers (needs only the core install)
     gridloc render [--env ...] [--out results/episode.png] [--gif EP.gif]
     gridloc bench --env DepthMaze-v0 --size 7 --test-set --episode-length 15 --episodes 1000
     gridloc bench --env WindyMaze-v0 --policies greedy2,expectimax,ppo --option expectimax.depth=3 --frontier f.png
     gridloc bound ColourGrid-v0 --depth 5   # no policy can localise faster than this
-    gridloc plot [results/bench.json]
+    gridloc plot results/bench.json   # or --training MODEL.zip ... / --curves RUNS ...
     gridloc suite --episodes 1000 --jobs 2 # every task of the benchmark into results/suite.json (resumable)
     gridloc report [--check]               # the result tables of README.md and docs/results.md from results/
     gridloc view WindyMaze-v0 --policy ppo       # step through an episode (the render extra: pygame-ce)
@@ -29,30 +29,57 @@ from pathlib import Path
 
 from gym_gridloc_agents.evaluation.bench_command import RESULTS, bench_main, bound_main, fail
 from gym_gridloc_agents.files import OutputError
-from gym_gridloc_agents.policies import DEFAULT_POLICIES
+from gym_gridloc_agents.policies import DEFAULT_POLICIES, POLICY_NAMES
+
+
+class _BenchHelp(argparse.HelpFormatter):
+    """``gridloc bench --help``: ``{fixed}`` names the environments of ``--all``, read from the
+    benchmark's module only when the help is shown (it imports torch)."""
+
+    def _get_help_string(self, action):
+        text = super()._get_help_string(action) or ""
+        if "{fixed}" in text:
+            from gym_gridloc_agents.evaluation.bench import BENCH_ENV_IDS
+
+            text = text.replace("{fixed}", f"{len(BENCH_ENV_IDS)} fixed-map environments, {', '.join(BENCH_ENV_IDS)}")
+        return text
+
+
+def _parser(sub, name: str, text: str, description: str | None = None, **kw) -> argparse.ArgumentParser:
+    """A subcommand: ``text`` in ``gridloc --help``, ``description`` (default ``text``) in its own ``--help``."""
+    return sub.add_parser(name, help=text, description=description or text[:1].upper() + text[1:] + ".", **kw)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``gridloc`` command line: its sub-commands and their arguments."""
+    import gym_gridloc
+
     p = argparse.ArgumentParser(prog="gridloc", description="gym_gridloc agents: training and the localisation benchmark")
+    p.add_argument("--version", action="version", version=f"gridloc (gym_gridloc {gym_gridloc.__version__})")
     sub = p.add_subparsers(dest="command", required=True)
 
-    t = sub.add_parser("train", help="train a policy from a YAML config (see configs/)")
+    t = _parser(sub, "train", "train a policy from a YAML config (see configs/)")
     t.add_argument("config", help="a YAML config, e.g. configs/ppo_windymaze.yml")
     t.add_argument("--force", action="store_true",
                    help="replace an existing model and its metadata (never a file of another kind, an input or a checkpoint)")
     t.add_argument("--resume", metavar="CKPT", help="continue from a checkpoint .zip up to total_timesteps")
     t.add_argument("--output", metavar="PATH", help="model file to write (.zip; overrides the config)")
-    t.add_argument("--timesteps", type=int, metavar="N", help="total timesteps (overrides the config)")
+    t.add_argument("--timesteps", type=int, metavar="N",
+                   help="total timesteps of the reinforcement learning (overrides the config; not the warm start: see --pretrain-episodes)")
+    t.add_argument("--pretrain-episodes", type=int, metavar="N",
+                   help="the warm start's expert episodes (overrides pretrain.episodes; each DAgger round's episodes are scaled "
+                        "by the same factor, at least 1): a quick run of a distilled config, e.g. --timesteps 2048 --pretrain-episodes 50")
     t.add_argument("--tensorboard", metavar="DIR", help="log to TensorBoard in DIR")
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
     t.add_argument("--torch-threads", type=int, default=1, metavar="N", help="torch threads (default 1: fastest for small MLPs)")
 
-    b = sub.add_parser("bench", help="benchmark policies on the same episode seeds")
-    b.add_argument("--env", metavar="ENV_ID", help="environment id, e.g. WindyMaze-v0")
+    b = _parser(sub, "bench", "benchmark policies on the same episode seeds", formatter_class=_BenchHelp)
+    b.add_argument("--env", metavar="ENV_ID", help=f"environment id, one of {', '.join(gym_gridloc.ENV_IDS)}")
     b.add_argument("--all", action="store_true",
-                   help="all three environments, every policy, 1000 episodes; writes results/bench.json and results/bench_<env>.png")
-    b.add_argument("--policies", default=None, help=f"comma-separated policy names (default: {','.join(DEFAULT_POLICIES)})")
+                   help="the {fixed} (the others draw a new map every episode: --env ENV_ID with --size N --test-set), "
+                        "the default policies, 1000 episodes; writes results/bench.json and results/bench_<env>.png")
+    b.add_argument("--policies", default=None,
+                   help=f"comma-separated policy names, of: {', '.join(POLICY_NAMES)} (default: {','.join(DEFAULT_POLICIES)})")
     b.add_argument("--episodes", type=int, default=None, help="episodes per policy (default 200; 1000 with --all)")
     b.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode i uses seed+i)")
     b.add_argument("--json", metavar="PATH", help="write the rows as JSON (every number)")
@@ -96,14 +123,21 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("view", help="step through an episode under a policy in a window, with the model inspector (--help)")
     sub.add_parser("play", help="drive the robot with the arrow keys in a window (--help)")
 
-    d = sub.add_parser("render", help="draw one episode per environment as belief heatmaps (and a GIF)")
-    d.add_argument("--env", nargs="+", default=None, help="environment ids (default: every registered one, the four of gym_gridloc.ENV_IDS)")
-    d.add_argument("--seed", type=int, default=3, help="episode seed (actions are random, seeded)")
-    d.add_argument("--frames", type=int, default=6, help="frames per environment")
-    d.add_argument("--out", default=str(RESULTS / "episode.png"), help="PNG to write")
-    d.add_argument("--gif", default=None, help="also write the first environment's whole episode as a GIF")
+    d = _parser(sub, "render", "draw one episode per environment as belief heatmaps (and a GIF)",
+                "One episode of random (seeded) actions per environment, drawn from its rgb_array frames: a row of "
+                "frames per environment in one PNG, each frame pixel for pixel. docs/environments.md ('Reading a "
+                "frame') says what a frame shows.")
+    d.add_argument("--env", nargs="+", default=None, metavar="ENV_ID",
+                   help=f"environment ids (default: all {len(gym_gridloc.ENV_IDS)}, {' '.join(gym_gridloc.ENV_IDS)})")
+    d.add_argument("--seed", type=int, default=3, help="episode seed; the random actions are seeded with it too (default 3)")
+    d.add_argument("--frames", type=int, default=6, help="frames per environment: the first, the last and evenly spaced ones (default 6)")
+    d.add_argument("--shading", choices=("relative", "absolute"), default="relative",
+                   help="how the belief is shaded (the environments' render_shading; default relative)")
+    d.add_argument("--out", default=str(RESULTS / "episode.png"), help="PNG to write (default results/episode.png)")
+    d.add_argument("--gif", default=None, metavar="PATH.gif",
+                   help="also write the first environment's whole episode as a GIF (default: none)")
 
-    w = sub.add_parser("sweep", help="train seeds and hyperparameter grids of a config on Ray Tune (the 'sweep' extra)")
+    w = _parser(sub, "sweep", "train seeds and hyperparameter grids of a config on Ray Tune (the 'sweep' extra)")
     w.add_argument("config", help="a YAML config, e.g. configs/ppo_colourgrid.yml")
     w.add_argument("--seeds", type=int, default=1, metavar="N", help="seeds per configuration: the config's seed + 0..N-1 (default 1)")
     w.add_argument("--grid", nargs="+", action="extend", metavar="KEY=V1,V2",
@@ -114,20 +148,26 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--cpus", type=int, metavar="N", help="CPUs of the Ray started on this machine (default: all); 1 per trial")
     w.add_argument("--output", metavar="DIR", help="where everything goes (default runs/sweeps/<config stem>)")
     w.add_argument("--resume", action="store_true", help="continue the interrupted sweep in --output (same arguments)")
+    w.add_argument("--verbose", action="store_true",
+                   help="show Ray Tune's trial status tables while it runs (default: only the final table)")
 
-    lb = sub.add_parser("bound", help="a lower bound on any policy's mean steps to localise (exhaustive search to depth K)")
+    lb = _parser(sub, "bound", "a lower bound on any policy's mean steps to localise (exhaustive search to depth K)")
     lb.add_argument("env", metavar="ENV_ID", help="environment id, e.g. ColourGrid-v0")
     lb.add_argument("--depth", type=int, default=3, metavar="K", help="search depth (default 3; the cost grows about |A x Z|^K)")
     lb.add_argument("--prune", type=float, default=0.0, metavar="P",
                     help="drop readings below this probability (keeps it a bound, a looser one; default 0)")
     lb.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE", help="a keyword of gym.make (repeatable)")
-    lb.add_argument("--json", metavar="PATH", help="write the bound as JSON")
+    lb.add_argument("--json", metavar="PATH", help="also write every number as JSON (the value after each first reading too)")
     lb.add_argument("--force", action="store_true", help="replace an existing bound JSON")
 
-    q = sub.add_parser("plot", help="redraw the benchmark figures from a results JSON")
-    q.add_argument("json", nargs="?", default=str(RESULTS / "bench.json"), help="a bench JSON (default results/bench.json)")
+    q = _parser(sub, "plot", "redraw the benchmark figures from a results JSON, or plot training and learning curves",
+                "Draw the figures of a bench JSON beside it, or the training curves of models (--training), or learning "
+                "curves across seeds (--curves). Name what to draw: without arguments nothing is drawn.")
+    q.add_argument("json", nargs="?", default=None,
+                   help="a bench JSON, e.g. results/bench.json: its figures are written beside it (bench_<env>.png, "
+                        "<name>_frontier.png), replacing those there")
     q.add_argument("--training", nargs="+", metavar="MODEL.zip",
-                   help="instead: plot these models' training curves (their held-out evaluations) to --out")
+                   help="instead: plot these models' training curves (their held-out evaluations) to --out, one panel per environment")
     q.add_argument("--curves", nargs="+", metavar="RUNS",
                    help="instead: learning curves across seeds to --out, one curve per RUNS (a sweep's --output directory, a "
                         "directory of models or model files): the IQM of the seeds' held-out evaluations with a bootstrap "
@@ -183,10 +223,11 @@ def _render(args) -> int:
         files.check_outputs([(args.out, files.FIGURE, "picture"), (args.gif, files.FIGURE, "GIF")])
     except (ValueError, OutputError) as exc:
         return fail("render", str(exc))
-    episode_strips(envs, args.seed, args.frames, args.out)
+    env_kwargs = {"render_shading": args.shading}
+    episode_strips(envs, args.seed, args.frames, args.out, env_kwargs=env_kwargs)
     print(f"wrote {args.out}")
     if args.gif:
-        frames = [f for f, _ in episode_frames(envs[0], args.seed, 10_000)]
+        frames = [f for f, _ in episode_frames(envs[0], args.seed, 10_000, env_kwargs)]
         write_gif(frames, args.gif)
         print(f"wrote {args.gif} ({len(frames)} frames)")
     return 0
@@ -196,8 +237,11 @@ def _plot(args) -> int:
     from gym_gridloc_agents import files
     from gym_gridloc_agents.evaluation.report import env_label, plot, plot_frontier, plot_training, read_rows
 
-    if args.curves and args.training:
-        return fail("plot", "give --curves or --training, not both")
+    if sum(map(bool, (args.json, args.curves, args.training))) > 1:
+        return fail("plot", "give one of a bench JSON, --curves or --training")
+    if not (args.json or args.curves or args.training):
+        return fail("plot", "name what to draw: a bench JSON (gridloc plot results/bench.json redraws the figures beside "
+                            "it), --training MODEL.zip ... --out PATH.png, or --curves RUNS ... --out PATH.png")
     if args.curves:
         return _plot_curves(args)
     args.out = args.out or str(RESULTS / "training.png")
@@ -207,14 +251,14 @@ def _plot(args) -> int:
                 if not Path(m).is_file():
                     raise ValueError(f"--training {m}: no such model file")
             files.check_outputs([(args.out, files.FIGURE, "plot")], inputs=args.training)
-            plot_training(args.training, args.out)
+            panels = plot_training(args.training, args.out)
         except (ValueError, OutputError) as exc:
             return fail("plot", str(exc))
-        print(f"wrote {args.out}")
+        print(f"wrote {args.out}" + (f" (one panel per environment: {'; '.join(panels)})" if len(panels) > 1 else ""))
         return 0
     src = Path(args.json)
     if not src.is_file():
-        return fail("plot", f"{src} does not exist; run `gridloc bench --all` first")
+        return fail("plot", f"{src} does not exist; run `gridloc bench --all` (or bench --json PATH) first")
     try:
         rows = read_rows(src)
         if not all("localised_curve" in r and "accuracy_curve" in r for r in rows):
@@ -287,15 +331,21 @@ def _train(args) -> int:
     from gym_gridloc_agents.training.config import ConfigError
     from gym_gridloc_agents.training.train import OutputError, TrainingInterrupted, train
 
+    config = args.config
     try:
         if args.timesteps is not None:
             check_int("--timesteps", args.timesteps)
         check_int("--torch-threads", args.torch_threads)
-    except ValueError as exc:
+        if args.pretrain_episodes is not None:
+            from gym_gridloc_agents.training.config import load_config
+            from gym_gridloc_agents.training.pretrain import with_episodes
+
+            config = with_episodes(load_config(args.config), check_int("--pretrain-episodes", args.pretrain_episodes))
+    except (ValueError, ConfigError) as exc:
         return fail("train", str(exc))
     try:
         info = train(
-            args.config,
+            config,
             force=args.force,
             resume=args.resume,
             output=args.output,
@@ -322,7 +372,7 @@ def _sweep(args) -> int:
     try:
         spec = prepare(args.config, seeds=args.seeds, grid=args.grid, search=args.search, trials=args.trials,
                        output=args.output, address=args.address, cpus=args.cpus)
-        summary = run(spec, address=args.address, cpus=args.cpus, resume=args.resume)
+        summary = run(spec, address=args.address, cpus=args.cpus, resume=args.resume, verbose=1 if args.verbose else 0)
     except (SweepError, ConfigError) as exc:
         return fail("sweep", " ".join(str(exc).split()))
     print(summary_table(summary))

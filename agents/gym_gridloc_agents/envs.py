@@ -15,7 +15,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 import gym_gridloc
-from gym_gridloc.core.validation import whole_numbers
+from gym_gridloc.core.validation import unknown_names, whole_numbers
 from gym_gridloc.envs.base import GridLocEnv
 from gym_gridloc.vector import GridLocVectorEnv
 from gym_gridloc_agents.history import History, HistoryWrapper, episode_limit, history_options
@@ -30,7 +30,7 @@ def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, err
     known = _keywords(env_id)
     unknown = sorted(set(env_kwargs) - known) if known else []
     if unknown:
-        raise error(f"{what}: {env_id} has no keyword {', '.join(map(repr, unknown))} (its keywords: {', '.join(sorted(known))})")
+        raise error(f"{what}: {env_id} has no keyword {unknown_names(unknown, sorted(known))} (its keywords: {', '.join(sorted(known))})")
     try:
         env = gym.make(env_id, **env_kwargs)
     except (TypeError, ValueError, gym.error.Error) as exc:

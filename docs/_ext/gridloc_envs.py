@@ -100,7 +100,7 @@ def env_page(env_id: str) -> tuple[str, str]:
     public = f"gym_gridloc.{class_name}"
     sig = signature(cls)
     rows = [
-        ("Make", _code(f'gym.make("{env_id}")')),
+        ("Make", _code(f'gym.make("{env_id}")') + " or " + _code(f'gym.make("gym_gridloc/{env_id}")')),
         ("Class", "{py:class}" + _code(public)),
         ("Action space", _code(action_space)),
         ("Observation space", _code(observation_space)),

@@ -1,9 +1,11 @@
 """Checks for parameters where they enter: each error names the parameter, the value and what is
 allowed.  The one place for integer checks: :func:`is_int` and :func:`check_int` for one value,
-:func:`whole_numbers` for an array (``tests/test_one_owner.py`` holds other modules to them)."""
+:func:`whole_numbers` for an array (``tests/test_one_owner.py`` holds other modules to them);
+:func:`unknown_names` writes the names a check refuses, each with the closest allowed one."""
 
 from __future__ import annotations
 
+import difflib
 import math
 import numbers
 from typing import Any, Sequence
@@ -83,5 +85,21 @@ def check_size(name: str, value: Any, maximum: int = 4096) -> tuple[int, int]:
 
 def check_choice(name: str, value: Any, allowed: Sequence[Any]) -> Any:
     if value not in allowed:
-        raise ValueError(f"{name} must be one of {', '.join(repr(a) for a in allowed)}; got {value!r}")
+        raise ValueError(f"{name} must be one of {', '.join(repr(a) for a in allowed)}; got {value!r}"
+                         + did_you_mean(value, [a for a in allowed if isinstance(a, str)]))
     return value
+
+
+def did_you_mean(word: Any, allowed: Sequence[str]) -> str:
+    """`` (did you mean 'x'?)``: the allowed name closest to a mistyped ``word`` (:mod:`difflib`),
+    or ``""`` when none is close."""
+    if not isinstance(word, str):
+        return ""
+    close = difflib.get_close_matches(word, [str(a) for a in allowed], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def unknown_names(names: Sequence[Any], allowed: Sequence[str]) -> str:
+    """``'lerning_rate' (did you mean 'learning_rate'?), 'x'``: refused names, each with the
+    closest allowed one."""
+    return ", ".join(repr(n) + did_you_mean(n, allowed) for n in names)

@@ -35,7 +35,14 @@ class GridLocEnv(gym.Env):
     (a :class:`MapFactory`: ``rng -> GridModel``, a new map at every reset); ``referee_pose`` (the referee tests the most
     probable hidden state rather than position); ``episode_length`` (a fixed number of steps:
     truncated there, never terminated early); ``reward`` (``"step"``: -1 per step, or
-    ``"belief"``: the referee's confidence).
+    ``"belief"``: the referee's confidence); ``render_shading`` (how ``rgb_array`` and ``human``
+    frames shade the belief, ``gym_gridloc.rendering.Frame.shading``: ``"relative"``, the
+    default, darkens each free cell towards navy by its probability relative to the most probable
+    cell's, so a belief spread thin is still seen (under ``"absolute"`` a uniform belief over 60
+    cells is nearly white); ``"absolute"`` draws each cell in its own colour, the map colour on
+    a colour map, with opacity equal to its probability: on ColourGrid the belief is then never
+    mistaken for a blue cell).  Frames of a model with a heading (DepthMaze) draw the true heading
+    and the belief's headings; docs/environments.md has the key of a frame.
 
     Reset options: ``state`` (``(row, col)`` or ``(layer, row, col)``: the start), ``map`` (a
     :class:`~gym_gridloc.GridMap` or a layout of this family: the map of this episode only, e.g.
@@ -47,11 +54,13 @@ class GridLocEnv(gym.Env):
     def __init__(self, model: GridModel, *, localise_threshold: float = 0.9, render_mode: str | None = None,
                  builder: Callable[[Any], GridModel] | None = None,
                  map_factory: "MapFactory | None" = None,
-                 referee_pose: bool = False, episode_length: int | None = None, reward: str = "step") -> None:
+                 referee_pose: bool = False, episode_length: int | None = None, reward: str = "step",
+                 render_shading: str = "relative") -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}"
             )
+        self.render_shading = check_choice("render_shading", render_shading, ("relative", "absolute"))
         self.model = model
         self.localise_threshold = check_threshold("localise_threshold", localise_threshold)
         self.episode_length = None if episode_length is None else check_int("episode_length", episode_length, 1)
@@ -135,7 +144,10 @@ class GridLocEnv(gym.Env):
             raise RuntimeError("call reset() before render()")
         from gym_gridloc import rendering
 
-        frame = rendering.Frame(self.model, self._referee.position_belief, self.state, self._last_reading, self._last_action)
+        heading = self.model.n_layers == 4  # the layers are headings (N, E, S, W)
+        frame = rendering.Frame(self.model, self._referee.position_belief, self.state, self._last_reading, self._last_action,
+                                heading=heading, shading=self.render_shading,
+                                headings=self._referee.full_belief if heading else None)
         if self.render_mode == "ansi":
             return rendering.ansi(frame)
         image = rendering.rgb_frame(frame)

@@ -49,7 +49,11 @@ class ColourGridEnv(GridLocEnv):
     map ``R,G,B,Y,B / .,R,R,G,G / .,.,B,.,Y / Y,Y,B,.,R / B,G,G,.,Y``).  ``slip`` (0.1; 1.0 is the
     seed's random walk), ``accuracy`` (0.88), ``localise_threshold`` (0.9), ``kidnap_prob`` (0.0: after every move the
     robot is teleported to a uniformly chosen free cell with this probability), ``render_mode``
-    (``"ansi"``, ``"rgb_array"``, ``"human"``).
+    (``"ansi"``, ``"rgb_array"``, ``"human"``), ``render_shading`` (``"relative"``, the default:
+    the pastel map colours darkened towards navy by the belief relative to its peak, which shows a
+    belief spread thin but can be mistaken for a blue cell; ``"absolute"``: each cell in its own map
+    colour with opacity equal to its probability, as ``gridloc view`` draws it; see
+    :class:`~gym_gridloc.GridLocEnv`).
 
     Generated maps (in place of ``layout``): ``size`` ((H, W); (5, 5) when only other generator
     options are given), ``obstacle_density`` (0.2: each cell an obstacle with this probability;
@@ -60,6 +64,13 @@ class ColourGridEnv(GridLocEnv):
     environment's ``np_random``, so the same reset seed gives the same map).  See
     :func:`gym_gridloc.generators.colour_map`.
 
+    ## Vector Environments
+    ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` (the native
+    :class:`~gym_gridloc.GridLocVectorEnv`) observes the reading and the exact belief, as
+    :class:`~gym_gridloc.HMMBeliefWrapper` does; ``"sync"`` and ``"async"`` vectorize this class, whose
+    observation is the reading alone.  To make them agree: ``wrappers=[HMMBeliefWrapper]`` for
+    ``"sync"``/``"async"``, or ``belief=None`` (a keyword of ``make_vec``) for the native one.
+
     ## Version History
     * v0: initial version.
     """
@@ -68,7 +79,7 @@ class ColourGridEnv(GridLocEnv):
                  localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
                  render_mode: str | None = None, size=None, obstacle_density: float | None = None,
                  n_colours: int | None = None, map_seed: int | None = None,
-                 new_map_each_reset: bool = False) -> None:
+                 new_map_each_reset: bool = False, render_shading: str = "relative") -> None:
         options = {"size": size, "obstacle_density": obstacle_density, "n_colours": n_colours, "map_seed": map_seed}
         generated = new_map_each_reset or any(v is not None for v in options.values())
         if generated and layout is not None:
@@ -86,4 +97,4 @@ class ColourGridEnv(GridLocEnv):
 
         grid = draw(0 if map_seed is None else map_seed) if generated else layout
         super().__init__(build(grid), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
-                         map_factory=MapFactory(build, draw) if new_map_each_reset else None)
+                         map_factory=MapFactory(build, draw) if new_map_each_reset else None, render_shading=render_shading)

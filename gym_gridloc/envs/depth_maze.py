@@ -92,11 +92,23 @@ class DepthMazeEnv(GridLocEnv):
     (default True unless ``layout`` or ``map_seed`` is given: a new maze at every reset, drawn from
     the environment's ``np_random``, so the same reset seed gives the same maze), ``p_turn_fail``,
     ``p_move_fail``, ``p_depth_error`` (0.0 each), ``localise_threshold`` (0.9), ``episode_length``
-    (None), ``reward`` (``"step"`` or ``"belief"``), ``kidnap_prob`` (0.0), ``render_mode``.
+    (None), ``reward`` (``"step"`` or ``"belief"``), ``kidnap_prob`` (0.0), ``render_mode``,
+    ``render_shading`` (``"relative"`` or ``"absolute"``, see :class:`~gym_gridloc.GridLocEnv`).
+    An ``rgb_array`` frame draws the true pose as an orange triangle pointing along the heading,
+    the belief's headings as small triangles at each cell's sides (white, navy on a light cell;
+    opacity: the heading's probability given the cell), and the depth read in the strip under the maze (the robot's
+    cell, the free cells it sees, the wall).
 
     Mazes are perfect (one path between any two cells, walls all round), drawn by Kruskal's
     algorithm (:func:`gym_gridloc.generators.perfect_maze`).  Held-out test mazes:
     :func:`gym_gridloc.maps.test_set`.
+
+    ## Vector Environments
+    ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` (the native
+    :class:`~gym_gridloc.GridLocVectorEnv`) observes the reading and the exact belief, as
+    :class:`~gym_gridloc.HMMBeliefWrapper` does; ``"sync"`` and ``"async"`` vectorize this class, whose
+    observation is the reading alone.  To make them agree: ``wrappers=[HMMBeliefWrapper]`` for
+    ``"sync"``/``"async"``, or ``belief=None`` (a keyword of ``make_vec``) for the native one.
 
     ## Version History
     * v0: initial version.
@@ -109,7 +121,7 @@ class DepthMazeEnv(GridLocEnv):
                  new_map_each_reset: bool | None = None, p_turn_fail: float = 0.0, p_move_fail: float = 0.0,
                  p_depth_error: float = 0.0, localise_threshold: float = 0.9, episode_length: int | None = None,
                  reward: str = "step", kidnap_prob: float = 0.0, generator: str = "kruskal",
-                 reject_symmetric: bool | None = None, render_mode: str | None = None) -> None:
+                 reject_symmetric: bool | None = None, render_mode: str | None = None, render_shading: str = "relative") -> None:
         if new_map_each_reset is None:
             new_map_each_reset = layout is None and map_seed is None
         if not isinstance(new_map_each_reset, (bool, np.bool_)):
@@ -139,7 +151,7 @@ class DepthMazeEnv(GridLocEnv):
                 raise ValueError(f"size={size!r} but the layout is a {model.shape[0]}x{model.shape[1]} maze: give one of them")
         super().__init__(build(first), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
                          map_factory=factory if new_map_each_reset else None,
-                         referee_pose=True, episode_length=episode_length, reward=reward)
+                         referee_pose=True, episode_length=episode_length, reward=reward, render_shading=render_shading)
         self.size = n
         #: How the mazes are drawn (:func:`map_options`): ``generator`` and ``reject_symmetric``.
         self.map_options = options

@@ -42,7 +42,14 @@ class RingSensorEnv(GridLocEnv):
     ``#`` whose obstacles the robot cannot enter and whose cells the sensor may still report), ``dynamics`` (``"commanded"`` or ``"passive"``), ``keep_heading`` (0.7),
     ``p_true`` (0.1), ``p_ring1`` (0.05), ``p_ring2`` (0.025), ``localise_threshold`` (0.9), ``kidnap_prob`` (0.0: after every move the
     robot is teleported to a uniformly chosen free state with this probability),
-    ``render_mode``.
+    ``render_mode``, ``render_shading`` (``"relative"`` or ``"absolute"``, see :class:`~gym_gridloc.GridLocEnv`).
+
+    ## Vector Environments
+    ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` (the native
+    :class:`~gym_gridloc.GridLocVectorEnv`) observes the reading and the exact belief, as
+    :class:`~gym_gridloc.HMMBeliefWrapper` does; ``"sync"`` and ``"async"`` vectorize this class, whose
+    observation is the reading alone.  To make them agree: ``wrappers=[HMMBeliefWrapper]`` for
+    ``"sync"``/``"async"``, or ``belief=None`` (a keyword of ``make_vec``) for the native one.
 
     ## Version History
     * v0: initial version.
@@ -51,7 +58,7 @@ class RingSensorEnv(GridLocEnv):
     def __init__(self, size=(8, 8), *, layout=None, dynamics: str = "commanded", keep_heading: float = 0.7,
                  p_true: float = 0.1, p_ring1: float = 0.05, p_ring2: float = 0.025,
                  localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
-                 render_mode: str | None = None) -> None:
+                 render_mode: str | None = None, render_shading: str = "relative") -> None:
         model = ring_sensor_model(size, dynamics=dynamics, keep_heading=keep_heading,
                                   p_true=p_true, p_ring1=p_ring1, p_ring2=p_ring2, layout=layout).with_kidnapping(kidnap_prob)
-        super().__init__(model, localise_threshold=localise_threshold, render_mode=render_mode)
+        super().__init__(model, localise_threshold=localise_threshold, render_mode=render_mode, render_shading=render_shading)

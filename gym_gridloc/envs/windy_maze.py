@@ -48,13 +48,21 @@ class WindyMazeEnv(GridLocEnv):
     ``layout``: a path to a maze file or a list of rows of ``O`` (free) and ``#`` (obstacle)
     (default: seed 004's 6x7 maze, 31 free cells).  ``drift`` (0.1), ``p_detect`` (0.85),
     ``p_false_alarm`` (0.10), ``localise_threshold`` (0.9), ``kidnap_prob`` (0.0: after every move the
-    robot is teleported to a uniformly chosen free cell with this probability), ``render_mode``.
+    robot is teleported to a uniformly chosen free cell with this probability), ``render_mode``,
+    ``render_shading`` (``"relative"`` or ``"absolute"``, see :class:`~gym_gridloc.GridLocEnv`).
 
     Generated mazes (in place of ``layout``): ``size`` ((H, W); (7, 7) when only other generator
     options are given; corridors one cell wide, walls between, every free cell reachable),
     ``map_seed`` (0: the same seed gives the same maze) and ``new_map_each_reset`` (False; True:
     a new maze at every reset from the environment's ``np_random``, so the same reset seed gives
     the same maze).  See :func:`gym_gridloc.generators.maze_map`.
+
+    ## Vector Environments
+    ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` (the native
+    :class:`~gym_gridloc.GridLocVectorEnv`) observes the reading and the exact belief, as
+    :class:`~gym_gridloc.HMMBeliefWrapper` does; ``"sync"`` and ``"async"`` vectorize this class, whose
+    observation is the reading alone.  To make them agree: ``wrappers=[HMMBeliefWrapper]`` for
+    ``"sync"``/``"async"``, or ``belief=None`` (a keyword of ``make_vec``) for the native one.
 
     ## Version History
     * v0: initial version.
@@ -63,7 +71,7 @@ class WindyMazeEnv(GridLocEnv):
     def __init__(self, layout=None, *, drift: float = 0.1, p_detect: float = 0.85, p_false_alarm: float = 0.10,
                  localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
                  render_mode: str | None = None, size=None, map_seed: int | None = None,
-                 new_map_each_reset: bool = False) -> None:
+                 new_map_each_reset: bool = False, render_shading: str = "relative") -> None:
         generated = new_map_each_reset or size is not None or map_seed is not None
         if generated and layout is not None:
             raise ValueError("give either layout=... or a generated maze (size, map_seed, new_map_each_reset), not both")
@@ -78,4 +86,4 @@ class WindyMazeEnv(GridLocEnv):
 
         grid = draw(0 if map_seed is None else map_seed) if generated else layout
         super().__init__(build(grid), localise_threshold=localise_threshold, render_mode=render_mode, builder=build,
-                         map_factory=MapFactory(build, draw) if new_map_each_reset else None)
+                         map_factory=MapFactory(build, draw) if new_map_each_reset else None, render_shading=render_shading)

@@ -4,6 +4,7 @@ driver): scripted key and mouse events drive the apps and the tests read the dra
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -267,6 +268,39 @@ def test_missing_pygame_names_the_render_extra(monkeypatch, capsys):
     assert viewer.play_main(["ColourGrid-v0", "--no-window", "--steps", "1"]) == 2
     err = capsys.readouterr().err
     assert "pip install 'gym_gridloc[render]'" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("command", ["play", "view"])
+def test_without_a_display_the_window_commands_fail_at_once_with_one_line(command, tmp_path):
+    """No DISPLAY, WAYLAND_DISPLAY or SDL_VIDEODRIVER (a server, ssh, CI): SDL would fall back to
+    drawing off screen and the command would wait for keys nobody can press; instead one line
+    and exit status 2, at once."""
+    import os
+    import subprocess
+
+    pytest.importorskip("pygame")
+    root = Path(__file__).resolve().parents[2]
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")}
+    env["PYTHONPATH"] = os.pathsep.join([str(root), str(root / "agents"), env.get("PYTHONPATH", "")])
+    if sys.platform.startswith(("win", "darwin")):
+        pytest.skip("a window there needs no DISPLAY")
+    done = subprocess.run([sys.executable, "-m", "gym_gridloc_agents.cli", command, "WindyMaze-v0"], env=env, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done
+    assert done.stdout == ""
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"gridloc {command}: error: cannot open a window: no display"), lines
+    assert "--no-window" in lines[0]
+
+
+def test_no_display_says_why_only_where_a_window_needs_one():
+    from gym_gridloc_agents.viewer.loop import no_display
+
+    assert "DISPLAY" in no_display({}, "linux")
+    assert no_display({"DISPLAY": ":0"}, "linux") is None
+    assert no_display({"WAYLAND_DISPLAY": "wayland-0"}, "linux") is None
+    assert no_display({"SDL_VIDEODRIVER": "dummy"}, "linux") is None  # asked for: the tests' driver
+    assert no_display({}, "darwin") is None and no_display({}, "win32") is None
 
 
 # -- the shading, the numbers, the likelihood view, the buttons ----------------------------------------

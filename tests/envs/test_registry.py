@@ -15,8 +15,10 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 import inspect
 import pickle
 import re
+from pathlib import Path
 
 import gymnasium as gym
+from gymnasium.envs.registration import load_env_creator
 import numpy as np
 import pytest
 
@@ -26,6 +28,7 @@ from tests.helpers import (
     CONFIGS,
     ENV_CLASSES,
     ENV_IDS,
+    NAMESPACED_IDS,
     assert_same,
     assert_same_rollouts,
     rollout,
@@ -40,7 +43,7 @@ def test_check_env_unwrapped(env_id):
     run_check_env(gym.make(env_id).unwrapped)
 
 
-@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("env_id", ENV_IDS + NAMESPACED_IDS)
 def test_check_env_made(env_id):
     run_check_env(gym.make(env_id))
 
@@ -51,10 +54,46 @@ def test_check_env_ring_seed_dynamics():
 
 def test_registry_is_complete():
     assert set(ENV_IDS) == {"ColourGrid-v0", "RingSensor8x8-v0", "WindyMaze-v0", "DepthMaze-v0"}
-    for env_id in ENV_IDS:
+    assert NAMESPACED_IDS == [f"gym_gridloc/{env_id}" for env_id in ENV_IDS]
+    for env_id in ENV_IDS + NAMESPACED_IDS:
         assert env_id in gym.registry
         spec = gym.spec(env_id)
         assert spec.vector_entry_point is not None  # a native vector env for gym.make_vec
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_the_namespaced_id_is_the_same_environment(env_id):
+    """``gym_gridloc/<id>`` (Gymnasium's namespaced ids) and ``<id>``: one registration each, the
+    same entry point, limits and keywords, the same seeded episodes, single and vector."""
+    plain, spaced = gym.spec(env_id), gym.spec(f"gym_gridloc/{env_id}")
+    assert (spaced.namespace, spaced.name, spaced.version) == ("gym_gridloc", plain.name, plain.version)
+    for field in ("entry_point", "vector_entry_point", "max_episode_steps", "kwargs"):
+        assert getattr(spaced, field) == getattr(plain, field), field
+    assert_same_rollouts(rollout(gym.make(f"gym_gridloc/{env_id}"), seed=9, n_steps=60), rollout(gym.make(env_id), seed=9, n_steps=60))
+    a = gym.make_vec(f"gym_gridloc/{env_id}", num_envs=2, vectorization_mode="vector_entry_point")
+    b = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point")
+    for i, (x, y) in enumerate(zip((*a.reset(seed=4), *a.step(np.array([0, 1]))), (*b.reset(seed=4), *b.step(np.array([0, 1]))))):
+        assert_same(x, y, f"vector reset and step, field {i}")
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_the_vector_entry_point_adds_the_belief_as_documented(env_id):
+    """``make_vec(..., "vector_entry_point")`` observes the reading and the exact belief (as
+    ``HMMBeliefWrapper``); ``"sync"`` and ``"async"`` vectorize the single environment, whose
+    observation is the reading alone; ``wrappers=[HMMBeliefWrapper]`` and ``belief=None`` make them
+    agree.  The environment's docstring and docs/environments.md say so."""
+    native = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point")
+    sync = gym.make_vec(env_id, num_envs=2, vectorization_mode="sync")
+    assert set(native.single_observation_space) == {"observation", "belief"}
+    assert sync.single_observation_space == gym.make(env_id).observation_space
+    wrapped = gym.make_vec(env_id, num_envs=2, vectorization_mode="sync", wrappers=[HMMBeliefWrapper])
+    assert wrapped.single_observation_space == native.single_observation_space
+    bare = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", belief=None)
+    assert bare.single_observation_space == sync.single_observation_space
+    cls = load_env_creator(gym.spec(env_id).entry_point)
+    docs = (Path(__file__).resolve().parents[2] / "docs" / "environments.md").read_text(encoding="utf-8")
+    for text in (inspect.getdoc(cls), docs):
+        assert "vector_entry_point" in text and "HMMBeliefWrapper" in text and "belief=None" in text
 
 
 def test_make_without_import_prefix():

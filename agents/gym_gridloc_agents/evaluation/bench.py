@@ -45,7 +45,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from gym_gridloc.core.validation import check_int, is_int
+from gym_gridloc.core.validation import check_int, is_int, unknown_names
 from gym_gridloc_agents.envs import make_env, served_env
 from gym_gridloc_agents.files import metadata_path, read_metadata
 from gym_gridloc_agents.loading import model_method
@@ -267,7 +267,7 @@ def run_benchmark(
             raise ValueError(f"{key}_model: an empty list of models")
     for name in policies:
         if name not in POLICY_NAMES:
-            raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")
+            raise ValueError(f"unknown policy {unknown_names([name], POLICY_NAMES)}; allowed: {', '.join(POLICY_NAMES)}")
     if len(set(policies)) != len(policies):
         raise ValueError(f"policies must not repeat, got {list(policies)}")
     episodes = check_int("episodes", episodes, whole=True)

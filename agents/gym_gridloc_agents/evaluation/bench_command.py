@@ -42,13 +42,16 @@ def _bench_env_kwargs(args) -> dict:
 
 
 def _policy_options(items: list[str], policies: list[str]) -> dict[str, dict]:
+    from gym_gridloc.core.validation import unknown_names
+
     options: dict[str, dict] = {}
     for key, value in _key_values(items, "--option").items():
         policy, dot, name = key.partition(".")
         if not dot or not name:
             raise ValueError(f"--option {key}: expected POLICY.KEY=VALUE, e.g. expectimax.depth=3")
         if policy not in policies:
-            raise ValueError(f"--option {key}: {policy!r} is not among the benchmarked policies ({', '.join(policies)})")
+            raise ValueError(f"--option {key}: {unknown_names([policy], policies)} is not among the benchmarked policies "
+                             f"({', '.join(policies)})")
         options.setdefault(policy, {})[name] = value
     return options
 
@@ -240,8 +243,6 @@ def _write_bench(args, rows, labels, json_path, frontier, table, here) -> int:
 
 def bound_main(args) -> int:
     """``gridloc bound``: the depth-K lower bound of one environment."""
-    import json
-
     from gym_gridloc_agents.envs import check_environment, make_env
     from gym_gridloc_agents import files
     from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write
@@ -273,12 +274,10 @@ def bound_main(args) -> int:
     result = {"env": args.env, "env_kwargs": kwargs, **result}
     print(f"no policy localises {args.env} in fewer than {result['bound']:.4f} mean steps "
           f"(depth {args.depth}, {result['seconds']:.0f} s)")
-    if args.json:
+    if args.json:  # every number, the value after each first reading too, only when asked for
         try:
             rescue_write(lambda p: atomic_write_json(p, result), Path(args.json), "bound JSON")
         except OutputError as exc:
             return fail("bound", str(exc))
         print(f"wrote {args.json}", file=sys.stderr)
-    else:
-        print(json.dumps({k: v for k, v in result.items() if k != "per_reading"}))
     return 0

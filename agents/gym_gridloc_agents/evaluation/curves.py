@@ -161,8 +161,7 @@ def plot_curves(curves: Sequence[dict[str, Any]], lines: dict[str, float], out: 
             xs = np.array([x[i] for i in keep], dtype=float)
             lo = [c["ci95"][i][0] for i in keep]
             hi = [c["ci95"][i][1] for i in keep]
-            line, = ax.plot(xs, [c["iqm"][i] for i in keep], marker=".",
-                            label=f"{c['label']} (IQM of {len(c['seeds'])} seeds, validation episodes)")
+            line, = ax.plot(xs, [c["iqm"][i] for i in keep], marker=".", label=f"{legend_label(c)}, validation episodes")
             ax.fill_between(xs, lo, hi, color=line.get_color(), alpha=0.2)
         for name, value in lines.items():
             colour, style = styles.get(name, ("black", ":"))
@@ -185,6 +184,12 @@ def plot_curves(curves: Sequence[dict[str, Any]], lines: dict[str, float], out: 
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
+
+
+def legend_label(curve: dict[str, Any]) -> str:
+    """``label (IQM of 3 seeds)``, or ``label (1 seed)``: one seed's curve is its own."""
+    n = len(curve["seeds"])
+    return f"{curve['label']} ({'1 seed' if n == 1 else f'IQM of {n} seeds'})"
 
 
 def curves_table(curves: Sequence[dict[str, Any]], lines: dict[str, float]) -> str:

@@ -30,24 +30,41 @@ def episode_frames(env_id: str, seed: int, max_frames: int, env_kwargs: dict | N
     return frames
 
 
-def episode_strips(env_ids: Sequence[str], seed: int, n_frames: int, out: str | Path) -> None:
-    """One row of ``n_frames`` frames per environment, written to the PNG ``out`` (atomically)."""
-    from gym_gridloc_agents.evaluation.report import pyplot, save_figure
+#: The strips' layout, in pixels: the environment's name on the left, a caption above each frame.
+LABEL_PX, CAPTION_PX, GAP_PX, STRIP_DPI = 24, 18, 8, 100
+
+
+def episode_strips(env_ids: Sequence[str], seed: int, n_frames: int, out: str | Path, *,
+                   env_kwargs: dict | None = None) -> None:
+    """One row of ``n_frames`` frames per environment, written to the PNG ``out`` (atomically);
+    ``env_kwargs``: keywords of every environment (e.g. ``render_shading``).
+
+    Each frame is placed pixel for pixel (``figimage``, never resampled), so its grid lines stay
+    one pixel wide in every cell; the figure is as large as its frames need."""
+    from gym_gridloc_agents.evaluation.report import pyplot
+    from gym_gridloc_agents.files import atomic_path
 
     plt = pyplot()
-    rows = [episode_frames(env_id, seed, n_frames) for env_id in env_ids]
-    ncol = max(len(r) for r in rows)
-    fig, axes = plt.subplots(len(rows), ncol, figsize=(2.1 * ncol, 2.4 * len(rows)), squeeze=False)
-    for i, (env_id, frames) in enumerate(zip(env_ids, rows)):
-        for j in range(ncol):
-            ax = axes[i, j]
-            ax.axis("off")
-            if j < len(frames):
-                ax.imshow(frames[j][0], interpolation="nearest")
-                ax.set_title(frames[j][1], fontsize=8)
-        axes[i, 0].text(-0.08, 0.5, env_id, transform=axes[i, 0].transAxes, rotation=90,
-                        ha="right", va="center", fontsize=9)
-    save_figure(fig, out, dpi=80)
+    rows = [episode_frames(env_id, seed, n_frames, env_kwargs) for env_id in env_ids]
+    col_w = max(image.shape[1] for row in rows for image, _ in row) + GAP_PX
+    row_h = [max(image.shape[0] for image, _ in row) + CAPTION_PX + GAP_PX for row in rows]
+    width, height = LABEL_PX + col_w * max(len(r) for r in rows), sum(row_h)
+    fig = plt.figure(figsize=(width / STRIP_DPI, height / STRIP_DPI), dpi=STRIP_DPI, facecolor="white")
+    top = height
+    for env_id, frames, h in zip(env_ids, rows, row_h):
+        for j, (image, caption) in enumerate(frames):
+            x = LABEL_PX + j * col_w
+            y = top - CAPTION_PX - image.shape[0]  # figimage: pixels from the bottom left
+            fig.figimage(image, xo=x, yo=y, origin="upper")
+            fig.text((x + image.shape[1] / 2) / width, (top - CAPTION_PX / 2) / height, caption,
+                     ha="center", va="center", fontsize=8)
+        fig.text(LABEL_PX / 2 / width, (top - h / 2) / height, env_id, rotation=90, ha="center", va="center", fontsize=9)
+        top -= h
+    try:
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, format="png", dpi=STRIP_DPI)
+    finally:
+        plt.close(fig)
 
 
 def write_gif(frames: Sequence[np.ndarray], out: str | Path, *, duration_ms: int = 500) -> None:

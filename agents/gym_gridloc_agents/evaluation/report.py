@@ -281,11 +281,12 @@ __all__ = ["ROW_KEYS", "env_label", "markdown_table", "merge_rows", "plot", "plo
            "policy_label", "public_row", "read_rows", "row_key"]
 
 
-def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str | None = None) -> None:
+def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str | None = None) -> list[str]:
     """The training curves of models (``.zip`` files with their metadata JSON beside them): the
     held-out evaluations made while training (step 0 is the warm-started policy before PPO),
     accuracy on fixed-length episodes (``episode_length``) and mean steps otherwise, with the
-    evaluation the training kept circled.  Written atomically."""
+    evaluation the training kept circled; one panel per environment (with its keywords: curves of
+    different tasks are never drawn on one axis).  Written atomically; returns the panels' titles."""
     from gym_gridloc_agents.files import read_metadata
 
     plt = pyplot()
@@ -295,11 +296,12 @@ def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str 
         if not meta.get("evaluations"):
             raise ValueError(f"{m}: its metadata has no evaluations (trained with eval_freq: 0?)")
         metas.append((Path(m), meta))
-    protocol = [bool((meta.get("env_kwargs") or {}).get("episode_length")) for _, meta in metas]
-    panels = 2 if (any(protocol) and not all(protocol)) else 1
-    fig, axes = plt.subplots(1, panels, figsize=(4.8 * panels, 3.6), dpi=90, squeeze=False)
-    for (m, meta), proto in zip(metas, protocol):
-        ax = axes[0][0 if proto or all(not p for p in protocol) else 1]
+    labels = [env_label({"env": meta.get("env_id", "?"), "env_kwargs": meta.get("env_kwargs") or {}}) for _, meta in metas]
+    panels = list(dict.fromkeys(labels))
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.8 * len(panels), 3.6), dpi=90, squeeze=False)
+    for (m, meta), label in zip(metas, labels):
+        ax = axes[0][panels.index(label)]
+        proto = bool((meta.get("env_kwargs") or {}).get("episode_length"))
         evals = sorted(meta["evaluations"], key=lambda e: e["num_timesteps"])
         key = "accuracy" if proto else "mean_steps"
         (line,) = ax.plot([e["num_timesteps"] for e in evals], [e[key] for e in evals], "o-", ms=3, label=m.stem)
@@ -309,6 +311,9 @@ def plot_training(models: Sequence[str | Path], path: str | Path, *, title: str 
         ax.xaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v / 1000:g}k" if v else "0"))
         ax.set_xlabel("PPO steps (0 = the warm-started policy)")
         ax.set_ylabel("accuracy at L (validation maps)" if proto else "mean steps (held-out episodes)")
+        if len(panels) > 1:
+            ax.set_title(label, fontsize=8)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     save_figure(fig, path, title or "training curves: held-out evaluations (circled: the model kept)")
+    return panels

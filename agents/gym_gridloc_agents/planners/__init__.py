@@ -29,6 +29,7 @@ from __future__ import annotations
 from typing import Any
 
 from gym_gridloc.core.model import GridModel
+from gym_gridloc.core.validation import unknown_names
 from gym_gridloc_agents.planners.base import PlannerPolicy
 from gym_gridloc_agents.planners.central import CentralPolicy, nothing_reading
 from gym_gridloc_agents.planners.expectimax import ExpectimaxPolicy, expectimax_q, lower_bound
@@ -59,7 +60,7 @@ def make_planner(name: str, model: GridModel, *, env_id: str | None = None, **kw
     classes = {"central": (CentralPolicy,), "expectimax": (ExpectimaxPolicy,), "mcts": (ExpectedMCTSPolicy, MCTSPolicy)}
     unknown = sorted(set(kw) - _options(*classes.get(name, ())) - {"leaf", "readings" if name == "mcts" else "leaf"})
     if name in classes and unknown:  # (the classes take **kw: an unknown option would be ignored)
-        raise ValueError(f"planner {name!r} takes no option {', '.join(map(repr, unknown))} "
+        raise ValueError(f"planner {name!r} takes no option {unknown_names(unknown, sorted(_options(*classes[name]) | {'leaf'}))} "
                          f"(its options: {', '.join(sorted(_options(*classes[name]) | {'leaf'}))})")
     if "leaf" in kw or name in ("expectimax", "mcts"):
         kw["leaf"] = load_leaf(kw.get("leaf", "shipped"), env_id)

@@ -3,6 +3,7 @@ bound computed by the same recursion."""
 
 from __future__ import annotations
 
+import sys
 import time
 from typing import Any
 
@@ -131,7 +132,8 @@ def lower_bound(model, depth: int, *, threshold: float = 0.9, prune: float = 0.0
     vals = np.zeros(len(b0))
     for i, b in enumerate(b0):
         vals[i] = expectimax_q(ops, b, depth, one, prune=prune, renormalise=False, memo=True, slack=1e-9).min()
-        if progress:
-            print(f"  reading {i}: p {p0[i]:.4f} W {vals[i]:.4f} ({time.perf_counter() - t:.0f} s)", flush=True)
+        if progress:  # W_k after this first reading: no policy localises from there in fewer mean steps
+            print(f"  first reading {i + 1} of {len(b0)} (probability {p0[i]:.4f}): at least {vals[i]:.4f} mean steps "
+                  f"from there ({time.perf_counter() - t:.0f} s)", file=sys.stderr, flush=True)
     return {"depth": depth, "prune": prune, "bound": float(p0 @ vals), "per_reading": vals.tolist(),
             "reading_probs": p0.tolist(), "seconds": time.perf_counter() - t}

@@ -230,7 +230,8 @@ def run(spec: dict[str, Any], *, address: str | None = None, cpus: int | None = 
     """Run (or resume) the sweep; returns the summary (also written under the output directory).
 
     Ray starts embedded on this machine (``cpus`` CPUs, default all) unless ``address`` names a
-    running cluster to join.  Raises :class:`SweepError` before starting when the output directory
+    running cluster to join.  ``verbose``: Ray Tune's verbosity (0: nothing of Tune's own on the
+    terminal; 1: its trial status tables; ``gridloc sweep`` passes 0 unless ``--verbose``).  Raises :class:`SweepError` before starting when the output directory
     holds another sweep (without ``resume``) or nothing to resume (with it)."""
     out = Path(spec["output"])
     exp_dir = out / EXPERIMENT
@@ -304,7 +305,14 @@ def run(spec: dict[str, Any], *, address: str | None = None, cpus: int | None = 
                     sync_config=tune.SyncConfig(sync_period=0),
                 ),
             )
-        results = tuner.fit()
+        # verbose 0: Tune's newer output still prints its experiment's box and paths; its classic output, nothing
+        classic = {} if verbose or "RAY_AIR_NEW_OUTPUT" in os.environ else {"RAY_AIR_NEW_OUTPUT": "0"}
+        os.environ.update(classic)
+        try:
+            results = tuner.fit()
+        finally:
+            for key in classic:
+                os.environ.pop(key, None)
         records = collect(results, exp_dir, spec["search"])
     finally:
         if started:

@@ -202,7 +202,7 @@ def config_table(c: dict[str, Any]) -> str:
     if a:
         n = a["score"]["n"]
         for name, key in (("mean", "mean"), ("IQM", "iqm")):
-            lines.append(f"| **{name}** ({n} seeds) | | | | {_f(a['mean_steps'][key])} | {_f(a['accuracy'][key])} | "
+            lines.append(f"| **{name}** ({n} seed{'' if n == 1 else 's'}) | | | | {_f(a['mean_steps'][key])} | {_f(a['accuracy'][key])} | "
                          f"{_f(a['argmax_accuracy'][key])} | {_f(a['score'][key])} |")
         ci = {k: "{:.3f}-{:.3f}".format(*a[k]["ci95"]) for k in METRICS}
         lines.append(f"| **95% CI of the mean** (bootstrap) | | | | {ci['mean_steps']} | {ci['accuracy']} | "

@@ -31,7 +31,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from gym_gridloc.core.validation import check_int, is_int
+from gym_gridloc.core.validation import check_int, is_int, unknown_names
 from gym_gridloc_agents.history import history_options
 from gym_gridloc_agents.loading import ALGOS, algo_class
 from gym_gridloc_agents.policies import EXPERT_NAMES
@@ -203,7 +203,7 @@ def _known_keys(source: str, value: Any, allowed, name: str | None = None, quali
     bad = sorted(set(value) - set(allowed))
     if bad:
         where = "" if name is None else f"in {name}: "
-        raise ConfigError(f"{source}: unknown key(s) {where}{', '.join(map(repr, bad))}; "
+        raise ConfigError(f"{source}: unknown key(s) {where}{unknown_names(bad, list(allowed))}; "
                           f"allowed{qualifier}: {', '.join(allowed)}")
 
 

@@ -42,6 +42,23 @@ PRETRAIN_SEED_BASE = 1_000_000
 DAGGER_SEED_BASE = 1_500_000
 
 
+def with_episodes(cfg: dict[str, Any], episodes: int) -> dict[str, Any]:
+    """A copy of ``cfg`` whose warm start plays ``episodes`` expert episodes, and each DAgger round
+    ``dagger_episodes`` scaled by the same factor (at least 1): ``gridloc train --pretrain-episodes``,
+    e.g. a quick run of a distilled config.  The expert's episodes are cached as usual: a later run
+    with more of them continues from these."""
+    import copy
+
+    if not cfg.get("pretrain"):
+        raise ValueError("--pretrain-episodes: this config has no warm start (no pretrain section)")
+    out = copy.deepcopy(cfg)
+    pre = out["pretrain"]
+    factor = episodes / pre["episodes"]
+    pre["episodes"] = int(episodes)
+    pre["dagger_episodes"] = max(1, round(pre["dagger_episodes"] * factor))
+    return out
+
+
 class _FitInterrupted(Exception):
     def __init__(self, done: int) -> None:
         super().__init__(f"interrupted after {done} epochs")

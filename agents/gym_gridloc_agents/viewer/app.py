@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from gym_gridloc import rendering
+from gym_gridloc.core.depth import DepthSensor
 from gym_gridloc.core.ring import RingSensor
 from gym_gridloc.core.sensors import ColourSensor, WallSensor
 from gym_gridloc_agents.viewer.inspector import Inspector
@@ -140,12 +141,16 @@ class App(Inspector):
     # -- drawing ---------------------------------------------------------------------------------------
     def frame_image(self, s: Shown) -> np.ndarray:
         t = self.tile(s.model)
+        heading = s.model.n_layers == 4
         frame = rendering.Frame(s.model, s.belief, s.state, s.reading, s.action, estimate=s.estimate,
-                                path=s.path, heading=s.model.n_layers == 4, tile=t, shading="absolute")
+                                path=s.path, heading=heading, tile=t, shading="absolute",
+                                headings=s.full if heading else None)
         image = rendering.rgb_frame(frame)
         grid_h = s.model.shape[0] * t
-        if np.all(image[grid_h:] == 255):  # a sensor the strip does not show (depth): no strip
+        if np.all(image[grid_h:] == 255):  # no reading yet: no strip
             return image[:grid_h]
+        if isinstance(s.model.sensor, DepthSensor):  # the depth's row of cells, whole
+            return image
         return image[: grid_h + min(max(6, t), 24)]  # a thinner reading strip
 
     def draw(self):
@@ -180,6 +185,8 @@ class App(Inspector):
             return "strip under the grid: the bits read, W N E S (dark = obstacle sensed)"
         if isinstance(sensor, RingSensor):
             return "strip under the grid: cyan = a cell was reported, white = nothing"
+        if isinstance(sensor, DepthSensor):
+            return "strip under the grid: the depth read (robot, free cells, wall)"
         return "the reading is in the panel"
 
     def draw_numbers(self, surf, s: Shown) -> None:
@@ -202,6 +209,7 @@ class App(Inspector):
                  "(absolute: p = 1 full colour, 0.5 half, 0 white)",
                  "p or '% numbers': each cell's probability in percent",
                  "orange: the true position" + (" and heading" if s.model.n_layers == 4 else ""),
+                 *(["triangles at a cell's sides: its headings' probabilities"] if s.model.n_layers == 4 else []),
                  "grey square: the estimate (most probable position)"]
         if s.path is not None:
             lines.append("magenta: the Viterbi path up to now (ringed)")

@@ -3,7 +3,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import itertools
+import os
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -63,6 +66,35 @@ class Recorder:
                            loop=0, optimize=True, disposal=1)
 
 
+#: SDL's video drivers that show nothing (chosen on purpose through ``SDL_VIDEODRIVER``, e.g. by tests).
+HEADLESS_DRIVERS = ("offscreen", "dummy")
+
+
+def no_display(environ=os.environ, platform: str = sys.platform) -> str | None:
+    """Why no window can open here, or None.  On Linux and the BSDs a window needs an X or Wayland
+    display (``DISPLAY`` or ``WAYLAND_DISPLAY``), unless ``SDL_VIDEODRIVER`` names a driver; the
+    check comes before SDL starts, which would otherwise print its own line and draw off screen."""
+    if platform.startswith(("win", "darwin", "cygwin")) or environ.get("SDL_VIDEODRIVER"):
+        return None
+    if environ.get("DISPLAY") or environ.get("WAYLAND_DISPLAY"):
+        return None
+    return "no display (DISPLAY and WAYLAND_DISPLAY are not set)"
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """The process's standard error (file descriptor 2, where SDL writes) sent to the null device."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def surface_array(pg, surf) -> np.ndarray:
     """(H, W, 3) uint8 of a surface."""
     return np.ascontiguousarray(pg.surfarray.array3d(surf).transpose(1, 0, 2))
@@ -82,7 +114,17 @@ class Loop:
         self.clock_now = time.monotonic
         if window:
             pg = self.pg
-            pg.display.init()
+            reason = no_display()
+            if reason is None:
+                with _quiet_stderr():  # SDL prints what it tried (e.g. Wayland) on its own
+                    pg.display.init()
+                driver = pg.display.get_driver()
+                if driver in HEADLESS_DRIVERS and not os.environ.get("SDL_VIDEODRIVER"):
+                    pg.display.quit()  # SDL fell back to drawing nowhere: a window nobody sees, waiting for keys
+                    reason = f"SDL found no display to open it on (only its {driver!r} driver)"
+            if reason is not None:
+                raise UsageError(f"cannot open a window: {reason}; run it where a desktop is, or draw off screen "
+                                 f"with --no-window --steps N --record FILE.gif")
             try:
                 self.screen = pg.display.set_mode(app.size())
             except pg.error as exc:
