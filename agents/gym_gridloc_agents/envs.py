@@ -134,8 +134,7 @@ class SB3VecEnv(VecEnv):
     vector env is switched to ``AutoresetMode.SAME_STEP`` for this.
 
     >>> import gymnasium as gym, gym_gridloc
-    >>> from gym_gridloc_agents.history import History, HistoryWrapper, episode_limit, history_options
-from gym_gridloc_agents.envs import SB3VecEnv
+    >>> from gym_gridloc_agents.envs import SB3VecEnv
     >>> venv = SB3VecEnv(gym.make_vec("WindyMaze-v0", num_envs=8, vectorization_mode="vector_entry_point"))
     >>> venv.num_envs
     8
