@@ -13,6 +13,8 @@ import numpy as np
 from llvmlite import ir
 from numba.extending import intrinsic
 
+from gym_gridloc._numba_filter import fused_step, pairwise_program, pairwise_sum  # noqa: F401 (re-exported)
+
 _CHUNK = 2048
 _U = np.uint64  # Offsets and indices are unsigned: numba then emits no negative-index checks, and
 # flat arrays with offsets need no per-row views (a view, or a reshape, costs more than a small
