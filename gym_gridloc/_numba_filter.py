@@ -1,7 +1,12 @@
-"""The compiled filter step of one belief on a large model: :class:`gym_gridloc.kernels.FusedPlan`'s.
+"""The compiled filter steps: the stencil of small models (:class:`gym_gridloc.kernels.NumbaPlan`: one
+belief or a batch, each with its action; the vector step's filter too) and the fused step of one
+belief on a large model (:class:`gym_gridloc.kernels.FusedPlan`).
 
-The numpy plan's numbers, bit for bit, in one pass over the belief: each cell sums its stencil
-terms in the plan's order (the ``(0, 0)`` term written first, then the others as
+Small models: each term is added over its whole destination layer, the terms in order, then each
+layer is weighed and summed in cache-sized chunks (:func:`stencil`).
+
+Large models: the numpy plan's numbers, bit for bit, in one pass over the belief: each cell sums
+its stencil terms in the plan's order (the ``(0, 0)`` term written first, then the others as
 :func:`gym_gridloc.kernels.diagonal_add` adds them), is multiplied by its likelihood and written
 once, and the sum is numpy's ``np.add.reduce`` of the result (its pairwise summation, whose blocks
 are summed while in cache, in the order of a precomputed program).  A term whose weights are one
@@ -16,7 +21,97 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-_U = np.uint64  # unsigned offsets: no negative-index checks (see _numba_kernels)
+_CHUNK = 2048
+_U = np.uint64  # Offsets and indices are unsigned: numba then emits no negative-index checks, and
+# flat arrays with offsets need no per-row views (a view, or a reshape, costs more than a small
+# belief's arithmetic: tables and beliefs are flattened once per call and addressed by offset).
+
+
+@numba.njit(cache=True, nogil=True)
+def stencil(b, bo, w, wo, meta, mo, K, lik, lo, out, oo, n_layers, hw, layered, mode):  # pragma: no cover - compiled
+    """``out = T^T b`` over flat arrays, the belief at ``b[bo:]`` into ``out[oo:]`` (``L*hw``
+    values), the action's ``(K, hw)`` weights at ``w[wo:]`` and its ``(5, K)`` meta at
+    ``meta[mo:]`` (see :func:`stencil_update`), the likelihood (``hw``, or ``L*hw`` when
+    ``layered`` is 1) at ``lik[lo:]``.  Each term is added over its whole destination layer, the
+    terms in order (each cell sums its terms in that order), then each layer is weighed and
+    summed in cache-sized chunks."""
+    for i in range(_U(n_layers * hw)):
+        out[oo + i] = 0.0
+    for k in range(K):
+        dst = meta[mo + _U(K + k)]
+        if dst < 0:  # padding
+            continue
+        a = meta[mo + _U(3 * K + k)]
+        e = meta[mo + _U(4 * K + k)]
+        if e <= a:
+            continue
+        o = meta[mo + _U(2 * K + k)]
+        wk = wo + _U(k * hw + a - o)
+        bk = bo + _U(meta[mo + _U(k)] * hw + a - o)
+        ok = oo + _U(dst * hw + a)
+        for i in range(_U(e - a)):
+            out[ok + i] += w[wk + i] * b[bk + i]
+    if mode == 0:
+        return 0.0
+    z0 = z1 = z2 = z3 = 0.0
+    for layer in range(n_layers):
+        base = oo + _U(layer * hw)
+        lbase = lo + _U(layer * hw * layered)
+        for c0 in range(0, hw, _CHUNK):
+            n = min(hw, c0 + _CHUNK) - c0
+            cb = base + _U(c0)
+            lb = lbase + _U(c0)
+            for i in range(_U(n)):
+                out[cb + i] *= lik[lb + i]
+            # Four running sums: the additions overlap instead of waiting on each other.
+            n4 = n - n % 4
+            for i in range(0, n4, 4):
+                j = cb + _U(i)
+                z0 += out[j]
+                z1 += out[j + _U(1)]
+                z2 += out[j + _U(2)]
+                z3 += out[j + _U(3)]
+            for i in range(n4, n):
+                z0 += out[cb + _U(i)]
+    z = (z0 + z1) + (z2 + z3)
+    if mode == 1 and z > 0.0 and np.isfinite(z):
+        inv = 1.0 / z
+        for i in range(_U(n_layers * hw)):
+            out[oo + i] *= inv
+    return z
+
+
+@numba.njit(cache=True, nogil=True)
+def stencil_update(b, w, meta, lik, layered, out, n_layers, mode):  # pragma: no cover - compiled
+    """``out = T^T b`` for one belief; mode 0: predict only; 1: times ``lik``, normalised; 2:
+    times ``lik``.  Returns the sum (modes 1, 2).  ``w`` is one action's ``(K, H*W)`` weights and
+    ``meta`` its ``(5, K)`` table (source layer, destination layer, flat offset, first and end
+    destination cell), both flat (``w[a].reshape(-1)``); ``lik`` holds one (H*W) likelihood, or
+    one per layer when ``layered`` is 1.  ``b`` and ``out`` may be (L, H, W): C-contiguous arrays
+    are read flat (no reshape in Python)."""
+    K = meta.size // 5
+    return stencil(b.reshape(b.size), _U(0), w, _U(0), meta, _U(0), K, lik, _U(0), out.reshape(out.size), _U(0),
+                    n_layers, w.size // K, layered, mode)
+
+
+@numba.njit(cache=True, nogil=True)
+def batch_update(beliefs, w, meta, actions, lik, layered, out, n_layers, mode, sel, z):  # pragma: no cover - compiled
+    """:func:`stencil_update` on each selected row of ``beliefs`` ``(N, L*H*W)`` with its action
+    (``w`` ``(A, K, H*W)`` and ``meta`` ``(A, 5, K)`` every action's; row ``i`` of ``lik`` is its
+    likelihood, unused in mode 0)."""
+    K, hw, size = w.shape[1], w.shape[2], beliefs.shape[1]
+    bf, of, lf = beliefs.reshape(beliefs.size), out.reshape(out.size), lik.reshape(lik.size)
+    wf, mf = w.reshape(w.size), meta.reshape(meta.size)
+    for i in range(beliefs.shape[0]):
+        if sel[i]:
+            a = actions[i]
+            z[i] = stencil(bf, _U(i * size), wf, _U(a * K * hw), mf, _U(a * 5 * K), K, lf, _U(i * lik.shape[1]),
+                            of, _U(i * size), n_layers, hw, layered, mode)
+        else:
+            z[i] = 1.0
+
+
+# -- large models: the fused step ------------------------------------------------------------------
 #: Cells computed before their pairwise blocks are summed (16 KiB of results, still in cache).
 CHUNK = 2048
 #: Ops of a pairwise-sum program (:func:`pairwise_program`).

@@ -693,7 +693,7 @@ def vector_bank(model: GridModel, n_rows: int) -> "VectorBank | None":
 
 
 def _vector_tables(model: GridModel) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]] | None:
-    """``(scalars, arrays)`` of :func:`_numba_kernels.vector_advance` for one model, or None when
+    """``(scalars, arrays)`` of :func:`_numba_vector.vector_advance` for one model, or None when
     it has no compiled path: ``scalars`` (width, layers, layered, the draw table's kind, uniforms
     per reading, states), ``arrays`` in the kernel's order (the moves' keys, the filter plan's
     weights, from which the moves are drawn too, and meta, every reading's likelihood, the

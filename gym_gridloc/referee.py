@@ -114,7 +114,7 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
 def readout_blocks(n: int, cells: int, threshold: float, pose: bool, *, observed: bool = False) -> tuple:
     """What the compiled readout of N beliefs of ``cells`` positions fills, with its two
     parameters: ``(pose, threshold, scratch, kept, ints, confidence, estimate, flags, observed)``
-    (``_numba_kernels.batch_readout``'s, or the engine's vector step's with them); then
+    (``_numba_readout.batch_readout``'s, or the engine's vector step's with them); then
     :func:`read_blocks` gives the infos.  ``observed``: the readout also writes the observed
     position beliefs (float32 (N, cells), as ``observation.observed_belief`` makes them) in the
     last block (else it has no rows).  Few allocations: blocks whose rows are the arrays (a
