@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from gym_gridloc import engine
+from gym_gridloc import engine, referee
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.pomdp_models import INSTALL_HINT, classes, import_pomdp_py
 from gym_gridloc.core.validation import check_int, check_threshold, whole_numbers
@@ -227,7 +227,7 @@ class PomdpPy:
         return pomdp_py.Agent(init, policy_model=self.policy_model, observation_model=self.observation_model, **models)
 
 
-def to_pomdp_py(model: GridModel, *, threshold: float = 0.9, discount: float = 1.0, pose: bool = False,
+def to_pomdp_py(model: GridModel, *, threshold: float = referee.LOCALISE_THRESHOLD, discount: float = 1.0, pose: bool = False,
                 seed: Any = None) -> PomdpPy:
     """pomdp_py's models of ``model`` (see :class:`PomdpPy` and the module docstring).
 

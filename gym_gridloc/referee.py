@@ -20,6 +20,10 @@ from gym_gridloc.core.sensors import xlogx
 #: only numpy's own sum is the same number in every version.
 COMPILED_ENTROPY_CELLS = 8192
 
+#: The confidence at which the referee says the robot is localised, by default (the environments'
+#: ``localise_threshold``, the planners' ``threshold``): :func:`localised`.
+LOCALISE_THRESHOLD = 0.9
+
 #: Reward kinds: ``"step"`` is -1 per step; ``"belief"`` is the referee's confidence (the largest
 #: posterior probability it tests: the research protocol's reward).
 REWARDS = ("step", "belief")

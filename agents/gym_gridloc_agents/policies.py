@@ -30,6 +30,7 @@ import numpy as np
 
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.lookahead import Lookahead
+from gym_gridloc.referee import LOCALISE_THRESHOLD
 from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.learned import (LEARNED_POLICIES, POLICY_DIR, DistilledPolicy, PPOPolicy, RecurrentPolicy,
                                         default_model_path, renamed_model, wrapped_observation)
@@ -167,7 +168,7 @@ def make_policy(
     if name == "pomcp":
         from gym_gridloc_agents.planners.pomcp import PomcpPolicy
 
-        threshold = options.pop("threshold", None) or (env_kwargs or {}).get("localise_threshold", 0.9)
+        threshold = options.pop("threshold", None) or (env_kwargs or {}).get("localise_threshold", LOCALISE_THRESHOLD)
         return PomcpPolicy(model, seed=seed, threshold=threshold, pose=pose, **options)
     if name in LEARNED_POLICIES:
         return LEARNED_POLICIES[name](model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
