@@ -23,8 +23,8 @@ def vector_advancer(model: GridModel) -> Callable[..., None] | None:
     """A vector step of N robots on ``model`` as one compiled call, for the native vector
     environment: ``(states, readings, actions, beliefs, out, modes, rng)``.  Row ``i``
     with ``modes[i]`` 0 moves under ``actions[i]``, reads, and ``out[i]`` receives its normalised
-    posterior (:func:`sample_next`, :func:`sample_readings`, :func:`step`); 1 starts an episode
-    (:func:`sample_initial`, :func:`sample_readings`, :func:`first_posterior`); 2 keeps its state,
+    posterior (:func:`~gym_gridloc.engine.sample_next`, :func:`~gym_gridloc.engine.sample_readings`, :func:`~gym_gridloc.engine.step`); 1 starts an episode
+    (:func:`~gym_gridloc.engine.sample_initial`, :func:`~gym_gridloc.engine.sample_readings`, :func:`~gym_gridloc.engine.first_posterior`); 2 keeps its state,
     reading and belief.  ``states`` ``(N, 3)`` and ``readings`` (N,) int64 are updated in place
     (``out`` gets the kept beliefs too); ``actions`` N int64 in
     ``0..A-1`` (not checked: the caller has); ``modes`` N int8; ``beliefs`` and ``out``
@@ -51,7 +51,7 @@ def vector_bank(model: GridModel, n_rows: int) -> "VectorBank | None":
 
 
 def _vector_tables(model: GridModel) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]] | None:
-    """``(scalars, arrays)`` of :func:`_numba_vector.vector_advance` for one model, or None when
+    """``(scalars, arrays)`` of :func:`gym_gridloc._numba_vector.vector_advance` for one model, or None when
     it has no compiled path: ``scalars`` (width, layers, layered, the draw table's kind, uniforms
     per reading, states), ``arrays`` in the kernel's order (the moves' keys, the filter plan's
     weights, from which the moves are drawn too, and meta, every reading's likelihood, the
@@ -79,8 +79,8 @@ def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], 
     """The vector step over ``stacked`` tables (a leading slot axis):
     ``(states, readings, actions, beliefs, out, modes, rng, slots, readout=None, ending=None,
     maps=False)``; ``model_at(slot)`` names the model in an impossible reading's error.
-    ``readout``: the referee's blocks (:func:`referee.readout_blocks`), which the same call fills
-    for every row; ``ending`` (with ``readout``): the referee's :func:`referee.ending_blocks`,
+    ``readout``: the referee's blocks (:func:`gym_gridloc.referee.readout_blocks`), which the same call fills
+    for every row; ``ending`` (with ``readout``): the referee's :func:`gym_gridloc.referee.ending_blocks`,
     the same for how each row's step ends; ``maps`` (with ``maze``, a bank's ``(walls, rooms,
     code slots)``): the starting rows' maps are drawn first, in the same call, and
     ``place(codes, modes, slots)`` places the models of codes without a slot and returns the

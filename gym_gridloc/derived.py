@@ -66,7 +66,7 @@ class Derived:
     def moves(self) -> tuple[np.ndarray, np.ndarray]:
         """The sampler's tables, every action's terms in their order padded to ``K`` (zero weight):
         ``weights`` ``(A + 1, K, H*W)`` and ``keys`` ``(A + 1, 4, K)`` (source layer, destination
-        layer, row shift, column shift; a padding term's source is -1): :func:`kernels.padded`.
+        layer, row shift, column shift; a padding term's source is -1): :func:`gym_gridloc.kernels.padded`.
         With the compiled filter they are its plan's (one copy: the filter's weights are these)."""
         model = self.model()
         if kernels.uses_numba(model.n_layers * model.shape[0] * model.shape[1]):
@@ -75,7 +75,7 @@ class Derived:
         weights, keys = kernels.padded(self.transitions, model.shape)
         return weights, np.ascontiguousarray(keys[:, :4])
 
-    #: :func:`first_posterior` keeps every reading's posterior when (readings x cells) is at most this.
+    #: :func:`~gym_gridloc.engine.first_posterior` keeps every reading's posterior when (readings x cells) is at most this.
     FIRST_TABLE_MAX = 2**18
 
     def first_table(self, now: bool = False) -> tuple[np.ndarray, np.ndarray] | None:

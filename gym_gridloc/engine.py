@@ -159,7 +159,7 @@ def likelihood(model: GridModel, reading: int) -> np.ndarray:
 def update(model: GridModel, beliefs: np.ndarray, readings: Any) -> np.ndarray:
     """Condition beliefs ``(L, H, W)`` or ``(N, L, H, W)`` on readings (one per belief), in place,
     normalised; returns the normalisers ``P(reading | belief)`` (N,).  On a reading of probability
-    zero the beliefs are left as they were and :class:`ImpossibleObservationError` names it."""
+    zero the beliefs are left as they were and :class:`~gym_gridloc.ImpossibleObservationError` names it."""
     b = np.asarray(beliefs)
     if b.dtype != np.float64 or not b.flags.c_contiguous:
         raise ValueError("update() works in place: beliefs must be a C-contiguous float64 array")
@@ -214,7 +214,7 @@ def step(model: GridModel, beliefs: np.ndarray, actions: Any, readings: Any, out
     multiplied by ``z`` (the caller divides later).  ``mask`` (N booleans) limits the step to
     some beliefs (the other rows of ``out`` are left as they were).  On an impossible reading
     nothing the caller holds changes (``out`` may be overwritten) and
-    :class:`ImpossibleObservationError` names it.
+    :class:`~gym_gridloc.ImpossibleObservationError` names it.
     """
     flat, single = _flat(model, beliefs)
     if single:
