@@ -218,17 +218,23 @@ def _cells(b, bits, wcols, vals, terms, t0, t1, hw, ob, lo, hi, out, lik, lb, mo
 
 
 @numba.njit(cache=True, nogil=True)
-def _chunk(b, bits, wcols, vals, terms, span, hw, ob, lo, hi, out, lik, lb, mode):  # pragma: no cover - compiled
+def _chunk(b, bits, wcols, vals, codes, tables, terms, span, hw, ob, lo, hi, out, lik, lb, mode):  # pragma: no cover - compiled
     """Cells ``lo..hi-1`` of one destination layer with its terms ``span`` (first term, end, the
-    cells where every term's source is inside the layer, and whether the layer has one to five
-    terms, the first with weights and the others bits): those cells in one loop (a term of the
-    five that the layer lacks adds a zero: bit 7, set nowhere), the others by :func:`_cells`."""
-    t0, t1, a, e = span[0], span[1], max(lo, span[2]), min(hi, span[3])
+    cells where every term's source is inside the layer, how, and the first term's codes): how 0,
+    term by term (:func:`_cells`); 1 or 2, in one loop: one to five terms, the others bits, the
+    first with its weights (1) or with at most 8 values, one per code (2: ``codes`` and ``tables``
+    row ``span[5]``).  In one loop, a term of the five that the layer lacks adds a zero (bit 7,
+    set nowhere)."""
+    t0, t1, a, e, how = span[0], span[1], max(lo, span[2]), min(hi, span[3]), span[4]
     nt = t1 - t0
-    if not span[4] or e <= a:
+    if how == 0 or e <= a:
         _cells(b, bits, wcols, vals, terms, t0, t1, hw, ob, lo, hi, out, lik, lb, mode)
         return
     w0 = _U(terms[t0, 2] * hw - terms[t0, 1])
+    kb = _U(span[5] * hw)
+    tb = _U(span[5] * 8)
+    u0, u1, u2, u3 = tables[tb], tables[tb + _U(1)], tables[tb + _U(2)], tables[tb + _U(3)]
+    u4, u5, u6, u7 = tables[tb + _U(4)], tables[tb + _U(5)], tables[tb + _U(6)], tables[tb + _U(7)]
     p0 = _U(terms[t0, 0] * hw - terms[t0, 1])
     p1 = p2 = p3 = p4 = p0
     v1 = v2 = v3 = v4 = 0.0
@@ -241,7 +247,7 @@ def _chunk(b, bits, wcols, vals, terms, span, hw, ob, lo, hi, out, lik, lb, mode
         p3, v3, m3 = _U(terms[t0 + 3, 0] * hw - terms[t0 + 3, 1]), vals[t0 + 3], np.uint8(1 << terms[t0 + 3, 3])
     if nt > 4:
         p4, v4, m4 = _U(terms[t0 + 4, 0] * hw - terms[t0 + 4, 1]), vals[t0 + 4], np.uint8(1 << terms[t0 + 4, 3])
-    if mode:
+    if how == 1 and mode:
         for c in range(_U(a), _U(e)):
             m = bits[c]
             acc = wcols[w0 + c] * b[p0 + c]
@@ -250,10 +256,46 @@ def _chunk(b, bits, wcols, vals, terms, span, hw, ob, lo, hi, out, lik, lb, mode
             acc += (v3 if m & m3 else 0.0) * b[p3 + c]
             acc += (v4 if m & m4 else 0.0) * b[p4 + c]
             out[ob + c] = acc * lik[lb + c]
-    else:
+    elif how == 1 and not mode:
         for c in range(_U(a), _U(e)):
             m = bits[c]
             acc = wcols[w0 + c] * b[p0 + c]
+            acc += (v1 if m & m1 else 0.0) * b[p1 + c]
+            acc += (v2 if m & m2 else 0.0) * b[p2 + c]
+            acc += (v3 if m & m3 else 0.0) * b[p3 + c]
+            acc += (v4 if m & m4 else 0.0) * b[p4 + c]
+            out[ob + c] = acc
+    elif how == 2 and mode:
+        for c in range(_U(a), _U(e)):
+            k = codes[kb + c]
+            w = u0
+            w = u1 if k == 1 else w
+            w = u2 if k == 2 else w
+            w = u3 if k == 3 else w
+            w = u4 if k == 4 else w
+            w = u5 if k == 5 else w
+            w = u6 if k == 6 else w
+            w = u7 if k == 7 else w
+            m = bits[c]
+            acc = w * b[p0 + c]
+            acc += (v1 if m & m1 else 0.0) * b[p1 + c]
+            acc += (v2 if m & m2 else 0.0) * b[p2 + c]
+            acc += (v3 if m & m3 else 0.0) * b[p3 + c]
+            acc += (v4 if m & m4 else 0.0) * b[p4 + c]
+            out[ob + c] = acc * lik[lb + c]
+    elif how == 2 and not mode:
+        for c in range(_U(a), _U(e)):
+            k = codes[kb + c]
+            w = u0
+            w = u1 if k == 1 else w
+            w = u2 if k == 2 else w
+            w = u3 if k == 3 else w
+            w = u4 if k == 4 else w
+            w = u5 if k == 5 else w
+            w = u6 if k == 6 else w
+            w = u7 if k == 7 else w
+            m = bits[c]
+            acc = w * b[p0 + c]
             acc += (v1 if m & m1 else 0.0) * b[p1 + c]
             acc += (v2 if m & m2 else 0.0) * b[p2 + c]
             acc += (v3 if m & m3 else 0.0) * b[p3 + c]
@@ -266,11 +308,11 @@ def _chunk(b, bits, wcols, vals, terms, span, hw, ob, lo, hi, out, lik, lb, mode
 
 
 @numba.njit(cache=True, nogil=True)
-def fused_step(b, out, lik, layered, mode, spans, n_layers, hw, bits, wcols, vals, terms, bounds, ops):  # pragma: no cover - compiled
+def fused_step(b, out, lik, layered, mode, spans, n_layers, hw, bits, wcols, vals, codes, tables, terms, bounds, ops):  # pragma: no cover - compiled
     """One belief's step with one action: ``out`` = ``T^T b`` (flat ``L*hw``), mode 0: nothing
     else, returns 1.0; 1: times the likelihood ``lik`` (``hw``, or ``L*hw`` when ``layered`` is 1),
     times ``1 / z`` when the sum ``z`` is positive and finite; 2: times the likelihood only.
-    Returns ``z`` (modes 1, 2).  ``spans`` ``(L, 5)``: the action's terms of each destination
+    Returns ``z`` (modes 1, 2).  ``spans`` ``(L, 6)``: the action's terms of each destination
     layer (see :func:`_chunk`); ``terms`` ``(T, 4)``:
     source layer, flat shift (destination minus source cell), weight column (-1 for a bit term),
     bit (-1 for a weight term); ``vals`` the bit terms' values; ``bounds`` and ``ops`` the sum's
@@ -283,7 +325,7 @@ def fused_step(b, out, lik, layered, mode, spans, n_layers, hw, bits, wcols, val
         layer = done // hw
         end = min(done + CHUNK, (layer + 1) * hw)
         base = layer * hw
-        _chunk(b, bits, wcols, vals, terms, spans[layer], hw, _U(base), done - base, end - base, out, lik,
+        _chunk(b, bits, wcols, vals, codes, tables, terms, spans[layer], hw, _U(base), done - base, end - base, out, lik,
                _U(base * layered), mode)
         done = end
         while mode and k < sums.size and bounds[k + 1] <= done:

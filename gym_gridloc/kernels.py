@@ -49,6 +49,10 @@ AVAILABLE = (
 NUMBA_MAX_CELLS = 128 * 128
 #: Elements per chunk of :func:`diagonal_add` (128 KiB of products, added while in cache).
 DIAGONAL_CHUNK = 16384
+#: The fused plan reads the weights of each layer's first term as one-byte codes of at most 8 values
+#: (a select among them) when the actions' arrays of such weights exceed this many bytes: they no
+#: longer stay in cache from one step to the next, and the codes take an eighth of the memory.
+CODED_BYTES = 4 * 2**20
 #: Models with :data:`NUMBA_MAX_CELLS` cells or more step one belief with the fused compiled pass
 #: (:class:`FusedPlan`) when numba is available: ``GYM_GRIDLOC_NUMBA=all``.
 NUMBA_LARGE = os.environ.get("GYM_GRIDLOC_NUMBA", "") == "all"
@@ -328,7 +332,8 @@ class FusedPlan(NumpyPlan):
         masks: dict[bytes, int] = {}
         columns: dict[int, tuple[int, np.ndarray]] = {}  # the weights' address -> (column, weights)
         terms, vals = [], []
-        self.spans = np.zeros((len(transitions), n_layers, 5), dtype=np.int64)
+        self.spans = np.zeros((len(transitions), n_layers, 6), dtype=np.int64)
+        codes, tables = [np.zeros(hw, dtype=np.uint8)], [np.zeros(8)]
         for a, (_, writes, adds) in enumerate(self.single):
             layers: list[list] = [[] for _ in range(n_layers)]
             for src, dst, wt in writes:
@@ -351,11 +356,24 @@ class FusedPlan(NumpyPlan):
                     column = -1 if bit >= 0 else columns.setdefault(wt.ctypes.data, (len(columns), wt))[0]
                     terms.append((src, s, column, bit))
                     vals.append(float(nonzero[0]) if bit >= 0 and nonzero.size else 0.0)
+                    if i == 0:  # its weights by destination cell
+                        first_weights = np.zeros(hw)
+                        first_weights[lo + s : hi + s] = used
                 shifts = [s for _, s, _ in group] + [0]
                 bits_only = all(t[3] >= 0 for t in terms[first + 1 :])
-                self.spans[a, layer] = (first, len(terms), max(shifts), hw + min(shifts), 0 < len(group) <= 5 and bits_only)
+                self.spans[a, layer, :5] = (first, len(terms), max(shifts), hw + min(shifts), 0 < len(group) <= 5 and bits_only)
+                lo, hi = self.spans[a, layer, 2:4]
+                coded = self.spans[a, layer, 4] and hi > lo and hw * 8 * len(transitions) * n_layers > CODED_BYTES
+                values = np.unique(first_weights[lo:hi]) if coded else np.zeros(9)
+                if values.size <= 8:  # the first term's weights as codes of at most 8 values
+                    code = np.zeros(hw, dtype=np.uint8)
+                    code[lo:hi] = np.searchsorted(values, first_weights[lo:hi])
+                    self.spans[a, layer, 4:] = (2, len(codes))
+                    codes.append(code)
+                    tables.append(np.concatenate([values, np.zeros(8 - values.size)]))
         self.terms = np.array(terms, dtype=np.int64).reshape(-1, 4)
         self.vals = np.array(vals)
+        self.codes, self.tables = np.concatenate(codes), np.concatenate(tables)
         self.bits = np.zeros(hw, dtype=np.uint8)
         for cells, bit in masks.items():
             self.bits |= np.frombuffer(cells, dtype=bool).astype(np.uint8) << bit
@@ -366,4 +384,4 @@ class FusedPlan(NumpyPlan):
     def run_one(self, belief, action: int, lik, layered: int, out, mode: int) -> float:
         """One belief (flat, or C-contiguous (L, H, W)) with one action (see the module docstring)."""
         return self._step(belief.reshape(-1), out.reshape(-1), lik, layered, mode, self.spans[action], self.n_layers,
-                          self.hw, self.bits, self.wcols, self.vals, self.terms, self.bounds, self.ops)
+                          self.hw, self.bits, self.wcols, self.vals, self.codes, self.tables, self.terms, self.bounds, self.ops)
