@@ -11,7 +11,9 @@ its stencil terms in the plan's order (the ``(0, 0)`` term written first, then t
 once, and the sum is numpy's ``np.add.reduce`` of the result (its pairwise summation, whose blocks
 are summed while in cache, in the order of a precomputed program).  A term whose weights are one
 value ``v`` where they are not zero reads ``v`` and a bit of the cell's byte in ``bits`` (the
-cells it feeds), not a weight array; the others read their weights (``wcols``).  Adding a zero
+cells it feeds), not a weight array; a layer's first term reads its weights (``wcols``) or, on
+grids too large for them to stay in cache, a one-byte code per cell of at most 8 values
+(``codes``, ``tables``); the others read their weights.  Adding a zero
 product (a bit not set) leaves a sum of non-negative numbers as it was, so the numbers are the
 numpy plan's.  Imported by :mod:`gym_gridloc._numba_kernels` (numba is imported with it).
 """
@@ -316,7 +318,8 @@ def fused_step(b, out, lik, layered, mode, spans, n_layers, hw, bits, wcols, val
     layer (see :func:`_chunk`); ``terms`` ``(T, 4)``:
     source layer, flat shift (destination minus source cell), weight column (-1 for a bit term),
     bit (-1 for a weight term); ``vals`` the bit terms' values; ``bounds`` and ``ops`` the sum's
-    :func:`pairwise_program` of ``L*hw`` values."""
+    :func:`pairwise_program` of ``L*hw`` values.  ``b`` and ``out`` are read flat (C-contiguous)."""
+    b, out = b.reshape(b.size), out.reshape(out.size)
     n = n_layers * hw
     sums = np.empty(bounds.size - 1)
     k = 0

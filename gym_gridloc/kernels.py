@@ -322,7 +322,8 @@ class FusedPlan(NumpyPlan):
     destination layer in the numpy plan's order: the first (the written ``(0, 0)`` term, or the
     first added) and those whose nonzero weights vary read their weight arrays (copied into one
     array, each once), the others (one value where not zero: a move's weight on a grid) a bit of
-    a byte per destination cell (up to 7 such patterns of cells)."""
+    a byte per destination cell (up to 7 such patterns of cells).  Beyond :data:`CODED_BYTES`, a
+    first term of at most 8 values (a blocked move's stay on a grid) reads a byte per cell too."""
 
     path = "fused"
 
@@ -379,9 +380,11 @@ class FusedPlan(NumpyPlan):
             self.bits |= np.frombuffer(cells, dtype=bool).astype(np.uint8) << bit
         self.wcols = np.concatenate([wt for _, wt in sorted(columns.values(), key=lambda c: c[0])] or [np.zeros(0)])
         self.bounds, self.ops = fast.pairwise_program(n_layers * hw)
-        self._step = fast.fused_step
+        step, spans = fast.fused_step, list(self.spans)
+        model = (n_layers, hw, self.bits, self.wcols, self.vals, self.codes, self.tables, self.terms, self.bounds, self.ops)
 
-    def run_one(self, belief, action: int, lik, layered: int, out, mode: int) -> float:
-        """One belief (flat, or C-contiguous (L, H, W)) with one action (see the module docstring)."""
-        return self._step(belief.reshape(-1), out.reshape(-1), lik, layered, mode, self.spans[action], self.n_layers,
-                          self.hw, self.bits, self.wcols, self.vals, self.codes, self.tables, self.terms, self.bounds, self.ops)
+        def run_one(belief, action: int, lik, layered: int, out, mode: int) -> float:
+            """One belief (flat, or C-contiguous (L, H, W)) with one action (see the module docstring)."""
+            return step(belief, out, lik, layered, mode, spans[action], *model)
+
+        self.run_one = run_one

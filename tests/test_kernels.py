@@ -145,16 +145,20 @@ RANDOM_MAKERS = {
 
 
 @needs_numba
+@pytest.mark.parametrize("coded", [False, True])
 @pytest.mark.parametrize("kidnap", [0.0, 0.05])
 @pytest.mark.parametrize("family", sorted(RANDOM_MAKERS))
-@pytest.mark.parametrize("seed", range(4))
-def test_the_fused_step_is_the_numpy_plans_to_the_bit(family, seed, kidnap, monkeypatch):
+@pytest.mark.parametrize("seed", range(3))
+def test_the_fused_step_is_the_numpy_plans_to_the_bit(family, seed, kidnap, coded, monkeypatch):
     """Random maps (obstacles, mazes, headings as layers, kidnapping): every action and the unknown
     one, every mode (predict; weigh and normalise; weigh), through the plan and through the engine
-    (predict, step, a filter run): the same bits as the numpy plan, and the dense reference."""
+    (predict, step, a filter run): the same bits as the numpy plan, and the dense reference; with
+    the layers' first terms read as weights or as codes."""
+    monkeypatch.setattr(kernels, "CODED_BYTES", 0 if coded else 2**62)
     fused, plain = fused_and_numpy(
         lambda: RANDOM_MAKERS[family](np.random.default_rng([seed, len(family)])).with_kidnapping(kidnap), monkeypatch)
     model, fp, pp = plain, engine.plan(fused), engine.plan(plain)
+    assert (fp.spans[:, :, 4] == 2).any() == (coded and family in ("colour", "maze", "depth"))
     rng = np.random.default_rng(seed)
     layered = int(model.sensor.layered)
     for _ in range(3):
@@ -191,8 +195,9 @@ def test_the_fused_step_on_a_large_grid(monkeypatch):
     setting: the fused plan, every action's layer in one loop, the same bits on a filter run."""
     make = lambda: gym_gridloc.colour_grid_model(colour_map((131, 140), obstacle_density=0.25, seed=7))  # noqa: E731
     monkeypatch.setattr(kernels, "NUMBA_LARGE", True)
+    monkeypatch.setattr(kernels, "CODED_BYTES", 2**19)  # (this grid's stay weights: 5 x 143 KiB)
     fused = make()
-    assert engine.path(fused) == "fused" and engine.plan(fused).spans[:, :, 4].all()
+    assert engine.path(fused) == "fused" and np.all(engine.plan(fused).spans[:, :, 4] == 2)
     monkeypatch.setattr(kernels, "NUMBA_LARGE", False)
     plain = make()
     assert engine.path(plain) == "numpy"
