@@ -119,7 +119,7 @@ def plan(model: GridModel) -> kernels.NumbaPlan | kernels.NumpyPlan:
 
 
 def path(model: GridModel) -> str:
-    """``"numba"`` or ``"numpy"``: the kernel that filters ``model``."""
+    """``"numba"``, ``"numpy"`` or ``"fused"``: the kernel that filters ``model`` (:mod:`gym_gridloc.kernels`)."""
     return plan(model).path
 
 
