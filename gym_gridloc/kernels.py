@@ -18,6 +18,11 @@ give the same numbers (within rounding; the tests compare both with a dense refe
   by chunk so that the products are added while in cache), reading the model's weights in place
   (no copy); a ``(0, 0)`` term is written first with one multiply.  For a batch, each distinct
   shift is one multiply-add over all N beliefs, with the N actions' weights gathered (or shared).
+* **fused** (larger models with :data:`NUMBA_LARGE`, ``GYM_GRIDLOC_NUMBA=all``): the numpy plan
+  whose one-belief step is one compiled pass (:mod:`gym_gridloc._numba_filter`: each cell's terms
+  in the numpy plan's order, times the likelihood, written once; the sum in numpy's pairwise
+  order): the numpy plan's numbers, bit for bit, with a single pass over the belief and no
+  temporaries.  It loads numba for a large model (about 110 MiB resident), so it is asked for.
 
 Flat arrays: a belief is ``L*H*W`` float64 (layer-major), a likelihood ``H*W`` (position sensors)
 or ``L*H*W`` (``layered``: a reading that depends on the layer, e.g. a heading).  ``mode`` 0 only
@@ -44,6 +49,13 @@ AVAILABLE = (
 NUMBA_MAX_CELLS = 128 * 128
 #: Elements per chunk of :func:`diagonal_add` (128 KiB of products, added while in cache).
 DIAGONAL_CHUNK = 16384
+#: The fused plan reads the weights of each layer's first term as one-byte codes of at most 8 values
+#: (a select among them) when the actions' arrays of such weights exceed this many bytes: they no
+#: longer stay in cache from one step to the next, and the codes take an eighth of the memory.
+CODED_BYTES = 4 * 2**20
+#: Models with :data:`NUMBA_MAX_CELLS` cells or more step one belief with the fused compiled pass
+#: (:class:`FusedPlan`) when numba is available: ``GYM_GRIDLOC_NUMBA=all``.
+NUMBA_LARGE = os.environ.get("GYM_GRIDLOC_NUMBA", "") == "all"
 
 _COMPILED = None
 
@@ -87,8 +99,18 @@ _BIT_FUNCTIONS: dict[int, tuple[Any, np.ndarray]] = {}
 
 def make_plan(transitions, n_layers: int, shape: tuple[int, int]):
     """The plan for ``transitions`` (one tuple of terms per action, the unknown action last)."""
-    cls = NumbaPlan if uses_numba(n_layers * shape[0] * shape[1]) else NumpyPlan
-    return cls(transitions, n_layers, shape)
+    if uses_numba(n_layers * shape[0] * shape[1]):
+        return NumbaPlan(transitions, n_layers, shape)
+    fused = NUMBA_LARGE and AVAILABLE and _compiled() is not None and _sums_in_one_piece()
+    return (FusedPlan if fused else NumpyPlan)(transitions, n_layers, shape)
+
+
+@functools.cache
+def _sums_in_one_piece() -> bool:
+    """Whether numpy sums a long array in one pairwise piece, as :class:`FusedPlan` does (numpy 2.4
+    does; numpy 2.0 and older sum it buffer by buffer, and then the fused plan is not used)."""
+    x = np.random.default_rng(0).random(3 * 8192 + 77) ** 3
+    return bool(_compiled().pairwise_sum(x, *_compiled().pairwise_program(x.size)) == np.add.reduce(x))
 
 
 def weigh(out, liks, layered: int, n_layers: int, mode: int) -> np.ndarray:
@@ -292,3 +314,77 @@ class NumpyPlan:
             out[~sel] = keep
             z[~sel] = 1.0
         return z
+
+
+class FusedPlan(NumpyPlan):
+    """The numpy plan, whose one-belief step (``run_one``) is one compiled pass with the same numbers
+    (:mod:`gym_gridloc._numba_filter`); batches are the numpy plan's.  Each action's terms of each
+    destination layer in the numpy plan's order: the first (the written ``(0, 0)`` term, or the
+    first added) and those whose nonzero weights vary read their weight arrays (copied into one
+    array, each once), the others (one value where not zero: a move's weight on a grid) a bit of
+    a byte per destination cell (up to 7 such patterns of cells).  Beyond :data:`CODED_BYTES`, a
+    first term of at most 8 values (a blocked move's stay on a grid) reads a byte per cell too."""
+
+    path = "fused"
+
+    def __init__(self, transitions, n_layers: int, shape: tuple[int, int]) -> None:
+        super().__init__(transitions, n_layers, shape)
+        hw, fast = self.hw, _compiled()
+        masks: dict[bytes, int] = {}
+        columns: dict[int, tuple[int, np.ndarray]] = {}  # the weights' address -> (column, weights)
+        terms, vals = [], []
+        self.spans = np.zeros((len(transitions), n_layers, 6), dtype=np.int64)
+        codes, tables = [np.zeros(hw, dtype=np.uint8)], [np.zeros(8)]
+        for a, (_, writes, adds) in enumerate(self.single):
+            layers: list[list] = [[] for _ in range(n_layers)]
+            for src, dst, wt in writes:
+                layers[dst].append((src, 0, wt))
+            for src, dst, offset, wt in adds:
+                layers[dst].append((src, -offset, wt))
+            for layer, group in enumerate(layers):
+                first = len(terms)
+                for i, (src, s, wt) in enumerate(group):
+                    lo, hi = max(0, -s), min(hw, hw - s)  # the sources inside the layer
+                    used = wt[lo:hi]
+                    nonzero = used[used != 0.0]
+                    bit = -1
+                    if i > 0 and (nonzero.size == 0 or np.all(nonzero == nonzero[0])):
+                        cells = np.zeros(hw, dtype=bool)
+                        cells[lo + s : hi + s] = used != 0.0
+                        key = cells.tobytes()
+                        if key in masks or len(masks) < 7:
+                            bit = masks.setdefault(key, len(masks))
+                    column = -1 if bit >= 0 else columns.setdefault(wt.ctypes.data, (len(columns), wt))[0]
+                    terms.append((src, s, column, bit))
+                    vals.append(float(nonzero[0]) if bit >= 0 and nonzero.size else 0.0)
+                    if i == 0:  # its weights by destination cell
+                        first_weights = np.zeros(hw)
+                        first_weights[lo + s : hi + s] = used
+                shifts = [s for _, s, _ in group] + [0]
+                bits_only = all(t[3] >= 0 for t in terms[first + 1 :])
+                self.spans[a, layer, :5] = (first, len(terms), max(shifts), hw + min(shifts), 0 < len(group) <= 5 and bits_only)
+                lo, hi = self.spans[a, layer, 2:4]
+                coded = self.spans[a, layer, 4] and hi > lo and hw * 8 * len(transitions) * n_layers > CODED_BYTES
+                values = np.unique(first_weights[lo:hi]) if coded else np.zeros(9)
+                if values.size <= 8:  # the first term's weights as codes of at most 8 values
+                    code = np.zeros(hw, dtype=np.uint8)
+                    code[lo:hi] = np.searchsorted(values, first_weights[lo:hi])
+                    self.spans[a, layer, 4:] = (2, len(codes))
+                    codes.append(code)
+                    tables.append(np.concatenate([values, np.zeros(8 - values.size)]))
+        self.terms = np.array(terms, dtype=np.int64).reshape(-1, 4)
+        self.vals = np.array(vals)
+        self.codes, self.tables = np.concatenate(codes), np.concatenate(tables)
+        self.bits = np.zeros(hw, dtype=np.uint8)
+        for cells, bit in masks.items():
+            self.bits |= np.frombuffer(cells, dtype=bool).astype(np.uint8) << bit
+        self.wcols = np.concatenate([wt for _, wt in sorted(columns.values(), key=lambda c: c[0])] or [np.zeros(0)])
+        self.bounds, self.ops = fast.pairwise_program(n_layers * hw)
+        step, spans = fast.fused_step, list(self.spans)
+        model = (n_layers, hw, self.bits, self.wcols, self.vals, self.codes, self.tables, self.terms, self.bounds, self.ops)
+
+        def run_one(belief, action: int, lik, layered: int, out, mode: int) -> float:
+            """One belief (flat, or C-contiguous (L, H, W)) with one action (see the module docstring)."""
+            return step(belief, out, lik, layered, mode, spans[action], *model)
+
+        self.run_one = run_one

@@ -10,18 +10,20 @@ model was trained on) all build it here.
 
 from __future__ import annotations
 
+import warnings
 import weakref
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from gymnasium import spaces
 
 from gym_gridloc import kernels
 from gym_gridloc.core.model import GridModel
-from gym_gridloc.core.validation import check_int
+from gym_gridloc.core.validation import check_choice, check_int
 from gym_gridloc.lookahead import lookahead_features
 
-__all__ = ["BeliefObservation", "observed_belief", "belief_observation_space", "batch_observation", "check_lookahead", "map_channels"]
+__all__ = ["BeliefObservation", "observed_belief", "belief_observation_space", "batch_observation", "check_lookahead",
+           "check_belief_option", "map_channels"]
 
 
 def map_channels(model: GridModel) -> np.ndarray:
@@ -42,6 +44,17 @@ def _channels(model: GridModel) -> np.ndarray:
         ch = _CHANNELS[model] = map_channels(model)
         ch.flags.writeable = False
     return ch
+
+
+def check_belief_option(belief: Any, allowed: Sequence[Any]) -> Any:
+    """The ``belief=`` keyword (which belief goes into the observation) of
+    :class:`~gym_gridloc.HMMBeliefWrapper` and the native vector environment, one of ``allowed``.
+    ``True``/``False`` are deprecated spellings of ``"exact"``/``None``."""
+    if isinstance(belief, bool):
+        warnings.warn(f"belief={belief} is deprecated: use belief={'exact' if belief else None!r}",
+                      DeprecationWarning, stacklevel=3)
+        belief = "exact" if belief else None
+    return check_choice("belief", belief, allowed)
 
 
 def check_lookahead(lookahead: Any) -> int:

@@ -20,6 +20,10 @@ from gym_gridloc.core.sensors import xlogx
 #: only numpy's own sum is the same number in every version.
 COMPILED_ENTROPY_CELLS = 8192
 
+#: The confidence at which the referee says the robot is localised, by default (the environments'
+#: ``localise_threshold``, the planners' ``threshold``): :func:`localised`.
+LOCALISE_THRESHOLD = 0.9
+
 #: Reward kinds: ``"step"`` is -1 per step; ``"belief"`` is the referee's confidence (the largest
 #: posterior probability it tests: the research protocol's reward).
 REWARDS = ("step", "belief")
@@ -114,7 +118,7 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
 def readout_blocks(n: int, cells: int, threshold: float, pose: bool, *, observed: bool = False) -> tuple:
     """What the compiled readout of N beliefs of ``cells`` positions fills, with its two
     parameters: ``(pose, threshold, scratch, kept, ints, confidence, estimate, flags, observed)``
-    (``_numba_kernels.batch_readout``'s, or the engine's vector step's with them); then
+    (``_numba_readout.batch_readout``'s, or the engine's vector step's with them); then
     :func:`read_blocks` gives the infos.  ``observed``: the readout also writes the observed
     position beliefs (float32 (N, cells), as ``observation.observed_belief`` makes them) in the
     last block (else it has no rows).  Few allocations: blocks whose rows are the arrays (a

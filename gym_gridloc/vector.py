@@ -31,8 +31,7 @@ from gymnasium.vector.utils import batch_space
 from gym_gridloc import engine, kernels, referee
 from gym_gridloc.core.validation import check_int, is_int, whole_numbers
 from gym_gridloc.envs.base import GridLocEnv
-from gym_gridloc.observation import BeliefObservation, check_lookahead
-from gym_gridloc.wrappers import check_belief_option
+from gym_gridloc.observation import BeliefObservation, check_belief_option, check_lookahead
 
 
 class GridLocVectorEnv(gym.vector.VectorEnv):

@@ -1,13 +1,12 @@
 """Wrappers: :class:`HMMBeliefWrapper` appends the exact forward-filter belief to observations.
 
 The observation's space and encoding are :mod:`gym_gridloc.observation`'s (``map_channels``,
-``belief_observation_space``, ``batch_observation`` and ``check_lookahead`` are importable from
-here too)."""
+``belief_observation_space``, ``batch_observation``, ``check_lookahead`` and ``check_belief_option``
+are importable from here too)."""
 
 from __future__ import annotations
 
-import warnings
-from typing import Any, Callable, Sequence, SupportsFloat
+from typing import Any, Callable, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -19,22 +18,11 @@ from gym_gridloc.core.validation import check_choice
 from gym_gridloc.filter import ForwardFilter
 from gym_gridloc.lookahead import lookahead_features
 from gym_gridloc.observation import (BeliefObservation, batch_observation, belief_observation_space,  # noqa: F401
-                                     check_lookahead, map_channels, observed_belief)
+                                     check_belief_option, check_lookahead, map_channels, observed_belief)
 from gym_gridloc.particles import ParticleFilter
 
 
 _RESET_HINT = "pass on_impossible='reset' to HMMBeliefWrapper to restart the belief from the prior instead"
-
-
-def check_belief_option(belief: Any, allowed: Sequence[Any]) -> Any:
-    """The ``belief=`` keyword (which belief goes into the observation), shared with
-    :class:`~gym_gridloc.HMMBeliefWrapper`.  ``True``/``False`` are deprecated spellings of
-    ``"exact"``/``None``."""
-    if isinstance(belief, bool):
-        warnings.warn(f"belief={belief} is deprecated: use belief={'exact' if belief else None!r}",
-                      DeprecationWarning, stacklevel=3)
-        belief = "exact" if belief else None
-    return check_choice("belief", belief, allowed)
 
 
 class HMMBeliefWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):

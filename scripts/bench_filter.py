@@ -1,16 +1,20 @@
 """Filter steps per second on generated ColourGrid maps, beside a dense and a CSR computation.
 
 For each grid size the same trajectory (actions and readings sampled from the model) is filtered
-four ways, all exact:
+five ways, all exact:
 
 * ``stencil``: ``ForwardFilter.step`` (predict over shifted arrays, update, normalise; the
-  public call, observation checks included);
+  public call, observation checks included), with the model's default kernel;
+* ``fused``: the same on a large model with the fused compiled step (``GYM_GRIDLOC_NUMBA=all``,
+  :class:`gym_gridloc.kernels.FusedPlan`: the numpy plan's numbers, checked bit for bit), where
+  numba is available and the default kernel is the numpy plan;
 * ``csr step``: the same step with ``scipy.sparse`` CSR ``T_a^T @ f`` for the prediction;
 * ``csr product``: the bare CSR product ``T_a^T @ f`` alone (no update);
 * ``dense step``: ``O T_a^T f`` with dense S x S matrices, where they fit in ``--dense-max-gib``.
 
 Ratios are measured in this one run (best of ``--repeats`` timings); ``path`` is the kernel the
-model's filter uses (``numba`` or ``numpy``, see ``gym_gridloc/kernels.py``).  A last part measures
+model's filter uses by default (``numba`` or ``numpy``, see ``gym_gridloc/kernels.py``); ``fused / csr
+prod`` is the fused step's time over the bare CSR product's.  A last part measures
 the peak resident memory (VmHWM) of a 512 x 512 environment with its ``HMMBeliefWrapper`` belief
 after a reset and 20 steps, per model, each in a fresh process, and whether numba was loaded.
 
@@ -29,7 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 import gym_gridloc
-from gym_gridloc import engine
+from gym_gridloc import engine, kernels
 from gym_gridloc.generators import colour_map
 
 MEMORY_SNIPPET = """
@@ -105,10 +109,28 @@ def setup_size(side: int, steps: int, dense_max_gib: float) -> tuple[dict, dict,
     if err > 1e-12:
         raise AssertionError(f"{side}x{side}: stencil and CSR filters differ by {err:.3g}")
     fns = {"stencil": stencil, "csr_step": csr_step, "csr_product": csr_product}
+    out = {"side": side, "S": S, "path": engine.path(model), "err": err, "dense": None, "fused": None}
+    if engine.path(model) == "numpy" and kernels.AVAILABLE:
+        fused_model = gym_gridloc.colour_grid_model(model.grid)
+        kernels.NUMBA_LARGE = True  # (for this model: its plan is made now, once)
+        try:
+            assert engine.path(fused_model) == "fused"
+        finally:
+            kernels.NUMBA_LARGE = False
+        g = gym_gridloc.ForwardFilter(fused_model)
+
+        def fused():
+            g.reset(model.sensor.to_observation(first))
+            for a, o in zip(actions, obs):
+                g.step(a, o)
+
+        fused()
+        if g.full_belief.tobytes() != f.full_belief.tobytes() or g.log_likelihood != f.log_likelihood:
+            raise AssertionError(f"{side}x{side}: the fused step's numbers are not the numpy plan's")
+        fns["fused"] = fused
     counts = dict.fromkeys(fns, steps)
     dense_bytes = model.n_actions * S * S * 8
-    out = {"side": side, "S": S, "path": engine.path(model), "err": err, "dense_gib": dense_bytes / 2**30,
-           "dense": None}
+    out["dense_gib"] = dense_bytes / 2**30
     if dense_bytes <= dense_max_gib * 2**30:
         D = [m.toarray() for m in Tt]
         dense_steps = max(2, min(steps, int(2e9 // (S * S * 8)) + 2))
@@ -167,23 +189,27 @@ def main(argv=None) -> None:
         row.update({name: t for (side, name), t in times.items() if side == row["side"]})
 
     print(f"Filter step on generated ColourGrid maps (obstacle_density 0.2, map_seed 0); best of {args.repeats}")
-    print(f"{'grid':>9} {'states':>7} {'path':>5} | {'stencil':>11} {'csr step':>11} {'csr prod':>11} {'dense':>11} | "
-          f"{'x csr step':>10} {'x csr prod':>10} {'x dense':>9}")
+    print(f"{'grid':>9} {'states':>7} {'path':>5} | {'stencil':>11} {'fused':>11} {'csr step':>11} {'csr prod':>11} "
+          f"{'dense':>11} | {'x csr step':>10} {'x csr prod':>10} {'x dense':>9} | {'fused / csr prod':>16}")
     for r in rows:
         rate = lambda t: f"{1.0 / t:9.0f}/s" if t else f"{'n/a':>11}"  # noqa: E731
         dense_ratio = f"{r['dense'] / r['stencil']:9.1f}" if r["dense"] else f"{'n/a':>9}"
+        fused_ratio = f"{r['fused'] / r['csr_product']:16.2f}" if r["fused"] else f"{'n/a':>16}"
         print(
-            f"{r['side']:>4}x{r['side']:<4} {r['S']:>7} {r['path']:>5} | {rate(r['stencil'])} {rate(r['csr_step'])} "
-            f"{rate(r['csr_product'])} {rate(r['dense'])} | {r['csr_step'] / r['stencil']:10.2f} "
-            f"{r['csr_product'] / r['stencil']:10.2f} {dense_ratio}"
+            f"{r['side']:>4}x{r['side']:<4} {r['S']:>7} {r['path']:>5} | {rate(r['stencil'])} {rate(r['fused'])} "
+            f"{rate(r['csr_step'])} {rate(r['csr_product'])} {rate(r['dense'])} | {r['csr_step'] / r['stencil']:10.2f} "
+            f"{r['csr_product'] / r['stencil']:10.2f} {dense_ratio} | {fused_ratio}"
         )
     print("(steps per second; 'x ...' = how many times faster the stencil step is; dense n/a where "
-          f"S x S matrices exceed {args.dense_max_gib} GiB)")
+          f"S x S matrices exceed {args.dense_max_gib} GiB; fused n/a where the default is numba, or without numba)")
     by_side = {r["side"]: r for r in rows}
     if 128 in by_side and 512 in by_side:
         g = by_side[512]["stencil"] / by_side[128]["stencil"]
         cells = by_side[512]["S"] / by_side[128]["S"]
         print(f"128x128 -> 512x512: {cells:.1f}x the states, stencil step time x{g:.1f}")
+        if by_side[128]["fused"] and by_side[512]["fused"]:
+            gf = by_side[512]["fused"] / by_side[128]["fused"]
+            print(f"128x128 -> 512x512: {cells:.1f}x the states, fused step time x{gf:.1f}")
     print(f"largest |stencil - csr| belief difference: {max(r['err'] for r in rows):.2e}")
     verdict = lambda ok: "met" if ok else "NOT met"  # noqa: E731
     if 64 in by_side and by_side[64]["dense"]:
@@ -191,10 +217,18 @@ def main(argv=None) -> None:
         print(f"target 64x64 at least 100x the dense step: x{x:.0f}, {verdict(x >= 100)}")
     if 128 in by_side and 512 in by_side:
         print(f"target 128x128 -> 512x512 step time at most x20: x{g:.1f}, {verdict(g <= 20)}")
+        if by_side[128]["fused"] and by_side[512]["fused"]:
+            print(f"target 128x128 -> 512x512 fused step time at most x20: x{gf:.1f}, {verdict(gf <= 20)}")
     worst = min(rows, key=lambda r: r["csr_product"] / r["stencil"])
     x = worst["csr_product"] / worst["stencil"]
     print(f"target at least the CSR product's speed at every size: lowest x{x:.2f} ({worst['side']}x{worst['side']}), "
           f"{verdict(x >= 1)}")
+    fused_rows = [r for r in rows if r["fused"]]
+    if fused_rows:
+        worst = max(fused_rows, key=lambda r: r["fused"] / r["csr_product"])
+        y = worst["fused"] / worst["csr_product"]
+        print(f"target fused step at most 0.5x the CSR product's time: highest {y:.2f}x ({worst['side']}x{worst['side']}), "
+              f"{verdict(y <= 0.5)}")
 
     if not args.no_memory:
         print("\nPeak resident memory (VmHWM), 512x512 environment + HMMBeliefWrapper, reset and 20 steps,")

@@ -20,6 +20,7 @@ from gym_gridloc import (
     ImpossibleObservationError,
     Sensor,
     colour_grid_model,
+    derived,
     engine,
     kernels,
     ring_sensor_model,
@@ -268,7 +269,7 @@ def test_first_posterior_is_the_update_of_the_prior(name):
     engine.update(model, ref, readings)
     first = engine.first_posterior(model, readings)
     again = engine.first_posterior(model, readings)  # the second call builds the table
-    assert engine._derived(model)._first is not None
+    assert derived.of(model)._first is not None
     assert first.tobytes() == ref.tobytes() and again.tobytes() == ref.tobytes()
     assert again.shape == (40, *model.belief_shape)
 
@@ -559,7 +560,7 @@ def test_the_engine_and_lookahead_caches_let_go_of_a_redrawn_map():
     env.reset(seed=0)
     env.step(0)
     first = weakref.ref(env.unwrapped.model)
-    assert first() in engine._DERIVED and first() in la._LOOKAHEADS
+    assert first() in derived._DERIVED and first() in la._LOOKAHEADS
     for seed in range(1, 4):
         env.reset(seed=seed)
         env.step(0)

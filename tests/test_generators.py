@@ -225,12 +225,12 @@ def test_perfect_maze_codes_are_checked_and_say_none_where_a_code_cannot_hold_th
 def test_the_compiled_bounded_integers_are_numpys():
     """The vector step's start states: numpy's Generator.integers(high, size=k) (Lemire's
     multiply and reject on 32-bit draws), for highs from 2 to nearly 2**32."""
-    from gym_gridloc import _numba_kernels as fast
+    from gym_gridloc import _numba_draws as fast
 
     for high in (2, 3, 7, 68, 196, 1000, 2**20 + 3, 2**31 + 11, 2**32 - 5):
         a, b = np.random.default_rng(high), np.random.default_rng(high)
         functions = kernels.bit_functions(a.bit_generator)
-        drawn = [fast._bounded(functions[0], functions[2], high - 1) for _ in range(50)]
+        drawn = [fast.bounded(functions[0], functions[2], high - 1) for _ in range(50)]
         assert drawn == b.integers(high, size=50).tolist()
         assert a.random() == b.random()
 

@@ -16,6 +16,7 @@ from gym_gridloc import (
     depth_maze_model,
     engine,
     interop,
+    pomdp_models,
     ring_sensor_model,
     windy_maze_model,
 )
@@ -240,12 +241,12 @@ def test_pose_referee_tests_the_full_state():
 
 def test_a_clear_error_without_pomdp_py(monkeypatch):
     monkeypatch.setitem(sys.modules, "pomdp_py", None)
-    interop._classes.cache_clear()
+    pomdp_models.classes.cache_clear()
     try:
         with pytest.raises(ImportError, match=r"pip install 'gym_gridloc\[planning\]'"):
             interop.to_pomdp_py(colour_grid_model())
     finally:
-        interop._classes.cache_clear()
+        pomdp_models.classes.cache_clear()
 
 
 def test_the_core_does_not_import_pomdp_py():

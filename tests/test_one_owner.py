@@ -315,13 +315,14 @@ def test_no_module_imports_another_modules_private_names():
 def test_one_padded_transition_table(env_id):
     """The engine draws moves from the compiled filter's own padded weights (one table per model,
     not two), and the vector bank stores it once."""
-    from gym_gridloc import kernels
+    from gym_gridloc import derived, kernels
+    from gym_gridloc.bank import _vector_tables
 
     model = gym.make(env_id).unwrapped.model
     if not kernels.uses_numba(int(np.prod(model.belief_shape))):
         pytest.skip("numba is not installed (or switched off)")
-    weights, keys = engine._derived(model).moves
+    weights, keys = derived.of(model).moves
     plan = engine.plan(model)
     assert weights is plan.w and keys is plan.keys
-    _, arrays = engine._vector_tables(model)
+    _, arrays = _vector_tables(model)
     assert sum(a.shape == plan.w.shape and np.array_equal(a, plan.w) for a in arrays) == 1

@@ -116,6 +116,14 @@ def test_source_files_are_short_or_say_why():
     assert long == []
 
 
+def test_no_source_module_is_longer_than_400_lines():
+    """Every module of both packages, docstring included, is at most :data:`MAX_LINES` lines: a
+    module that grows past it is split by concept (no waiver)."""
+    lengths = {module: len(path.read_text(encoding="utf-8").splitlines()) for module, path in MODULES.items()}
+    assert {module: n for module, n in lengths.items() if n > MAX_LINES} == {}
+    assert len(lengths) > 50 and max(lengths.values()) > MAX_LINES // 2  # (every module read)
+
+
 @pytest.mark.parametrize("folder", ["tests", "scripts"])
 def test_no_sys_path_edits(folder):
     pattern = re.compile(r"sys\.path\.(insert|append)|sys\.path\s*=")

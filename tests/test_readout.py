@@ -455,7 +455,7 @@ def test_a_full_vector_bank_reuses_only_slots_no_row_is_on(monkeypatch):
 def test_the_compiled_argmax_is_numpys(row):
     """The readout's argmax (four running maxima on finite rows, numpy's loop otherwise) is
     numpy's: the first largest value, the first NaN; ties, signed zeros, infinities."""
-    from gym_gridloc import _numba_kernels as fast
+    from gym_gridloc import _numba_readout as fast
 
     a = np.stack([row, row[::-1].copy()])
     flat, n = a.reshape(-1), a.shape[1]

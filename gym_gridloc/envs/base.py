@@ -51,7 +51,7 @@ class GridLocEnv(gym.Env):
 
     metadata = {"render_modes": ["ansi", "rgb_array", "human"], "render_fps": 4}
 
-    def __init__(self, model: GridModel, *, localise_threshold: float = 0.9, render_mode: str | None = None,
+    def __init__(self, model: GridModel, *, localise_threshold: float = referee.LOCALISE_THRESHOLD, render_mode: str | None = None,
                  builder: Callable[[Any], GridModel] | None = None,
                  map_factory: "MapFactory | None" = None,
                  referee_pose: bool = False, episode_length: int | None = None, reward: str = "step",

@@ -7,6 +7,7 @@ import numpy as np
 from gym_gridloc.envs.base import GridLocEnv, MapFactory
 from gym_gridloc.generators import colour_map
 from gym_gridloc.models import colour_grid_model
+from gym_gridloc.referee import LOCALISE_THRESHOLD
 
 
 def _build(grid, *, slip, accuracy, kidnap_prob):
@@ -76,7 +77,7 @@ class ColourGridEnv(GridLocEnv):
     """
 
     def __init__(self, layout=None, *, slip: float = 0.1, accuracy: float = 0.88,
-                 localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
+                 localise_threshold: float = LOCALISE_THRESHOLD, kidnap_prob: float = 0.0,
                  render_mode: str | None = None, size=None, obstacle_density: float | None = None,
                  n_colours: int | None = None, map_seed: int | None = None,
                  new_map_each_reset: bool = False, render_shading: str = "relative") -> None:

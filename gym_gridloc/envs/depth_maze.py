@@ -9,6 +9,7 @@ from gym_gridloc.envs.base import GridLocEnv, MapFactory
 from gym_gridloc.generators import (MAZE_GENERATORS, perfect_maze, perfect_maze_codes, perfect_maze_graph, perfect_maze_of_code,
                                     random_maze)
 from gym_gridloc.models import depth_maze_model
+from gym_gridloc.referee import LOCALISE_THRESHOLD
 
 
 def _build(grid, *, p_turn_fail, p_move_fail, p_depth_error, max_depth, kidnap_prob):
@@ -119,7 +120,7 @@ class DepthMazeEnv(GridLocEnv):
 
     def __init__(self, size: int | None = None, *, layout=None, map_seed: int | None = None,
                  new_map_each_reset: bool | None = None, p_turn_fail: float = 0.0, p_move_fail: float = 0.0,
-                 p_depth_error: float = 0.0, localise_threshold: float = 0.9, episode_length: int | None = None,
+                 p_depth_error: float = 0.0, localise_threshold: float = LOCALISE_THRESHOLD, episode_length: int | None = None,
                  reward: str = "step", kidnap_prob: float = 0.0, generator: str = "kruskal",
                  reject_symmetric: bool | None = None, render_mode: str | None = None, render_shading: str = "relative") -> None:
         if new_map_each_reset is None:

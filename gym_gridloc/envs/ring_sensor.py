@@ -2,6 +2,7 @@ from __future__ import annotations
 
 from gym_gridloc.envs.base import GridLocEnv
 from gym_gridloc.models import ring_sensor_model
+from gym_gridloc.referee import LOCALISE_THRESHOLD
 
 
 class RingSensorEnv(GridLocEnv):
@@ -57,7 +58,7 @@ class RingSensorEnv(GridLocEnv):
 
     def __init__(self, size=(8, 8), *, layout=None, dynamics: str = "commanded", keep_heading: float = 0.7,
                  p_true: float = 0.1, p_ring1: float = 0.05, p_ring2: float = 0.025,
-                 localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
+                 localise_threshold: float = LOCALISE_THRESHOLD, kidnap_prob: float = 0.0,
                  render_mode: str | None = None, render_shading: str = "relative") -> None:
         model = ring_sensor_model(size, dynamics=dynamics, keep_heading=keep_heading,
                                   p_true=p_true, p_ring1=p_ring1, p_ring2=p_ring2, layout=layout).with_kidnapping(kidnap_prob)

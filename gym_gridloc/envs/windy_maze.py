@@ -7,6 +7,7 @@ import numpy as np
 from gym_gridloc.envs.base import GridLocEnv, MapFactory
 from gym_gridloc.generators import maze_map
 from gym_gridloc.models import windy_maze_model
+from gym_gridloc.referee import LOCALISE_THRESHOLD
 
 
 def _build(grid, *, drift, p_detect, p_false_alarm, kidnap_prob):
@@ -69,7 +70,7 @@ class WindyMazeEnv(GridLocEnv):
     """
 
     def __init__(self, layout=None, *, drift: float = 0.1, p_detect: float = 0.85, p_false_alarm: float = 0.10,
-                 localise_threshold: float = 0.9, kidnap_prob: float = 0.0,
+                 localise_threshold: float = LOCALISE_THRESHOLD, kidnap_prob: float = 0.0,
                  render_mode: str | None = None, size=None, map_seed: int | None = None,
                  new_map_each_reset: bool = False, render_shading: str = "relative") -> None:
         generated = new_map_each_reset or size is not None or map_seed is not None

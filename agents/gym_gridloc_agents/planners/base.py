@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from gym_gridloc.core.model import GridModel
+from gym_gridloc.referee import LOCALISE_THRESHOLD
 from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.planners.ops import BeliefOps
 
@@ -19,7 +20,7 @@ class PlannerPolicy(Policy):
 
     name = "planner"
 
-    def __init__(self, model: GridModel, *, threshold: float = 0.9, seed: int | None = None, pose: bool = False,
+    def __init__(self, model: GridModel, *, threshold: float = LOCALISE_THRESHOLD, seed: int | None = None, pose: bool = False,
                  **_: Any) -> None:
         super().__init__(model, seed=seed)
         self.threshold = float(threshold)

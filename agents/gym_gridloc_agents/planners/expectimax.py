@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from gym_gridloc.core.validation import check_int
+from gym_gridloc.referee import LOCALISE_THRESHOLD
 from gym_gridloc_agents.planners.base import PlannerPolicy
 from gym_gridloc_agents.planners.leaves import ConstantLeaf, Leaf, load_leaf
 from gym_gridloc_agents.planners.ops import BeliefOps, dedupe, initial_beliefs
@@ -109,7 +110,7 @@ class ExpectimaxPolicy(PlannerPolicy):
 MAX_BOUND_DEPTH = 12
 
 
-def lower_bound(model, depth: int, *, threshold: float = 0.9, prune: float = 0.0, progress: bool = False) -> dict:
+def lower_bound(model, depth: int, *, threshold: float = LOCALISE_THRESHOLD, prune: float = 0.0, progress: bool = False) -> dict:
     """``LB_k = E_{z0}[ W_k(b0(z0)) ]``, below which no policy's expected steps can go.
 
     ``W_k(b) = 1 + min_a sum_z p(z | b, a) W'_{k-1}(b_az)`` with ``W'_j(b) = 0`` if ``b`` is

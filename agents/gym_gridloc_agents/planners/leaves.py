@@ -9,6 +9,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from gym_gridloc.referee import LOCALISE_THRESHOLD
 from gym_gridloc_agents.planners.ops import BeliefOps, initial_beliefs, predict_batch
 
 #: Where the fitted leaves shipped with the package live (``<env_id>-entropy.json``).
@@ -108,7 +109,7 @@ def load_leaf(spec: Any, env_id: str | None = None) -> Leaf:
 
 
 def belief_rollouts(model, policy, episodes: int, *, seed: int = 1_000_000, max_steps: int = 100,
-                    threshold: float = 0.9, record: bool = True) -> dict:
+                    threshold: float = LOCALISE_THRESHOLD, record: bool = True) -> dict:
     """Episodes of ``policy`` simulated on the belief MDP itself: the first reading and every later
     one drawn from the exact predictive distribution of the current belief (the same law as the
     environment's readings seen through its filter).  Returns the steps of each episode and, with
@@ -145,6 +146,6 @@ def belief_rollouts(model, policy, episodes: int, *, seed: int = 1_000_000, max_
     return out
 
 
-def fit_leaf(model, beliefs: np.ndarray, remaining: np.ndarray, *, threshold: float = 0.9, **kw) -> EntropyLeaf:
+def fit_leaf(model, beliefs: np.ndarray, remaining: np.ndarray, *, threshold: float = LOCALISE_THRESHOLD, **kw) -> EntropyLeaf:
     """Fit an entropy leaf to (belief, steps still taken) pairs (:func:`belief_rollouts`)."""
     return EntropyLeaf.fit(BeliefOps(model, threshold).entropy(beliefs), remaining, **kw)

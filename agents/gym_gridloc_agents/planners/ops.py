@@ -20,7 +20,7 @@ def predict_batch(model: GridModel, beliefs: np.ndarray, actions: np.ndarray) ->
 class BeliefOps:
     """What the planners need of a model, built once from the public interface."""
 
-    def __init__(self, model, threshold: float = 0.9, *, pose: bool = False) -> None:
+    def __init__(self, model, threshold: float = referee.LOCALISE_THRESHOLD, *, pose: bool = False) -> None:
         self.model = model
         self.threshold = float(threshold)
         #: The referee tests poses (the most probable hidden state), not positions (DepthMaze).

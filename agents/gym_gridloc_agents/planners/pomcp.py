@@ -26,6 +26,7 @@ from gym_gridloc_agents.base import Policy
 
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.core.validation import check_int
+from gym_gridloc.referee import LOCALISE_THRESHOLD
 
 #: The defaults (WindyMaze-v0 and ColourGrid-v0: see the docstring of :class:`PomcpPolicy`).
 NUM_SIMS = 300
@@ -61,7 +62,7 @@ class PomcpPolicy(Policy):
     def __init__(self, model: GridModel, *, seed: int | None = None, num_sims: int = NUM_SIMS,
                  planning_time: float | None = None, max_depth: int = MAX_DEPTH, discount: float = 1.0,
                  exploration_const: float = EXPLORATION, n_particles: int = N_PARTICLES,
-                 threshold: float = 0.9, pose: bool = False) -> None:
+                 threshold: float = LOCALISE_THRESHOLD, pose: bool = False) -> None:
         from gym_gridloc.interop import import_pomdp_py
 
         import_pomdp_py()  # the clear ImportError, before anything else
