@@ -17,7 +17,7 @@ and the native vector env against ``SyncVectorEnv`` over the wrapper.
   times): a full collection of the process's objects (tens of ms) falling in one env's rounds and
   not the other's would decide a ratio.
 
-Targets (issue 22): a wrapped step at most 2.5 x FrozenLake for WindyMaze-v0 and ColourGrid-v0,
+Targets: a wrapped step at most 2.5 x FrozenLake for WindyMaze-v0 and ColourGrid-v0,
 at most 4 x for RingSensor8x8-v0 and DepthMaze-v0 (7x7); the native vector env at least 30 x
 SyncVectorEnv at 64 envs.
 

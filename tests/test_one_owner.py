@@ -1,4 +1,4 @@
-"""One owner per concept (issue 22): the wrapper serves the environment's posterior (one filter
+"""One owner per concept: the wrapper serves the environment's posterior (one filter
 step per environment step), one observation builder for the wrapper, the vector env and the
 learned policies, one KEY=VALUE reader, the planners stop where the referee does; one place each
 for integer checks, kidnap mixing and entropy (the sources are read: a copy fails here)."""

@@ -67,22 +67,78 @@ def test_the_python_versions_match_pyproject():
 
 
 def test_the_first_example_runs_its_loop_and_resets_after_termination(capsys):
-    code = _blocks(TOP, "python")[0]
+    code = _blocks(README, "python")[0]
     assert "terminated or truncated" in code and "env.reset()" in code and "for " in code
     exec(compile(code, "README.md", "exec"), {})
     printed = capsys.readouterr().out.splitlines()
     assert printed, "no episode ended in the example's loop"
 
 
-def test_the_benchmark_columns_are_explained_beside_the_first_command():
-    pytest.importorskip("gym_gridloc_agents.evaluation.report")
-    from gym_gridloc_agents.evaluation.report import terminal_table
+def test_the_first_training_runs_and_its_model_is_benchmarked(tmp_path, monkeypatch, capsys):
+    """The README's SB3 snippet, as written but for a shorter run, then the bench command it gives."""
+    pytest.importorskip("stable_baselines3")
+    code = next(b for b in _blocks(README, "python") if "PPO(" in b)
+    assert "model.learn(20_000)" in code and "torch.set_num_threads(1)" in code
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code.replace("model.learn(20_000)", "model.learn(2_048)"), "README.md", "exec"), {})
+    assert (tmp_path / "my_ppo.zip").is_file()
+    command = re.search(r"`(gridloc bench --env WindyMaze-v0 --policies greedy2,ppo --ppo-model my_ppo.zip[^`]*)`", README)
+    assert command, "the README names the bench command for the trained model"
+    from gym_gridloc_agents.cli import main
 
-    row = {"env": "WindyMaze-v0", "policy": "greedy", "mean_steps": 5.0, "mean_steps_ci95": [4.0, 6.0],
-           "success_rate": 0.9, "accuracy_at": {"10": 0.9}, "ms_per_decision": 0.1, "gap_to_best_planner": 1.1,
-           "accuracy_at_L": 0.9}
-    head = [c.strip() for c in terminal_table([row], width=1000).splitlines()[0].strip("|").split("|")]
-    explained = re.findall(r"(?m)^\| `([^`]+)`(?:, `([^`]+)`)? \|", TOP)
-    names = {n for pair in explained for n in pair if n}
-    assert set(head) - {"env", "policy"} <= names, set(head) - names
-    assert "--markdown PATH" in TOP and "--json PATH" in TOP
+    assert main([*shlex.split(command.group(1))[1:], "--episodes", "20", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "| ppo" in out and any(word in out for word in ("tie", "better", "worse"))
+
+
+def _first_command_block() -> str:
+    block = re.search(r"<!-- readme-first-command -->\n```text\n(.*?)```\n<!-- /readme-first-command -->", README, re.S)
+    assert block, "the README shows what its first command prints"
+    return block.group(1)
+
+
+def _cells(table: str) -> list[list[str]]:
+    """The table's rows, without the time per decision (it depends on the machine)."""
+    lines = [line for line in table.splitlines() if line.startswith("|") and not line.startswith("|-")]
+    head = [c.strip() for c in lines[0].strip("|").split("|")]
+    keep = [i for i, h in enumerate(head) if h != "ms/dec"]
+    return [[[c.strip() for c in line.strip("|").split("|")][i] for i in keep] for line in lines]
+
+
+def test_the_first_command_prints_what_the_readme_shows(capsys):
+    pytest.importorskip("stable_baselines3")
+    from gym_gridloc_agents.cli import main
+
+    bench = README.splitlines()[3].split("#")[0].split("&&")[1].strip()
+    assert main([*shlex.split(bench)[1:], "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert _cells(printed) == _cells(_first_command_block())
+
+
+def test_the_benchmark_columns_are_explained_beside_the_first_command():
+    head = _cells(_first_command_block())[0] + ["ms/dec"]
+    section = README[README.index("## What the first command prints"):README.index("## Install")]
+    explained = set(re.findall(r"`([^`]+)`", section))
+    words = {"mean steps (95% CI)": "mean steps"}
+    assert {words.get(h, h) for h in head} - {"env", "policy"} <= explained
+    assert "--markdown PATH" in section and "--json PATH" in section
+
+
+def test_no_result_number_is_typed_by_hand_in_the_results_section():
+    """The results section's tables come from gridloc report (its markers); its prose has no numbers
+    but those it attributes to others."""
+    section = README[README.index("## Results"):README.index("## Watch it")]
+    assert section.count("<!-- gridloc-report:") >= 2
+    prose = re.sub(r"<!-- gridloc-report:(.*?)-->.*?<!-- /gridloc-report:\1-->", "", section, flags=re.S)
+    numbers = re.findall(r"(?<![\w.])\d+\.\d+", prose)
+    assert set(numbers) <= {"0.995", "0.999"}, numbers  # the published agent's, as reported
+
+
+def test_the_product_speaks_of_no_development_history():
+    pattern = re.compile(r"\bissues? ?#?\d+|\b(this|last|next|later|earlier|previous|a) session\b|\bsessions\b", re.I)
+    files = [ROOT / "README.md", ROOT / "ARCHITECTURE.md", *sorted((ROOT / "docs").glob("*.md")),
+             *sorted((ROOT / "gym_gridloc").rglob("*.py")), *sorted((ROOT / "agents").rglob("*.py")),
+             *sorted((ROOT / "configs").glob("*.yml")), *sorted((ROOT / "scripts").glob("*"))]
+    hits = [f"{p.relative_to(ROOT)}: {m.group(0)}" for p in files if p.is_file()
+            for m in pattern.finditer(p.read_text(encoding="utf-8", errors="replace"))]
+    assert hits == []

@@ -1,4 +1,4 @@
-"""The single step's fast paths (issue 22 item 5) give the numbers of the code they replace, bit for
+"""The single step's fast paths give the numbers of the code they replace, bit for
 bit: the compiled readout of one belief (the referee's summary, the observed float32 belief)
 against their numpy code, a referee filter normalised in its step against the lazy one read after
 every step, the engine's one-robot sampler against the batched draws, and the numpy diagonal pass

@@ -1,4 +1,4 @@
-"""Issue 23, "nothing lost, round 2": one test per class of hostile input (several inputs each)."""
+"""Nothing lost: one test per class of hostile input (several inputs each)."""
 
 from __future__ import annotations
 

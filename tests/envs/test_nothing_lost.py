@@ -1,4 +1,4 @@
-"""Issue 23 in the core: values checked where they enter (no silently wrong belief, no truncation)."""
+"""Nothing lost in the core: values checked where they enter (no silently wrong belief, no truncation)."""
 
 from __future__ import annotations
 
