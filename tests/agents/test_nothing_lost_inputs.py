@@ -42,3 +42,64 @@ def test_a_fractional_particle_count_is_refused():
         with pytest.raises(ValueError, match="n must be a whole number >= 1"):
             pp.particles(belief, n)
     assert len(pp.particles(belief, 3).particles) == 3 and len(pp.particles(belief, 2.0).particles) == 2
+
+
+def _config(tmp_path, **over):
+    cfg = {"algo": "ppo", "env_id": "ColourGrid-v0", "n_envs": 2, "seed": 1, "total_timesteps": 256,
+           "policy_kwargs": {"net_arch": [16]}, "hyperparams": {"n_steps": 64, "batch_size": 64, "n_epochs": 1},
+           "output": str(tmp_path / "model.zip"), "checkpoint_dir": str(tmp_path / "ckpt")}
+    cfg.update(over)
+    return cfg
+
+
+@pytest.mark.parametrize("algo, key", [("ppo", "learning_rate"), ("ppo", "clip_range"), ("ppo", "gamma"), ("ppo", "n_epochs"),
+                                       ("ppo", "n_steps"), ("ppo", "gae_lambda"), ("ppo", "normalize_advantage"),
+                                       ("dqn", "buffer_size"), ("recurrent_ppo", "batch_size")])
+def test_a_null_hyperparameter_is_named_not_handed_to_the_algorithm(tmp_path, algo, key):
+    from gym_gridloc_agents.training.config import ConfigError, validate_config
+
+    wrapper = {"belief": False} if algo == "recurrent_ppo" else {"belief": True, "flatten": True}
+    with pytest.raises(ConfigError, match=f"hyperparams.{key} must not be null"):
+        validate_config(_config(tmp_path, algo=algo, wrapper=wrapper, hyperparams={key: None}))
+    validate_config(_config(tmp_path, hyperparams={"target_kl": None}))  # (its default is null)
+
+
+@pytest.mark.parametrize("algo, hyperparams, says", [
+    ("ppo", {"n_steps": 10**9}, r"hyperparams.n_steps x n_envs = 2_000_000_000 rows .* GiB, more than this machine's memory"),
+    ("recurrent_ppo", {"n_steps": 10**9}, r"hyperparams.n_steps x n_envs = 2_000_000_000 rows .* GiB"),
+    ("dqn", {"buffer_size": 10**11}, r"hyperparams.buffer_size = 100_000_000_000 rows"),
+])
+def test_buffers_that_cannot_fit_in_memory_are_refused_before_any_allocation(tmp_path, algo, hyperparams, says):
+    from gym_gridloc_agents.training.config import ConfigError, validate_config
+
+    wrapper = {"belief": False} if algo == "recurrent_ppo" else {"belief": True, "flatten": True}
+    with pytest.raises(ConfigError, match=says):
+        validate_config(_config(tmp_path, algo=algo, wrapper=wrapper, hyperparams=hyperparams))
+
+
+def test_a_reading_cell_extractor_must_have_the_sensors_height_and_width(tmp_path):
+    from gym_gridloc_agents.training.config import ConfigError, validate_config
+
+    base = _config(tmp_path, algo="recurrent_ppo", env_id="RingSensor8x8-v0", wrapper={"belief": False}, hyperparams={})
+    for env_kwargs, sides in (({}, {"height": 4, "width": 16}), ({"size": (4, 16)}, {"height": 8, "width": 8}),
+                              ({"size": (4, 16)}, {})):
+        cfg = {**base, "env_kwargs": env_kwargs,
+               "policy_kwargs": {"features_extractor": "reading_cell", "features_extractor_kwargs": sides}}
+        with pytest.raises(ConfigError, match=r"reading_cell .* of a \d+x\d+ grid.* on a \d+x\d+ grid"):
+            validate_config(cfg)
+    for env_kwargs, sides in (({}, {}), ({"size": (4, 16)}, {"height": 4, "width": 16})):
+        validate_config({**base, "env_kwargs": env_kwargs,
+                         "policy_kwargs": {"features_extractor": "reading_cell", "features_extractor_kwargs": sides}})
+
+
+@pytest.mark.parametrize("wrapper, policy", [({"belief": True, "flatten": False}, "MultiInputLstmPolicy"),
+                                             ({"belief": True, "flatten": True}, "MlpLstmPolicy")])
+def test_a_recurrent_policy_on_the_belief_is_refused_before_training(tmp_path, wrapper, policy):
+    from gym_gridloc_agents.training.config import ConfigError
+    from gym_gridloc_agents.training.train import train
+
+    cfg = _config(tmp_path, algo="recurrent_ppo", wrapper=wrapper, policy=policy, eval_freq=128, eval_episodes=2,
+                  policy_kwargs={"lstm_hidden_size": 8, "net_arch": [8]})
+    with pytest.raises(ConfigError, match="recurrent_ppo reads the raw readings"):
+        train(cfg, progress_bar=False)
+    assert not (tmp_path / "ckpt").exists() and not (tmp_path / "model.zip").exists()
