@@ -103,3 +103,46 @@ def test_a_recurrent_policy_on_the_belief_is_refused_before_training(tmp_path, w
     with pytest.raises(ConfigError, match="recurrent_ppo reads the raw readings"):
         train(cfg, progress_bar=False)
     assert not (tmp_path / "ckpt").exists() and not (tmp_path / "model.zip").exists()
+
+
+def test_ctrl_c_in_the_final_evaluation_saves_an_interrupted_checkpoint(tmp_path, monkeypatch, capsys):
+    import yaml
+
+    import gym_gridloc_agents.training.train as t
+
+    real = t.record_evaluation
+
+    def ctrl_c_at_the_end(model, cfg, *args, **kwargs):
+        if int(model.num_timesteps) >= cfg["total_timesteps"]:
+            raise KeyboardInterrupt
+        return real(model, cfg, *args, **kwargs)
+
+    monkeypatch.setattr(t, "record_evaluation", ctrl_c_at_the_end)
+    cfg = _config(tmp_path, eval_freq=192, eval_episodes=2)  # (at 192 during training; at 256 after it)
+    with pytest.raises(t.TrainingInterrupted, match="final evaluation interrupted at 256 steps") as exc:
+        t.train(cfg, progress_bar=False)
+    ckpt = exc.value.checkpoint
+    assert ckpt.name == "interrupted_step_256.zip" and ckpt.is_file()
+    assert json.loads(ckpt.with_suffix(".json").read_text())["interrupted"] is True
+    assert not (tmp_path / "model.zip").exists()
+    (tmp_path / "cfg.yml").write_text(yaml.safe_dump({**cfg, "output": str(tmp_path / "cli.zip"),
+                                                      "checkpoint_dir": str(tmp_path / "cli")}))
+    assert main(["train", str(tmp_path / "cfg.yml"), "--no-progress"]) == 130
+    err = capsys.readouterr().err
+    assert "final evaluation interrupted" in err and "--resume" in err and "Traceback" not in err
+    assert (tmp_path / "cli" / "interrupted_step_256.zip").is_file()
+    monkeypatch.setattr(t, "record_evaluation", real)  # and the resumed run finishes with the model
+    info = t.train(cfg, progress_bar=False, resume=ckpt)
+    assert info["num_timesteps"] == 256 and (tmp_path / "model.zip").is_file()
+
+
+def test_resume_refuses_another_schedule(tmp_path):
+    from gym_gridloc_agents.training.train import train
+
+    cfg = _config(tmp_path, hyperparams={"n_steps": 64, "batch_size": 64, "n_epochs": 1, "learning_rate": 1e-3},
+                  schedule={"learning_rate": 1e-4})
+    train(cfg, progress_bar=False)
+    other = {**cfg, "schedule": {"learning_rate": 5e-4}, "output": str(tmp_path / "other.zip")}
+    with pytest.raises(ValueError, match=r"trained with schedule \{\"learning_rate\": 0.0001\}.*asks for \{\"learning_rate\": 0.0005\}"):
+        train(other, progress_bar=False, resume=tmp_path / "model.zip")
+    assert not (tmp_path / "other.zip").exists()
