@@ -286,16 +286,61 @@ def metadata_path(model_path: str | Path) -> Path:
     return Path(model_path).with_suffix(".json")
 
 
+#: The types of the metadata entries commands read (an entry may be missing; None only where listed).
+METADATA_TYPES = {"seed": (int, type(None)), "env_id": str, "algo": str, "method": str, "env_kwargs": dict,
+                  "wrapper": dict, "config": dict, "num_timesteps": int, "total_timesteps": int, "evaluations": list,
+                  "wall_time_seconds": (int, float, type(None)), "pretrain": (dict, type(None))}
+#: The numbers of one held-out evaluation (``num_timesteps`` always; the others where recorded).
+EVALUATION_NUMBERS = ("mean_steps", "accuracy", "argmax_accuracy", "wall_time_seconds", "cpu_seconds")
+
+
 def read_metadata(model_path: str | Path) -> dict[str, Any]:
-    """The metadata JSON beside a model (``{}`` if there is none); a clear error naming the file
-    if it is not a JSON object."""
+    """The metadata JSON beside a model (``{}`` if there is none); a one-line ``ValueError``
+    naming the file and the entry if it is not a JSON object, nests deeper than
+    :data:`MAX_METADATA_DEPTH`, or holds an entry of another type than :data:`METADATA_TYPES`
+    says (an evaluation: an object whose ``num_timesteps`` is a whole number, its scores numbers)."""
     meta = metadata_path(model_path)
     if not meta.exists():
         return {}
     try:
-        data = json.loads(meta.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{meta}: the model's metadata is not readable JSON ({exc})") from None
+        text = meta.read_text(encoding="utf-8")
+        if _nesting(text) > MAX_METADATA_DEPTH:
+            raise ValueError(f"nested more than {MAX_METADATA_DEPTH} levels deep")
+        data = json.loads(text)
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise ValueError(f"{meta}: the model's metadata is not readable JSON ({' '.join(str(exc).split())[:200]})") from None
     if not isinstance(data, dict):
         raise ValueError(f"{meta}: the model's metadata must be a JSON object, got {type(data).__name__}")
+
+    def wrong(key: str, value: Any, allowed: str) -> ValueError:
+        return ValueError(f"{meta}: the model's metadata has {key} = {json.dumps(value)[:80]}, not {allowed}")
+
+    for key, types in METADATA_TYPES.items():
+        types = types if isinstance(types, tuple) else (types,)
+        if key in data and (not isinstance(data[key], types) or isinstance(data[key], bool)):  # (a bool is no int here)
+            names = {"NoneType": "null", "dict": "an object", "list": "a list", "int": "a whole number", "str": "a string"}
+            raise wrong(key, data[key], " or ".join(names.get(t.__name__, t.__name__) for t in types))
+    for i, entry in enumerate(data.get("evaluations") or []):
+        if not isinstance(entry, dict):
+            raise wrong(f"evaluations[{i}]", entry, "an object")
+        steps = entry.get("num_timesteps")
+        if "num_timesteps" in entry and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 0):
+            raise wrong(f"evaluations[{i}].num_timesteps", steps, "a whole number >= 0")
+        for key in EVALUATION_NUMBERS:
+            value = entry.get(key)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+                raise wrong(f"evaluations[{i}].{key}", value, "a number")
     return data
+
+
+#: How deep a model's metadata may nest (a real one nests four or five levels).
+MAX_METADATA_DEPTH = 50
+
+
+def _nesting(text: str) -> int:
+    """The deepest nesting of brackets in a JSON text (an upper bound of its objects' and lists' depth)."""
+    depth = level = 0
+    for ch in text:
+        level += (ch in "[{") - (ch in "]}")
+        depth = max(depth, level)
+    return depth

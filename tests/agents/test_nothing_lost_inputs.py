@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 
 import gymnasium as gym
 import numpy as np
@@ -146,3 +147,85 @@ def test_resume_refuses_another_schedule(tmp_path):
     with pytest.raises(ValueError, match=r"trained with schedule \{\"learning_rate\": 0.0001\}.*asks for \{\"learning_rate\": 0.0005\}"):
         train(other, progress_bar=False, resume=tmp_path / "model.zip")
     assert not (tmp_path / "other.zip").exists()
+
+
+# -- model metadata and learning curves --------------------------------------------------------------
+def _models(directory, metas):
+    """Model files (a few bytes: only their metadata is read) with these metadata beside them."""
+    directory.mkdir(parents=True, exist_ok=True)
+    for name, meta in metas.items():
+        (directory / f"{name}.zip").write_bytes(b"model")
+        (directory / f"{name}.json").write_text(meta if isinstance(meta, str) else json.dumps(meta))
+    return directory
+
+
+def _run(seed, env_kwargs=None, **config):
+    evals = [{"num_timesteps": s, "mean_steps": 9.0 - s / 1000 + 0.1 * seed, "wall_time_seconds": s / 100} for s in (1000, 2000, 3000)]
+    cfg = {"algo": "ppo", "env_id": "WindyMaze-v0", "env_kwargs": env_kwargs or {}, "seed": seed,
+           "output": f"m/seed{seed}.zip", "hyperparams": {"learning_rate": 3e-4}, **config}
+    return {"algo": "ppo", "env_id": "WindyMaze-v0", "env_kwargs": env_kwargs or {}, "seed": seed, "pretrain": None,
+            "evaluations": evals, "config": cfg}
+
+
+def test_model_metadata_is_read_defensively(tmp_path, capsys):
+    from gym_gridloc_agents.files import read_metadata
+    from gym_gridloc_agents.loading import expand_models
+
+    deep = _models(tmp_path / "deep", {"a": "[" * 100_000 + "]" * 100_000, "b": {"seed": 2}})
+    with pytest.raises(ValueError, match="a.json: the model's metadata is not readable JSON \\(nested more than 50"):
+        read_metadata(deep / "a.zip")
+    with pytest.raises(ValueError, match="nested more than 50"):
+        expand_models([str(deep)])
+    fails(capsys, ["plot", "--curves", str(deep / "a.zip"), "--out", str(tmp_path / "c.png")], "nested more than 50")
+    listed = _models(tmp_path / "listed", {"a": {"seed": [1]}, "b": {"seed": [1]}})
+    with pytest.raises(ValueError, match=r"a.json: the model's metadata has seed = \[1\], not a whole number or null"):
+        expand_models([str(listed)])
+    fails(capsys, [*["bench", "--env", "ColourGrid-v0", "--episodes", "2", "--no-progress"], "--policies", "ppo",
+                   "--ppo-model", str(listed)], "seed = [1], not a whole number or null")
+    for meta, says in (({"evaluations": [{"num_timesteps": None, "mean_steps": 3.0}]}, "evaluations[0].num_timesteps = null"),
+                       ({"evaluations": [{"num_timesteps": 10, "mean_steps": "3"}]}, "evaluations[0].mean_steps = \"3\", not a number"),
+                       ({"evaluations": {"num_timesteps": 10}}, "evaluations = {"), ({"env_kwargs": [1]}, "env_kwargs = [1], not an object"),
+                       ({"seed": True}, "seed = true"), ({"num_timesteps": 1.5}, "num_timesteps = 1.5")):
+        bad = _models(tmp_path / "bad", {"m": {**_run(0), **meta}})
+        with pytest.raises(ValueError, match="m.json: the model's metadata has " + re.escape(says)):
+            read_metadata(bad / "m.zip")
+        fails(capsys, ["plot", "--curves", str(bad / "m.zip"), "--out", str(tmp_path / "c.png")], says)
+    assert not (tmp_path / "c.png").exists()
+
+
+def test_runs_are_seeds_only_of_one_configuration(tmp_path, capsys):
+    from gym_gridloc_agents.evaluation import curves
+
+    ok = _models(tmp_path / "ok", {"seed0": _run(0), "seed1": _run(1, output="elsewhere.zip", description="x")})
+    assert [r["seed"] for r in curves.load_runs(ok)] == [0, 1]
+    same_seed = _models(tmp_path / "same", {"a": _run(3), "b": _run(3, hyperparams={"learning_rate": 1e-3})})
+    ckpts = _models(tmp_path / "ckpt", {"step_1000": _run(5), "step_2000": _run(5), "best": _run(5)})
+    other = _models(tmp_path / "other", {"a": _run(0), "b": _run(1, hyperparams={"learning_rate": 1e-3})})
+    for runs, says in ((same_seed, "were trained with the same seed 3"), (ckpts, "were trained with the same seed 5"),
+                       (other, "are two configurations (they differ in hyperparams)")):
+        with pytest.raises(ValueError, match=re.escape(says)):
+            curves.load_runs(runs)
+        fails(capsys, ["plot", "--curves", str(runs), "--out", str(tmp_path / "c.png")], says)
+    assert not (tmp_path / "c.png").exists()
+
+
+def test_baselines_of_another_task_are_refused(tmp_path, capsys):
+    from gym_gridloc_agents.evaluation import curves
+
+    random9 = {"size": 9, "new_map_each_reset": True}
+    runs = _models(tmp_path / "r9", {"seed0": _run(0, random9), "seed1": _run(1, random9)})
+    bench = tmp_path / "bench.json"
+    rows = [{"env": "WindyMaze-v0", "policy": p, "mean_steps": v, "episodes": 10, "success_rate": 1.0, "localised_curve": [0.0]}
+            for p, v in (("greedy2", 5.0), ("random", 11.0))]
+    bench.write_text(json.dumps(rows))
+    assert curves.baselines(rows, "WindyMaze-v0", "mean_steps", True, random9) == {}
+    assert curves.baselines(rows, "WindyMaze-v0", "mean_steps", True, {}) == {"greedy2": 5.0, "random": 11.0}
+    fails(capsys, ["plot", "--curves", str(runs), "--baselines", str(bench), "--out", str(tmp_path / "c.png")],
+          "rows are of other tasks than the curves'")
+    assert not (tmp_path / "c.png").exists()
+    mine = [{**r, "env_kwargs": dict(random9), "mean_steps": r["mean_steps"] + 1} for r in rows]
+    bench.write_text(json.dumps(rows + mine))
+    js = tmp_path / "c.json"
+    assert main(["plot", "--curves", str(runs), "--baselines", str(bench), "--out", str(tmp_path / "c.png"),
+                 "--curves-json", str(js)]) == 0
+    assert json.loads(js.read_text())["baselines"] == {"greedy2": 6.0, "random": 12.0}
