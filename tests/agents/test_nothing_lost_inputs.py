@@ -229,3 +229,19 @@ def test_baselines_of_another_task_are_refused(tmp_path, capsys):
     assert main(["plot", "--curves", str(runs), "--baselines", str(bench), "--out", str(tmp_path / "c.png"),
                  "--curves-json", str(js)]) == 0
     assert json.loads(js.read_text())["baselines"] == {"greedy2": 6.0, "random": 12.0}
+
+
+def test_grid_values_that_make_one_configuration_are_refused(tmp_path, capsys, monkeypatch):
+    import yaml
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "cfg.yml").write_text(yaml.safe_dump(_config(tmp_path)))
+    for grid, says in (("description=1,'1'", "description must be text (quote a number: '1'), got 1"),
+                       ("hyperparams.n_epochs=1,1.0", "n_epochs=1 and n_epochs=1.0 are one configuration"),
+                       ("description=1", "description must be text")):
+        fails(capsys, ["sweep", "cfg.yml", "--seeds", "1", "--grid", grid, "--output", str(tmp_path / "sw")], says)
+    assert not (tmp_path / "sw").exists()
+    from gym_gridloc_agents.sweeps.sweep_spec import checked_configs, prepare
+
+    spec = prepare("cfg.yml", seeds=1, grid=["description='1','2'"], output=str(tmp_path / "sw"))
+    assert [c["description"] for c in checked_configs(spec)] == ["1", "2"]

@@ -203,7 +203,14 @@ def checked_configs(spec: dict[str, Any]) -> list[dict[str, Any]]:
         labels = [config_label(o, list(spec["grid"])) for o in configs]
         if len(set(labels)) != len(labels):  # (config_label hashes what it cannot spell; never expected)
             raise SweepError(f"--grid: two configurations share the name {next(x for x in labels if labels.count(x) > 1)}")
-        return [trial_config(spec, o, 0) for o in configs]
+        checked = [trial_config(spec, o, 0) for o in configs]
+        trained: dict[str, str] = {}  # two values the config reads as one (1 and 1.0 as n_epochs): one configuration
+        for label, cfg in zip(labels, checked):
+            same = trained.setdefault(canonical({k: v for k, v in cfg.items() if k not in ("output", "checkpoint_dir", "tensorboard_log")}), label)
+            if same != label:
+                raise SweepError(f"--grid: the configurations {same} and {label} are one configuration once the config is "
+                                 "checked (their values read alike): give each value once")
+        return checked
     return [trial_config(spec, {}, 0)] + [trial_config(spec, {k: v}, 0) for k, vs in spec["grid"].items() for v in vs]
 
 

@@ -297,7 +297,8 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     for key in ("checkpoint_dir", "tensorboard_log"):
         if cfg.setdefault(key, None) is not None and not isinstance(cfg[key], str):
             raise ConfigError(f"{source}: {key} must be a path or null, got {cfg[key]!r}")
-    cfg.setdefault("description", "")
+    if not isinstance(cfg.setdefault("description", ""), str):  # (free text: 1 and '1' would print as one)
+        raise ConfigError(f"{source}: description must be text (quote a number: '1'), got {cfg['description']!r}")
     if not isinstance(cfg.setdefault("deterministic", True), bool):
         raise ConfigError(f"{source}: deterministic must be true or false, got {cfg['deterministic']!r}")
     pre = cfg.setdefault("pretrain", None)
