@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import re
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -245,3 +246,65 @@ def test_grid_values_that_make_one_configuration_are_refused(tmp_path, capsys, m
 
     spec = prepare("cfg.yml", seeds=1, grid=["description='1','2'"], output=str(tmp_path / "sw"))
     assert [c["description"] for c in checked_configs(spec)] == ["1", "2"]
+
+
+# -- outputs --------------------------------------------------------------------------------------------
+BENCH = ["bench", "--env", "ColourGrid-v0", "--episodes", "2", "--no-progress", "--policies", "random"]
+
+
+def test_an_output_that_is_not_a_regular_file_is_refused(tmp_path, capsys):
+    import os
+    import stat
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    fails(capsys, [*BENCH, "--json", str(fifo)], "is not a regular file")
+    fails(capsys, [*BENCH, "--json", str(fifo), "--force"], "is not a regular file")
+    fails(capsys, ["bound", "ColourGrid-v0", "--depth", "1", "--json", str(fifo), "--force"], "is not a regular file")
+    fails(capsys, [*BENCH, "--markdown", str(fifo)], "is not a regular file")
+    assert stat.S_ISFIFO(fifo.lstat().st_mode)
+    if os.geteuid() == 0:  # a character device (the numbers of /dev/null), made here: never /dev/null itself
+        device = tmp_path / "null"
+        os.mknod(device, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+        fails(capsys, [*BENCH, "--json", str(device), "--force"], "is not a regular file")
+        assert stat.S_ISCHR(device.lstat().st_mode)
+
+
+def test_a_file_that_appears_during_the_run_is_judged_again_at_the_replace(tmp_path, capsys, monkeypatch):
+    import gym_gridloc_agents.evaluation.bench as b
+
+    real = b.run_benchmark
+    out = tmp_path / "X.json"
+
+    def run(*a, **k):
+        rows = real(*a, **k)
+        (tmp_path / "X.zip").write_bytes(b"PK a model")  # a training saved X.zip and its metadata meanwhile
+        out.write_text(json.dumps({"algo": "ppo", "env_id": "ColourGrid-v0", "seed": 0}))
+        return rows
+
+    monkeypatch.setattr(b, "run_benchmark", run)
+    err = fails(capsys, [*BENCH, "--json", str(out)], "is the metadata file of the model")
+    assert "(it changed while the command ran); written to" in err
+    assert json.loads(out.read_text())["algo"] == "ppo"
+    rescued = Path(err.rsplit("written to ", 1)[1].split(" instead")[0])
+    assert rescued.parent == tmp_path and [r["policy"] for r in json.loads(rescued.read_text())] == ["random"]
+
+
+def test_an_update_target_that_became_unreadable_keeps_the_rows_beside_it(tmp_path, capsys, monkeypatch):
+    import gym_gridloc_agents.evaluation.bench as b
+
+    out = tmp_path / "r.json"
+    assert main([*BENCH, "--json", str(out)]) == 0
+    capsys.readouterr()
+    real = b.run_benchmark
+
+    def run(*a, **k):
+        rows = real(*a, **k)
+        out.write_text("[{ cut short")  # the target is damaged while the rows are computed
+        return rows
+
+    monkeypatch.setattr(b, "run_benchmark", run)
+    err = fails(capsys, [*BENCH[:-1], "greedy", "--json", str(out), "--update"], "(it changed during the run); written to")
+    assert out.read_text() == "[{ cut short"
+    rescued = Path(err.rsplit("written to ", 1)[1].split(" instead")[0])
+    assert rescued.parent == tmp_path and [r["policy"] for r in json.loads(rescued.read_text())] == ["greedy"]

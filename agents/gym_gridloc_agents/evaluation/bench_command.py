@@ -190,8 +190,12 @@ def bench_main(args) -> int:
         if args.update:  # re-read under the lock; the gaps are recomputed over the merged rows
             try:
                 old_rows = read_rows(json_path) if Path(json_path).exists() else []
-            except ValueError as exc:
-                return fail("bench", f"{exc} (it changed during the run)")
+            except ValueError as exc:  # the computed rows are never discarded: written beside it
+                try:
+                    files.rescue_write(lambda p: files.atomic_write_json(p, rows, files.BENCH_RESULTS), Path(json_path),
+                                       "results JSON", places=(Path(json_path).parent,), problem=f"{exc} (it changed during the run)")
+                except OutputError as rescued:
+                    return fail("bench", " ".join(str(rescued).split()))
             rows = add_gaps(merge_rows(old_rows, rows))
         code = _write_bench(args, rows, labels, json_path, frontier, table, here)
     if interrupted is not None and code == 0:
@@ -202,7 +206,7 @@ def bench_main(args) -> int:
 
 
 def _write_bench(args, rows, labels, json_path, frontier, table, here) -> int:
-    from gym_gridloc_agents.files import OutputError, atomic_write_json, atomic_write_text, rescue_write
+    from gym_gridloc_agents.files import BENCH_RESULTS, MARKDOWN, TABLE, OutputError, atomic_write_json, atomic_write_text, rescue_write
     from gym_gridloc_agents.evaluation.report import env_label, markdown_table, plot, plot_frontier, public_row, terminal_table
 
     mine = [r for r in rows if env_label(r) in labels]
@@ -211,8 +215,8 @@ def _write_bench(args, rows, labels, json_path, frontier, table, here) -> int:
     if not (args.markdown or json_path):
         print("(a short table; every column: --markdown PATH, every number: --json PATH)", file=sys.stderr)
     # (path or None, write, what, text before "wrote"); --all: a plot per environment
-    writes = [(json_path, lambda p: atomic_write_json(p, rows), "results JSON", "\n"),
-              (args.markdown, lambda p: atomic_write_text(p, markdown_table(rows) + "\n"), "markdown table", ""),
+    writes = [(json_path, lambda p: atomic_write_json(p, rows, BENCH_RESULTS), "results JSON", "\n"),
+              (args.markdown, lambda p: atomic_write_text(p, markdown_table(rows) + "\n", MARKDOWN), "markdown table", ""),
               (args.plot if mine else None, lambda p: plot(mine, p), "plot", ""),
               (frontier, lambda p: plot_frontier(rows, p), "frontier plot", "")]
     writes += [(here / f"bench_{e}.png", lambda p, e=e: plot([r for r in mine if r["env"] == e], p), "plot", "")
@@ -220,10 +224,10 @@ def _write_bench(args, rows, labels, json_path, frontier, table, here) -> int:
     try:  # the rows are computed: a failing write puts them elsewhere and says where
         for path, write, what, before in writes:
             if path:
-                rescue_write(write, Path(path), what)
+                rescue_write(write, Path(path), what, places=(Path(path).parent,))
                 print(f"{before}wrote {path}", file=sys.stderr)
         if args.all:
-            rescue_write(lambda p: atomic_write_json(p, [public_row(r) for r in rows]), table, "table JSON")
+            rescue_write(lambda p: atomic_write_json(p, [public_row(r) for r in rows], TABLE), table, "table JSON")
     except OutputError as exc:
         return fail("bench", str(exc))
     return 0
@@ -235,7 +239,7 @@ def bound_main(args) -> int:
 
     from gym_gridloc_agents.envs import check_environment, make_env
     from gym_gridloc_agents import files
-    from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write
+    from gym_gridloc_agents.files import BOUND, OutputError, atomic_write_json, rescue_write
     from gym_gridloc_agents.planners import lower_bound
     from gym_gridloc_agents.planners.expectimax import MAX_BOUND_DEPTH
 
@@ -266,7 +270,7 @@ def bound_main(args) -> int:
           f"(depth {args.depth}, {result['seconds']:.0f} s)")
     if args.json:
         try:
-            rescue_write(lambda p: atomic_write_json(p, result), Path(args.json), "bound JSON")
+            rescue_write(lambda p: atomic_write_json(p, result, BOUND), Path(args.json), "bound JSON")
         except OutputError as exc:
             return fail("bound", str(exc))
         print(f"wrote {args.json}", file=sys.stderr)
