@@ -133,8 +133,9 @@ def bench_main(args) -> int:
             check_int(flag, value)
         address = getattr(args, "address", None)
         if address is not None:
-            if not address.strip():
-                raise ValueError("--address needs a Ray cluster's address: HOST:PORT, or auto")
+            from gym_gridloc_agents.cluster import check_address
+
+            check_address(address)  # (host, port 1..65535, no spaces: before Ray is called)
             if args.jobs > 1:
                 raise ValueError("--jobs sets the processes of a run on this machine; with --address the cluster's CPUs run the chunks")
             import importlib.util
@@ -177,11 +178,13 @@ def bench_main(args) -> int:
         rows, interrupted = exc.rows, exc
     except (ValueError, TypeError, FileNotFoundError, ClusterError) as exc:  # ClusterError: --address could not run
         return fail("bench", " ".join(str(exc).split()))
+    # Ctrl-C: exit status 130; a cluster that stopped answering: 1 (the finished rows are written either way)
+    stopped, said = (130, "gridloc bench:") if interrupted is None or interrupted.lost is None else (1, "gridloc bench: error:")
     for note in notes:  # e.g. a policy that does not apply to an environment: one line each
         print(f"gridloc bench: {note.message}", file=sys.stderr)
     if interrupted is not None and not rows:
-        print(f"gridloc bench: {interrupted}; no row was finished, nothing written", file=sys.stderr)
-        return 130
+        print(f"{said} {interrupted}; no row was finished, nothing written", file=sys.stderr)
+        return stopped
     from gym_gridloc_agents.evaluation.report import env_label
 
     labels = {env_label(r) for r in rows}  # what this run measured (merged rows of other keywords are not plotted with it)
@@ -199,9 +202,9 @@ def bench_main(args) -> int:
             rows = add_gaps(merge_rows(old_rows, rows))
         code = _write_bench(args, rows, labels, json_path, frontier, table, here)
     if interrupted is not None and code == 0:
-        print(f"gridloc bench: {interrupted}; the {len(rows)} finished row(s) are kept"
-              + (f" in {json_path}" if json_path else " (printed above)"), file=sys.stderr)
-        return 130
+        print(f"{said} {interrupted}; the {len(rows)} finished row(s) are kept"
+              + (f" in {json_path} (run the others with --update)" if json_path else " (printed above)"), file=sys.stderr)
+        return stopped
     return code
 
 

@@ -155,12 +155,19 @@ def prepare(config: str | Path, *, seeds: int = 1, grid: Sequence[str] | dict | 
             cpus: int | None = None) -> dict[str, Any]:
     """Check the arguments and every configuration of the sweep before anything runs; returns
     the sweep's specification (what ``sweep.json`` holds).  Raises :class:`SweepError` or
-    :class:`ConfigError` with a one-line message.  (``address`` and ``cpus`` only go into the
-    recorded command: a sweep may be resumed elsewhere.)"""
+    :class:`ConfigError` with a one-line message.  (``address`` is checked, then it and ``cpus``
+    only go into the recorded command: a sweep may be resumed elsewhere.)"""
     command = command_line(config, seeds=seeds, grid=grid, search=search, trials=trials, output=output,
                            address=address, cpus=cpus)
 
     seeds = check_int("--seeds", seeds, 1, MAX_SEEDS, what=f"a whole number in 1..{MAX_SEEDS}", error=SweepError)
+    if address is not None:  # before any work, and before Ray is called
+        from gym_gridloc_agents.cluster import check_address
+
+        try:
+            check_address(address)
+        except ValueError as exc:
+            raise SweepError(str(exc)) from None
     if search not in (None, "optuna"):
         raise SweepError(f"--search must be optuna, got {search!r}")
     if search == "optuna" and trials is None:
