@@ -79,6 +79,23 @@ def test_buffers_that_cannot_fit_in_memory_are_refused_before_any_allocation(tmp
         validate_config(_config(tmp_path, algo=algo, wrapper=wrapper, hyperparams=hyperparams))
 
 
+@pytest.mark.parametrize("algo, policy_kwargs, says", [
+    ("recurrent_ppo", {"lstm_hidden_size": None}, "policy_kwargs.lstm_hidden_size must be a number, got None"),
+    ("recurrent_ppo", {"n_lstm_layers": 0}, "policy_kwargs.n_lstm_layers"),
+    ("recurrent_ppo", {"shared_lstm": None}, "policy_kwargs.shared_lstm must be true or false"),
+    ("ppo", {"ortho_init": "yes"}, "policy_kwargs.ortho_init must be true or false"),
+    ("ppo", {"log_std_init": None}, "policy_kwargs.log_std_init must be a number"),
+    ("ppo", {"net_arch": [10**6, 10**6]}, "GiB to train, more than this machine's memory"),
+    ("recurrent_ppo", {"lstm_hidden_size": 10**6}, "GiB to train, more than this machine's memory"),
+])
+def test_policy_values_are_checked_before_the_library_sees_them(tmp_path, algo, policy_kwargs, says):
+    from gym_gridloc_agents.training.config import ConfigError, validate_config
+
+    wrapper = {"belief": False} if algo == "recurrent_ppo" else {"belief": True, "flatten": True}
+    with pytest.raises(ConfigError, match=re.escape(says)):
+        validate_config(_config(tmp_path, algo=algo, wrapper=wrapper, policy_kwargs=policy_kwargs))
+
+
 def test_a_reading_cell_extractor_must_have_the_sensors_height_and_width(tmp_path):
     from gym_gridloc_agents.training.config import ConfigError, validate_config
 

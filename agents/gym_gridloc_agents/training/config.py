@@ -35,7 +35,8 @@ from gym_gridloc_agents.history import history_options
 from gym_gridloc_agents.loading import ALGOS
 from gym_gridloc_agents.policies import EXPERT_NAMES
 from gym_gridloc_agents.training.config_values import (HYPER_RANGES, SCHEDULED, ConfigError, allowed_hyperparams,  # noqa: F401
-                                                       check_buffer_memory, check_hyperparams, known_keys as _known_keys,
+                                                       check_buffer_memory, check_hyperparams, check_policy_values,
+                                                       known_keys as _known_keys,
                                                        number as _num)
 
 TOP_KEYS = {
@@ -247,6 +248,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
 
     pk = cfg.setdefault("policy_kwargs", {})
     _known_keys(source, pk, sorted(POLICY_KWARGS[algo]), "policy_kwargs", f" for {algo}")
+    check_policy_values(source, pk)
     if "features_extractor" in pk:
         from gym_gridloc_agents.features import EXTRACTORS
 

@@ -108,6 +108,24 @@ def check_hyperparams(source: str, cfg: dict[str, Any]) -> None:
         raise ConfigError(f"{source}: hyperparams.n_steps x n_envs must be at least 2, got {hp.get('n_steps')} x {cfg['n_envs']}")
 
 
+#: The policy keywords that are plain values: true/false, or (integer, minimum) numbers.
+POLICY_VALUES = {"ortho_init": bool, "share_features_extractor": bool, "shared_lstm": bool, "enable_critic_lstm": bool,
+                 "lstm_hidden_size": (True, 1), "n_lstm_layers": (True, 1), "log_std_init": (False, -math.inf)}
+
+
+def check_policy_values(source: str, pk: dict[str, Any]) -> None:
+    """``policy_kwargs``' plain values (:data:`POLICY_VALUES`): no null, of their type; else a
+    :class:`ConfigError` naming the key."""
+    for key, kind in POLICY_VALUES.items():
+        if key not in pk:
+            continue
+        if kind is bool:
+            if not isinstance(pk[key], bool):
+                raise ConfigError(f"{source}: policy_kwargs.{key} must be true or false, got {pk[key]!r}")
+        else:
+            pk[key] = number(source, f"policy_kwargs.{key}", pk[key], integer=kind[0], minimum=kind[1])
+
+
 def memory_bytes() -> int | None:
     """This machine's physical memory (None where the system does not say)."""
     try:
@@ -120,22 +138,31 @@ def check_buffer_memory(source: str, cfg: dict[str, Any], observation_floats: in
     """The rollout buffer (``n_steps x n_envs`` rows; ``buffer_size`` transitions for DQN, which
     keeps each observation twice) of float32 observations of ``observation_floats`` numbers, the
     per-step numbers beside them (action, reward, value, ...) and a recurrent policy's LSTM states
-    must fit in this machine's memory: else a :class:`ConfigError` naming the key, before anything
-    is allocated."""
+    must fit in this machine's memory, and so must the networks (``net_arch``, the LSTM: their
+    weights, gradients and Adam's two moments): else a :class:`ConfigError` naming the key, before
+    anything is allocated."""
     algo, hp, pk = cfg["algo"], cfg["hyperparams"], cfg["policy_kwargs"]
-    defaults = hyperparam_defaults(algo)
+    defaults, have = hyperparam_defaults(algo), memory_bytes()
+    arch = pk.get("net_arch", [64, 64])
+    widths = [[observation_floats, *w] for w in (arch.values() if isinstance(arch, dict) else [arch])]
+    weights = sum(a * b for w in widths for a, b in zip(w, w[1:]))
+    hidden, layers = int(pk.get("lstm_hidden_size", 256)), int(pk.get("n_lstm_layers", 1))
+    if algo == "recurrent_ppo":  # (an actor's and a critic's LSTM at most)
+        weights += 2 * 4 * hidden * (observation_floats + hidden + layers * 2 * hidden)
+    if have is not None and 16 * weights > have:
+        raise ConfigError(f"{source}: policy_kwargs (net_arch, lstm_hidden_size) make networks of {weights:_} weights that need "
+                          f"about {16 * weights / 2**30:.1f} GiB to train, more than this machine's memory ({have / 2**30:.1f} GiB)")
     if algo == "dqn":
         key, rows = "hyperparams.buffer_size", int(hp.get("buffer_size", defaults["buffer_size"]))
         per_row = 2 * observation_floats + 4
     else:
         key, rows = "hyperparams.n_steps x n_envs", int(hp.get("n_steps", defaults["n_steps"])) * cfg["n_envs"]
-        lstm = 4 * int(pk.get("lstm_hidden_size", 256)) * int(pk.get("n_lstm_layers", 1)) if algo == "recurrent_ppo" else 0
-        per_row = observation_floats + 8 + lstm
-    need, have = 4 * rows * per_row, memory_bytes()
+        per_row = observation_floats + 8 + (4 * hidden * layers if algo == "recurrent_ppo" else 0)
+    need = 4 * rows * per_row
     if have is not None and need > have:
         raise ConfigError(f"{source}: {key} = {rows:_} rows of {per_row:_} float32 numbers need about {need / 2**30:.1f} GiB, "
                           f"more than this machine's memory ({have / 2**30:.1f} GiB); give fewer")
 
 
-__all__ = ["ConfigError", "HYPER_RANGES", "SCHEDULED", "allowed_hyperparams", "check_buffer_memory", "check_hyperparams",
-           "hyperparam_defaults", "known_keys", "memory_bytes", "number"]
+__all__ = ["ConfigError", "HYPER_RANGES", "POLICY_VALUES", "SCHEDULED", "allowed_hyperparams", "check_buffer_memory",
+           "check_hyperparams", "check_policy_values", "hyperparam_defaults", "known_keys", "memory_bytes", "number"]
