@@ -325,3 +325,10 @@ def test_an_update_target_that_became_unreadable_keeps_the_rows_beside_it(tmp_pa
     assert out.read_text() == "[{ cut short"
     rescued = Path(err.rsplit("written to ", 1)[1].split(" instead")[0])
     assert rescued.parent == tmp_path and [r["policy"] for r in json.loads(rescued.read_text())] == ["greedy"]
+
+
+def test_a_depth_maze_layout_too_large_is_one_line_in_bench(tmp_path, capsys):
+    rows = ["#" * 603] + ["#" + "O" * 601 + "#"] * 601 + ["#" * 603]
+    (tmp_path / "big.txt").write_text("\n".join(rows) + "\n")
+    fails(capsys, ["bench", "--env", "DepthMaze-v0", "--policies", "random", "--episodes", "2", "--no-progress",
+                   "--env-kwarg", f"layout={tmp_path / 'big.txt'}"], "layout is a 603x603 maze; a DepthMaze side is at most 201")

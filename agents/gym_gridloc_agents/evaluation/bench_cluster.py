@@ -14,9 +14,12 @@ runs a chunk; the code itself is not sent (every node needs the same install).
 A chunk whose worker or node is lost is run again (up to :data:`RERUNS` times; the episodes are
 seeded, so the rerun gives the same numbers), and counted in the row's ``cluster.reruns``.  An
 error of the chunk itself (a bad option, say) is not retried: it stops the run, as locally.
+Ctrl-C, or a head that stops answering (:func:`gym_gridloc_agents.cluster.answers`), stops the run
+with the chunks that came back (:class:`ChunksStopped`): the caller writes the rows they finish.
 
-This module and :mod:`gym_gridloc_agents.sweeps.sweep` are the only ones importing Ray (the ``sweep``
-extra), and only when a run on a cluster starts.
+This module, :mod:`gym_gridloc_agents.cluster` (joining: the address and its deadline) and
+:mod:`gym_gridloc_agents.sweeps.sweep` are the only ones importing Ray (the ``sweep`` extra), and
+only when a run on a cluster starts.
 """
 
 from __future__ import annotations
