@@ -332,3 +332,22 @@ def test_a_depth_maze_layout_too_large_is_one_line_in_bench(tmp_path, capsys):
     (tmp_path / "big.txt").write_text("\n".join(rows) + "\n")
     fails(capsys, ["bench", "--env", "DepthMaze-v0", "--policies", "random", "--episodes", "2", "--no-progress",
                    "--env-kwarg", f"layout={tmp_path / 'big.txt'}"], "layout is a 603x603 maze; a DepthMaze side is at most 201")
+
+
+def test_the_shipped_curves_keep_their_baselines():
+    """A benchmark of held-out test maps is the task of a training on maps redrawn at each reset."""
+    from gym_gridloc_agents.evaluation import curves
+    from gym_gridloc_agents.evaluation.report import read_rows
+
+    root = Path(__file__).resolve().parents[2]
+    shipped = sorted((root / "results").glob("curves_*.json"))
+    assert len(shipped) >= 4
+    for path in shipped:
+        data = json.loads(path.read_text())
+        c = data["curves"][0]
+        rows = read_rows(root / data["baselines_source"])
+        assert curves.baselines(rows, c["env_id"], c["metric"], c["lower_is_better"], c["env_kwargs"]) == data["baselines"], path
+    fixed9 = {"size": 9}  # one generated 9x9 map: not the task of the held-out maps' rows
+    rows = [{"env": "WindyMaze-v0", "policy": "greedy2", "mean_steps": 5.0, "env_kwargs": {"size": 9}, "test_set": True}]
+    assert curves.baselines(rows, "WindyMaze-v0", "mean_steps", True, fixed9) == {}
+    assert curves.baselines(rows, "WindyMaze-v0", "mean_steps", True, {**fixed9, "new_map_each_reset": True}) == {"greedy2": 5.0}

@@ -115,7 +115,7 @@ def run_chunks(address: str, chunks: Callable[[int], list[tuple[int, tuple]]], n
     from ray.exceptions import RayTaskError
     from tqdm.auto import tqdm
 
-    started = connect(address)
+    started = False
     work: list[tuple[int, tuple]] = []
     done: list[dict[str, Any] | None] = []
     reruns: list[int] = []
@@ -133,6 +133,7 @@ def run_chunks(address: str, chunks: Callable[[int], list[tuple[int, tuple]]], n
 
     gcs, lost = address, None
     try:
+        started = connect(address)
         gcs = ray.get_runtime_context().gcs_address
         nodes = [n for n in ray.nodes() if n.get("Alive")]
         cpus = int(ray.cluster_resources().get("CPU", 0))

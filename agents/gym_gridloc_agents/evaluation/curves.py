@@ -104,16 +104,20 @@ def one_configuration(runs: Sequence[dict[str, Any]]) -> None:
                              "not two seeds of one: give each configuration as its own --curves RUNS")
 
 
-def task_of(env_id: str, env_kwargs: dict[str, Any]) -> tuple[str, str, Any, Any]:
+def task_of(env_id: str, env_kwargs: dict[str, Any], test_set: bool = False) -> tuple[str, str, Any, bool]:
     """What a row or a curve measures: the environment's model (its keywords, defaults filled in), its
-    episode length and whether its map is drawn anew at each reset."""
+    episode length and whether its maps are drawn anew (at each reset, or a benchmark's held-out
+    test maps: ``test_set``)."""
+    import gymnasium as gym
+
     from gym_gridloc_agents.envs import default_kwargs
     from gym_gridloc_agents.loading import model_kwargs
 
-    import gymnasium as gym
-
     full = {**(default_kwargs(env_id) if env_id in gym.registry else {}), **dict(env_kwargs)}
-    return env_id, model_kwargs(env_id, env_kwargs), full.get("episode_length"), full.get("new_map_each_reset")
+    redrawn = True if test_set else full.get("new_map_each_reset")
+    if redrawn is None:  # (DepthMaze: a new maze at each reset unless a layout or a map_seed fixes one)
+        redrawn = full.get("layout") is None and full.get("map_seed") is None
+    return env_id, model_kwargs(env_id, env_kwargs), full.get("episode_length"), bool(redrawn)
 
 
 def metric_of(env_kwargs: dict[str, Any]) -> tuple[str, bool]:
@@ -153,7 +157,7 @@ def baselines(rows: Sequence[dict[str, Any]], env_id: str, metric: str, lower: b
     col = "mean_steps" if metric == "mean_steps" else "accuracy_at_L"
     task = task_of(env_id, env_kwargs or {})
     mine = [r for r in rows if r.get("env") == env_id and r.get(col) is not None
-            and isinstance(r.get("env_kwargs") or {}, dict) and task_of(env_id, r.get("env_kwargs") or {}) == task]
+            and isinstance(r.get("env_kwargs") or {}, dict) and task_of(env_id, r.get("env_kwargs") or {}, bool(r.get("test_set"))) == task]
     out = {r["policy"]: float(r[col]) for r in mine if r["policy"] in BASELINES}
     planners = [float(r[col]) for r in mine if r["policy"] in PLANNERS]
     if planners:
