@@ -335,16 +335,19 @@ def read_metadata(model_path: str | Path) -> dict[str, Any]:
     def wrong(key: str, value: Any, allowed: str) -> ValueError:
         return ValueError(f"{meta}: the model's metadata has {key} = {json.dumps(value)[:80]}, not {allowed}")
 
+    from gym_gridloc.core.validation import is_int
+
     for key, types in METADATA_TYPES.items():
         types = types if isinstance(types, tuple) else (types,)
-        if key in data and (not isinstance(data[key], types) or isinstance(data[key], bool)):  # (a bool is no int here)
+        if key in data and not any(is_int(data[key]) if t is int else isinstance(data[key], t) and not isinstance(data[key], bool)
+                                   for t in types):  # (a bool is no number here)
             names = {"NoneType": "null", "dict": "an object", "list": "a list", "int": "a whole number", "str": "a string"}
             raise wrong(key, data[key], " or ".join(names.get(t.__name__, t.__name__) for t in types))
     for i, entry in enumerate(data.get("evaluations") or []):
         if not isinstance(entry, dict):
             raise wrong(f"evaluations[{i}]", entry, "an object")
         steps = entry.get("num_timesteps")
-        if "num_timesteps" in entry and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 0):
+        if "num_timesteps" in entry and (not is_int(steps) or steps < 0):
             raise wrong(f"evaluations[{i}].num_timesteps", steps, "a whole number >= 0")
         for key in EVALUATION_NUMBERS:
             value = entry.get(key)
