@@ -204,8 +204,9 @@ class PomdpPy:
 
     def draw_states(self, belief: np.ndarray, n: int) -> list[tuple[int, int, int]]:
         """``n`` hidden states drawn independently from an exact belief ``(L, H, W)``."""
+        n = check_int("n", n, whole=True, what="a whole number >= 1", error=ValueError)  # (never int(1.5) = 1)
         vec = self.model.to_vector(self._belief(belief))
-        idx = self.rng.choice(vec.size, size=int(n), p=vec / vec.sum())
+        idx = self.rng.choice(vec.size, size=n, p=vec / vec.sum())
         return [self.model.state_of_index(int(i)) for i in idx]
 
     def particles(self, belief: np.ndarray, n: int = 1000, *, plan: bool = True):

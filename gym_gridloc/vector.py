@@ -49,7 +49,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     flatten, full_state, map, lookahead:
         As for :class:`HMMBeliefWrapper` (with a belief only).
     max_episode_steps:
-        Truncation, as ``TimeLimit`` (``gym.make_vec`` passes the registered value).
+        Truncation, as ``TimeLimit`` (``gym.make_vec`` passes the registered value; refused below ``episode_length``).
     autoreset_mode:
         ``AutoresetMode.NEXT_STEP`` (default) or ``AutoresetMode.SAME_STEP``.
     **env_kwargs:
@@ -118,9 +118,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self._maps_in_call = bool(self._bank is not None and factory is not None and factory.graph is not None
                                   and self._bank.draw_maps(*factory.graph, factory.model_of_code))
         self._below = getattr(kernels.compiled(self._beliefs[0].size), "all_below", None)  # the actions' check (None: numpy)
-        length = template.episode_length
-        #: The step count that truncates an episode (None: never): episode length or time limit, the first.
-        self._limit = self.max_episode_steps if length is None else min(length, self.max_episode_steps or length)
+        if (length := template.episode_length) is not None and length > (self.max_episode_steps or length):  # cut short
+            raise ValueError(f"episode_length={length} is above max_episode_steps={self.max_episode_steps}: give at most that")
+        self._limit = length or self.max_episode_steps  # the step count that truncates an episode (None: never)
 
     @staticmethod
     def _mode(mode: Any) -> AutoresetMode:

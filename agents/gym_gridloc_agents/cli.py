@@ -121,10 +121,18 @@ def _plot_curves(args) -> int:
             made.append(curves.curve(runs, label=label))
         if len({(c["env_id"], repr(sorted(c["env_kwargs"].items()))) for c in made}) > 1:
             raise ValueError("--curves: the runs are of different tasks; plot one task per figure")
-        rows = read_rows(args.baselines) if Path(args.baselines).is_file() else []
-        lines = curves.baselines(rows, made[0]["env_id"], made[0]["metric"], made[0]["lower_is_better"], made[0]["env_kwargs"])
+        source = args.baselines or str(RESULTS / "bench.json")
+        rows = read_rows(source) if Path(source).is_file() else []
+        env_id, env_kwargs = made[0]["env_id"], made[0]["env_kwargs"]
+        lines = curves.baselines(rows, env_id, made[0]["metric"], made[0]["lower_is_better"], env_kwargs)
+        if not lines and any(r.get("env") == env_id for r in rows):  # rows of another task: no line, no sample efficiency
+            note = (f"--baselines {source}: its {env_id} rows are of other tasks than the curves' ({env_id} with {env_kwargs}); "
+                    "give the results of a benchmark of this task")
+            if args.baselines:
+                raise ValueError(note)
+            print(f"gridloc plot: {note}; no baseline drawn", file=sys.stderr)
         files.check_outputs([(out, files.FIGURE, "plot"), (args.curves_json, files.CURVES, "curves JSON")],
-                            inputs=[*args.curves, args.baselines], replace=True)
+                            inputs=[*args.curves, source], replace=True)
     except (ValueError, OutputError) as exc:
         return fail("plot", str(exc))
     curves.plot_curves(made, lines, out)
@@ -133,7 +141,7 @@ def _plot_curves(args) -> int:
     if args.curves_json:
         from gym_gridloc_agents.files import atomic_write_json
 
-        atomic_write_json(Path(args.curves_json), {"baselines": lines, "baselines_source": args.baselines,
+        atomic_write_json(Path(args.curves_json), {"baselines": lines, "baselines_source": source,
                                                    "curves": [{**c, "sample_efficiency": curves.sample_efficiency(c, lines)}
                                                               for c in made]})
         print(f"wrote {args.curves_json}")

@@ -149,9 +149,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="instead: learning curves across seeds to --out, one curve per RUNS (a sweep's --output directory, a "
                         "directory of models or model files): the IQM of the seeds' held-out evaluations with a bootstrap "
                         "95%% interval, against environment steps and wall time")
-    q.add_argument("--baselines", metavar="BENCH.json", default=str(RESULTS / "bench.json"),
-                   help="with --curves: benchmark rows whose random, greedy2 and best planner are drawn as lines "
-                        "(default results/bench.json)")
+    q.add_argument("--baselines", metavar="BENCH.json",
+                   help="with --curves: benchmark rows of the curves' task whose random, greedy2 and best planner are drawn "
+                        "as lines (default results/bench.json, where it holds that task's rows)")
     q.add_argument("--curves-json", metavar="PATH.json", help="with --curves: also write the curves and sample efficiency as JSON")
     q.add_argument("--out", metavar="PATH.png", default=None,
                    help="the --training or --curves plot (default results/training.png, results/curves.png)")

@@ -121,18 +121,33 @@ def check_outputs(outputs, *, inputs=(), replace: bool = False, flag: str = "--f
         seen[key] = what
         if key in ins:
             raise OutputError(f"the {what} {path} is an input of this command ({ins[key]}): writing it would replace it")
-        if path.is_dir():
-            raise OutputError(f"the {what} {path} is a directory; give a file name")
-        if kind != MODEL and path.suffix == ".json" and path.with_suffix(".zip").is_file() and kind != MODEL_METADATA:
-            raise OutputError(f"the {what} {path} is the metadata file of the model {path.with_suffix('.zip')}: "
-                              "writing it would replace that model's metadata; choose another name")
+        if (problem := foreign(path, kind, what)) is not None:
+            raise OutputError(problem)
         found = file_kind(path)
-        if found is not None and found != kind:
-            raise OutputError(f"the {what} {path} exists and holds {'a file of another kind' if found == 'other' else found}, "
-                              f"not {kind}: it would be replaced; choose another name")
         if found is not None and not replace and kind not in REDRAWABLE:
             raise OutputExists(f"the {what} {path} exists ({kind}); pass {flag} to replace it, or choose another name")
         writable_directory(path.parent, f"directory of the {what}")
+
+
+def foreign(path: Path, kind: str | None, what: str) -> str | None:
+    """Why writing ``path`` (an output of ``kind``) would replace what is not the command's to
+    replace -- a directory, a path that is not a regular file (a device, a pipe, a socket), a
+    model's metadata (``X.json`` beside ``X.zip``), an existing file of another kind -- or None.
+    :func:`check_outputs` asks before any work, :func:`atomic_path` again at the replace."""
+    if path.is_dir():
+        return f"the {what} {path} is a directory; give a file name"
+    if path.exists() and not path.is_file():
+        return f"the {what} {path} exists and is not a regular file (a device, a pipe or a socket): give a file name"
+    if kind is None:
+        return None
+    if kind not in (MODEL, MODEL_METADATA) and path.suffix == ".json" and path.with_suffix(".zip").is_file():
+        return (f"the {what} {path} is the metadata file of the model {path.with_suffix('.zip')}: "
+                "writing it would replace that model's metadata; choose another name")
+    found = file_kind(path)
+    if found is not None and found != kind:
+        return (f"the {what} {path} exists and holds {'a file of another kind' if found == 'other' else found}, "
+                f"not {kind}: it would be replaced; choose another name")
+    return None
 
 
 @contextlib.contextmanager
@@ -237,10 +252,12 @@ def _in_use(path: Path) -> bool:
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | Path):
+def atomic_path(path: str | Path, kind: str | None = None):
     """Yield a temporary path beside ``path`` (with ``path``'s suffix, so that libraries that
     add a suffix do not); on success give it the usual file mode and rename it onto ``path``, on
-    any error remove it and leave ``path`` as it was."""
+    any error remove it and leave ``path`` as it was.  At the rename, ``path`` is judged again
+    (:func:`foreign`; with ``kind``, the kind of output written): what appeared there meanwhile and
+    is not the command's to replace is kept, and :class:`OutputError` says so."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     clean_stale_temporaries(path.parent, path.name)
@@ -254,6 +271,8 @@ def atomic_path(path: str | Path):
     try:
         yield tmp
         os.chmod(tmp, _umask_mode())
+        if (problem := foreign(path, kind, "output")) is not None:
+            raise OutputError(f"{problem} (it changed while the command ran)")
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -263,16 +282,17 @@ def atomic_path(path: str | Path):
         os.close(fd)
 
 
-def atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same directory and a rename."""
-    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+def atomic_write_text(path: str | Path, text: str, kind: str | None = None) -> None:
+    """Write ``text`` to ``path`` via a temporary file in the same directory and a rename
+    (:func:`atomic_path`: ``kind``, the kind of output, is checked again at the rename)."""
+    with atomic_path(path, kind) as tmp, open(tmp, "w", encoding="utf-8") as fh:
         fh.write(text)
         fh.flush()
         os.fsync(fh.fileno())
 
 
-def atomic_write_json(path: str | Path, data: Any) -> None:
-    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
+def atomic_write_json(path: str | Path, data: Any, kind: str | None = None) -> None:
+    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=False) + "\n", kind)
 
 
 def atomic_save_model(model, path: str | Path) -> None:
@@ -286,16 +306,64 @@ def metadata_path(model_path: str | Path) -> Path:
     return Path(model_path).with_suffix(".json")
 
 
+#: The types of the metadata entries commands read (an entry may be missing; None only where listed).
+METADATA_TYPES = {"seed": (int, type(None)), "env_id": str, "algo": str, "method": str, "env_kwargs": dict,
+                  "wrapper": dict, "config": dict, "num_timesteps": int, "total_timesteps": int, "evaluations": list,
+                  "wall_time_seconds": (int, float, type(None)), "pretrain": (dict, type(None))}
+#: The numbers of one held-out evaluation (``num_timesteps`` always; the others where recorded).
+EVALUATION_NUMBERS = ("mean_steps", "accuracy", "argmax_accuracy", "wall_time_seconds", "cpu_seconds")
+
+
 def read_metadata(model_path: str | Path) -> dict[str, Any]:
-    """The metadata JSON beside a model (``{}`` if there is none); a clear error naming the file
-    if it is not a JSON object."""
+    """The metadata JSON beside a model (``{}`` if there is none); a one-line ``ValueError``
+    naming the file and the entry if it is not a JSON object, nests deeper than
+    :data:`MAX_METADATA_DEPTH`, or holds an entry of another type than :data:`METADATA_TYPES`
+    says (an evaluation: an object whose ``num_timesteps`` is a whole number, its scores numbers)."""
     meta = metadata_path(model_path)
     if not meta.exists():
         return {}
     try:
-        data = json.loads(meta.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{meta}: the model's metadata is not readable JSON ({exc})") from None
+        text = meta.read_text(encoding="utf-8")
+        if _nesting(text) > MAX_METADATA_DEPTH:
+            raise ValueError(f"nested more than {MAX_METADATA_DEPTH} levels deep")
+        data = json.loads(text)
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise ValueError(f"{meta}: the model's metadata is not readable JSON ({' '.join(str(exc).split())[:200]})") from None
     if not isinstance(data, dict):
         raise ValueError(f"{meta}: the model's metadata must be a JSON object, got {type(data).__name__}")
+
+    def wrong(key: str, value: Any, allowed: str) -> ValueError:
+        return ValueError(f"{meta}: the model's metadata has {key} = {json.dumps(value)[:80]}, not {allowed}")
+
+    from gym_gridloc.core.validation import is_int
+
+    for key, types in METADATA_TYPES.items():
+        types = types if isinstance(types, tuple) else (types,)
+        if key in data and not any(is_int(data[key]) if t is int else isinstance(data[key], t) and not isinstance(data[key], bool)
+                                   for t in types):  # (a bool is no number here)
+            names = {"NoneType": "null", "dict": "an object", "list": "a list", "int": "a whole number", "str": "a string"}
+            raise wrong(key, data[key], " or ".join(names.get(t.__name__, t.__name__) for t in types))
+    for i, entry in enumerate(data.get("evaluations") or []):
+        if not isinstance(entry, dict):
+            raise wrong(f"evaluations[{i}]", entry, "an object")
+        steps = entry.get("num_timesteps")
+        if "num_timesteps" in entry and (not is_int(steps) or steps < 0):
+            raise wrong(f"evaluations[{i}].num_timesteps", steps, "a whole number >= 0")
+        for key in EVALUATION_NUMBERS:
+            value = entry.get(key)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+                raise wrong(f"evaluations[{i}].{key}", value, "a number")
     return data
+
+
+#: How deep a model's metadata may nest (a real one nests four or five levels).
+MAX_METADATA_DEPTH = 50
+
+
+def _nesting(text: str) -> int:
+    """The deepest nesting of brackets in a JSON text (an upper bound of its objects' and lists' depth)."""
+    depth = level = 0
+    for ch in text:
+        level += (ch in "[{") - (ch in "]}")
+        depth = max(depth, level)
+    return depth

@@ -146,9 +146,9 @@ def make_policy(
     ``env_id``; a model trained with other ``env_kwargs`` is refused).  ``pose``: the referee
     tests poses (the entropy policies then minimise the entropy of the full hidden state).
     ``optimal`` (noiseless models only, :mod:`gym_gridloc_agents.planners.optimal`) plans for the
-    environment's ``episode_length`` (or ``horizon=``, default 30).
-    """
-    takes = {"optimal": ("horizon",), "random": (), "greedy": (), "greedy2": (), "ppo": (), "recurrent": ()}.get(name)
+    environment's ``episode_length`` (or ``horizon=``, default 30).  An unknown option is an error."""
+    takes = {"optimal": ("horizon",), "random": (), "greedy": (), "greedy2": (), **dict.fromkeys(LEARNED_POLICIES, ()),
+             "pomcp": ("num_sims", "planning_time", "max_depth", "discount", "exploration_const", "n_particles", "threshold")}.get(name)
     if takes is not None and (extra := sorted(set(options) - set(takes))):  # never ignored (nor printed in a row's label)
         raise ValueError(f"policy {name!r} takes no option {', '.join(map(repr, extra))}"
                          f" ({'its options: ' + ', '.join(takes) if takes else 'it takes no options'})")

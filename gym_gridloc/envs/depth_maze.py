@@ -4,11 +4,12 @@ import functools
 
 import numpy as np
 
+from gym_gridloc.core.grid import GridMap
 from gym_gridloc.core.validation import check_int
 from gym_gridloc.envs.base import GridLocEnv, MapFactory
 from gym_gridloc.generators import (MAZE_GENERATORS, perfect_maze, perfect_maze_codes, perfect_maze_graph, perfect_maze_of_code,
                                     random_maze)
-from gym_gridloc.models import depth_maze_model
+from gym_gridloc.models import depth_maze_model, parse_maze
 from gym_gridloc.referee import LOCALISE_THRESHOLD
 
 
@@ -50,6 +51,8 @@ def _of_code(code, *, size):
 
 #: The largest DepthMaze side: its tables grow about as size**2.7 (401 needs 4.2 GB); 201 about 0.6 GB.
 MAX_SIZE = 201
+#: The longest ``episode_length``: ``DepthMaze-v0``'s ``max_episode_steps`` (a longer episode would be cut by the time limit).
+MAX_EPISODE_LENGTH = 100
 
 
 class DepthMazeEnv(GridLocEnv):
@@ -85,7 +88,8 @@ class DepthMazeEnv(GridLocEnv):
     Terminated when the largest posterior probability of a POSE (cell and heading) reaches
     ``localise_threshold``; truncated at ``max_episode_steps`` (100 for ``DepthMaze-v0``).  With
     ``episode_length=L``, the research protocol: exactly L steps, never terminated early
-    (truncated at L).
+    (truncated at L).  ``L`` is at most the step limit, 100 (a longer episode would be cut short by
+    the time limit: refused, never truncated; so is an ``L`` above the vector env's ``max_episode_steps``).
 
     ## Arguments
     ``size`` (7: an odd side >= 5; the protocol's sizes are 7, 15 and 21), ``layout`` (a fixed maze:
@@ -131,6 +135,14 @@ class DepthMazeEnv(GridLocEnv):
         if layout is not None and (map_seed is not None or new_map_each_reset):
             raise ValueError("give either layout=... (a fixed maze) or a generated one (map_seed, new_map_each_reset), not both")
         n = check_int("size", 7 if size is None else size, 5, MAX_SIZE)  # (the cap: tables that fit in memory)
+        if layout is not None:  # the same cap for a layout's sides, read before any table is built
+            layout = layout if isinstance(layout, GridMap) else parse_maze(layout)
+            if max(layout.shape) > MAX_SIZE:
+                raise ValueError(f"layout is a {layout.shape[0]}x{layout.shape[1]} maze; a DepthMaze side is at most "
+                                 f"{MAX_SIZE} (its tables grow about as side**2.7: {MAX_SIZE} needs about 0.6 GB)")
+        if episode_length is not None:
+            check_int("episode_length", episode_length, 1, MAX_EPISODE_LENGTH,
+                      what=f"a whole number in 1..{MAX_EPISODE_LENGTH} (DepthMaze-v0's max_episode_steps)")
         if n % 2 == 0:
             raise ValueError(f"size must be odd (rooms at odd coordinates, walls all round), got {size!r}")
 

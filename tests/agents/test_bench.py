@@ -225,10 +225,10 @@ def test_computed_rows_survive_a_failing_write(tmp_path, capsys, monkeypatch):
     target = tmp_path / "out.json"
     real = f.atomic_write_json
 
-    def failing(path, data):
+    def failing(path, data, *kind):
         if Path(path) == target:
             raise OSError(28, "No space left on device")
-        return real(path, data)
+        return real(path, data, *kind)
 
     monkeypatch.setattr(f, "atomic_write_json", failing)
     monkeypatch.chdir(tmp_path)

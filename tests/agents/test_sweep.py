@@ -113,7 +113,8 @@ def test_median_seed_rule():
     (["--cpus", "0"], "--cpus"),
     (["--cpus", "2", "--address", "127.0.0.1:1"], "--address"),
     (["--resume"], "no sweep"),
-    (["--address", "not-an-address"], "cannot join the Ray cluster"),
+    (["--address", "not-an-address"], "is not an address"),
+    (["--address", "127.0.0.1:1"], "cannot join the Ray cluster at 127.0.0.1:1: nothing answers there"),
 ])
 @needs_ray  # without the extra, every sweep command stops at "needs the sweep extra" (test_sweep_needs_its_extra)
 def test_bad_arguments_one_line_exit_2(tmp_path, capsys, args, says):

@@ -74,3 +74,32 @@ def test_pomdp_py_adapter_checks_its_values():
     for n in (0, -1, 2.5):
         with pytest.raises(ValueError, match="n_particles"):
             adapter.agent(model.prior(), n_particles=n)
+
+
+def test_an_episode_length_above_the_step_limit_is_refused_not_cut_short():
+    with pytest.raises(ValueError, match="episode_length.*1..100"):
+        gym.make("DepthMaze-v0", episode_length=150)
+    with pytest.raises(ValueError, match="episode_length.*1..100"):
+        gym.make_vec("DepthMaze-v0", num_envs=2, vectorization_mode="vector_entry_point", episode_length=101)
+    with pytest.raises(ValueError, match="episode_length=60 is above max_episode_steps=50"):
+        gym.make_vec("DepthMaze-v0", num_envs=2, vectorization_mode="vector_entry_point", episode_length=60, max_episode_steps=50)
+    assert gym_gridloc.envs.depth_maze.MAX_EPISODE_LENGTH == gym.spec("DepthMaze-v0").max_episode_steps
+    for env in (gym.make("DepthMaze-v0", episode_length=100),
+                gym.make_vec("DepthMaze-v0", num_envs=2, vectorization_mode="vector_entry_point", episode_length=100)):
+        env.reset(seed=0)
+        steps = 0
+        while True:
+            steps += 1
+            *_, terminated, truncated, _ = env.step(np.full(2, 2) if hasattr(env, "num_envs") else 2)
+            if np.any(truncated) or np.any(terminated):
+                break
+        assert steps == 100 and np.all(truncated) and not np.any(terminated)
+
+
+def test_a_depth_maze_layout_has_the_size_cap_of_size(tmp_path):
+    rows = ["#" * 603] + ["#" + "O" * 601 + "#"] * 601 + ["#" * 603]
+    (tmp_path / "big.txt").write_text("\n".join(rows) + "\n")
+    for layout in (str(tmp_path / "big.txt"), rows, ["#" * 203] + ["#" + "O" * 201 + "#"] * 3 + ["#" * 203]):
+        with pytest.raises(ValueError, match=r"layout is a \d+x\d+ maze; a DepthMaze side is at most 201"):
+            gym.make("DepthMaze-v0", layout=layout)
+    gym.make("DepthMaze-v0", layout=["#####", "#OOO#", "#O#O#", "#OOO#", "#####"]).reset(seed=0)

@@ -65,11 +65,12 @@ LEARNED = LEARNED_NAMES
 
 
 class BenchmarkInterrupted(KeyboardInterrupt):
-    """Ctrl-C during :func:`run_benchmark`: ``rows`` holds the rows that were finished."""
+    """Ctrl-C during :func:`run_benchmark`, or (``lost``: what happened) the cluster of a run with
+    ``address`` stopped answering: ``rows`` holds the rows that were finished."""
 
-    def __init__(self, rows: list[dict[str, Any]], total: int) -> None:
-        super().__init__(f"interrupted after {len(rows)} of {total} rows")
-        self.rows = rows
+    def __init__(self, rows: list[dict[str, Any]], total: int, lost: str | None = None) -> None:
+        super().__init__(f"{lost + ': ' if lost else ''}interrupted after {len(rows)} of {total} rows")
+        self.rows, self.lost = rows, lost
 
     def __str__(self) -> str:
         return self.args[0]
@@ -298,19 +299,18 @@ def run_benchmark(
 
         torch.set_num_threads(int(torch_threads))
     def finished(parts: list) -> list[dict[str, Any]]:
-        """The rows of the groups whose every task is done (the first ``len(parts)`` tasks)."""
+        """The rows of the groups whose every task is done (``parts[i]``: task ``i``'s parts; a
+        task past the list's end, or None, is not done)."""
         rows, i = [], 0
         for group in groups:
-            if i + len(group) > len(parts):
-                break
-            runs = parts[i: i + len(group)]
-            rows.append(seed_aggregate(group[0], runs, seed_start=seed_start, test_set=test_set) if len(group) > 1
-                        else summarise(group[0], parts=runs[0], seed_start=seed_start, test_set=test_set))
+            runs = [parts[j] if j < len(parts) else None for j in range(i, i + len(group))]
+            if all(r is not None for r in runs):
+                row = (seed_aggregate(group[0], runs, seed_start=seed_start, test_set=test_set) if len(group) > 1
+                       else summarise(group[0], parts=runs[0], seed_start=seed_start, test_set=test_set))
+                if where is not None:  # where the row's chunks ran
+                    row["cluster"] = bench_cluster.row_cluster(where, where["tasks"][i: i + len(group)])
+                rows.append(row)
             i += len(group)
-        if where is not None:  # where each row's chunks ran
-            per_task = iter(where["tasks"])
-            for row, group in zip(rows, groups):
-                row["cluster"] = bench_cluster.row_cluster(where, [next(per_task) for _ in group])
         return add_gaps(rows)
 
     where = None
@@ -318,8 +318,14 @@ def run_benchmark(
         from gym_gridloc_agents.evaluation import bench_cluster
 
         models = {i: (path, _model_name(path)) for i, t in enumerate(tasks) if (path := _model_file(t)) is not None}
-        work, done, where = bench_cluster.run_chunks(address, lambda cpus: chunk_work(tasks, specs, episodes, cpus, torch_threads),
-                                                     len(tasks), models, _job, progress=progress)
+        try:
+            work, done, where = bench_cluster.run_chunks(address, lambda cpus: chunk_work(tasks, specs, episodes, cpus, torch_threads),
+                                                         len(tasks), models, _job, progress=progress)
+        except bench_cluster.ChunksStopped as stop:  # Ctrl-C, or the cluster is gone: the tasks whose every chunk came back
+            where = stop.where
+            parts = [None if not got or any(stop.done[k] is None for k, (j, _) in enumerate(stop.work) if j == i) else got
+                     for i, got in enumerate(gather_chunks(stop.work, stop.done, len(tasks)))]
+            raise BenchmarkInterrupted(finished(parts), len(groups), stop.lost) from None
         parts = gather_chunks(work, done, len(tasks))
     elif jobs <= 1:
         parts = []

@@ -14,9 +14,12 @@ runs a chunk; the code itself is not sent (every node needs the same install).
 A chunk whose worker or node is lost is run again (up to :data:`RERUNS` times; the episodes are
 seeded, so the rerun gives the same numbers), and counted in the row's ``cluster.reruns``.  An
 error of the chunk itself (a bad option, say) is not retried: it stops the run, as locally.
+Ctrl-C, or a head that stops answering (:func:`gym_gridloc_agents.cluster.answers`), stops the run
+with the chunks that came back (:class:`ChunksStopped`): the caller writes the rows they finish.
 
-This module and :mod:`gym_gridloc_agents.sweeps.sweep` are the only ones importing Ray (the ``sweep``
-extra), and only when a run on a cluster starts.
+This module, :mod:`gym_gridloc_agents.cluster` (joining: the address and its deadline) and
+:mod:`gym_gridloc_agents.sweeps.sweep` are the only ones importing Ray (the ``sweep`` extra), and
+only when a run on a cluster starts.
 """
 
 from __future__ import annotations
@@ -30,37 +33,34 @@ from collections import Counter
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from gym_gridloc_agents.cluster import ClusterError, answers
+
 #: How many times one chunk is run again after its worker or node was lost.
 RERUNS = 3
 
 
-class ClusterError(RuntimeError):
-    """The cluster could not be joined, or a chunk was lost more than :data:`RERUNS` times."""
+#: Seconds between two checks, while no chunk comes back, that the cluster's head still answers.
+HEARTBEAT = 1.0
+#: Checks in a row without an answer after which the cluster counts as lost.
+SILENT_CHECKS = 3
+
+
+class ChunksStopped(Exception):
+    """The run on the cluster stopped before every chunk came back: Ctrl-C (``lost`` None) or a
+    cluster that stopped answering (``lost``: what happened).  ``work``, ``done`` (None for a chunk
+    that did not come back) and ``where`` as :func:`run_chunks` returns them, for the chunks that did."""
+
+    def __init__(self, work: list, done: list, where: dict[str, Any] | None, lost: str | None = None) -> None:
+        super().__init__(lost or "interrupted")
+        self.work, self.done, self.where, self.lost = work, done, where, lost
 
 
 def connect(address: str) -> bool:
-    """Join the Ray cluster at ``address`` (``HOST:PORT`` or ``auto``) unless Ray is already
-    initialised; whether this call started the connection (the caller then shuts it down)."""
-    import ray
+    """Join the Ray cluster at ``address`` (:func:`gym_gridloc_agents.cluster.join`: the address
+    checked, a deadline on finding its head)."""
+    from gym_gridloc_agents.cluster import join
 
-    if ray.is_initialized():
-        return False
-    host, colon, port = address.rpartition(":")
-    if colon and port.isdigit() and "://" not in address:  # Ray would retry an address where nothing listens for ever
-        import socket
-
-        try:
-            socket.create_connection((host.strip("[]"), int(port)), timeout=10).close()
-        except OSError as exc:
-            raise ClusterError(f"cannot join the Ray cluster at {address}: nothing answers there ({exc.strerror or exc}); "
-                               "start one with `ray start --head` or give the head's HOST:PORT") from None
-    try:
-        ray.init(address=address, logging_level="WARNING")
-    except Exception as exc:  # noqa: BLE001 - Ray raises bare Exception too (e.g. a node that timed out starting)
-        hint = (" (a cluster with token authentication needs RAY_AUTH_MODE=token and its token: RAY_AUTH_TOKEN or "
-                "~/.ray/auth_token)") if isinstance(exc, ConnectionError) else ""
-        raise ClusterError(f"cannot join the Ray cluster at {address}: {' '.join(str(exc).split())}{hint}") from None
-    return True
+    return join(address)
 
 
 def model_blob(path: Path) -> dict[str, Any]:
@@ -108,18 +108,39 @@ def run_chunks(address: str, chunks: Callable[[int], list[tuple[int, tuple]]], n
     (:func:`gym_gridloc_agents.evaluation.bench.chunk_work`); ``models``: task index -> (its model file, the
     name rows give it).  Returns the chunks, their results (the same order) and where they ran:
     ``{"address", "nodes", "cpus", "chunk_episodes", "tasks": [per task: {"chunks_per_node":
-    {node: n}, "reruns": n}]}``."""
+    {node: n}, "reruns": n}]}``.  Ctrl-C, or a head that stops answering (checked every
+    :data:`HEARTBEAT` seconds while no chunk comes back), raises :class:`ChunksStopped` with the
+    chunks that came back."""
     import ray
     from ray.exceptions import RayTaskError
     from tqdm.auto import tqdm
 
-    started = connect(address)
+    started = False
+    work: list[tuple[int, tuple]] = []
+    done: list[dict[str, Any] | None] = []
+    reruns: list[int] = []
+    nodes, cpus = [], 0
+
+    def where() -> dict[str, Any]:
+        """Where the chunks that came back ran, per task (their results lose the ``node`` they name)."""
+        per_task = [{"chunks_per_node": Counter(), "reruns": 0} for _ in range(n_tasks)]
+        for k, ((i, _), part) in enumerate(zip(work, done)):
+            if part is not None:
+                per_task[i]["chunks_per_node"][part.pop("node")] += 1
+                per_task[i]["reruns"] += reruns[k]
+        return {"address": gcs, "nodes": len(nodes), "cpus": cpus, "chunk_episodes": len(work[0][1][1]) if work else 0,
+                "tasks": [{"chunks_per_node": dict(sorted(t["chunks_per_node"].items())), "reruns": t["reruns"]} for t in per_task]}
+
+    gcs, lost = address, None
     try:
+        started = connect(address)
+        gcs = ray.get_runtime_context().gcs_address
         nodes = [n for n in ray.nodes() if n.get("Alive")]
         cpus = int(ray.cluster_resources().get("CPU", 0))
         if cpus < 1:
             raise ClusterError(f"the Ray cluster at {address} has no CPU to run the benchmark's chunks")
         work = chunks(cpus)
+        done, reruns = [None] * len(work), [0] * len(work)
         # task index -> (the model's bytes, once in the object store, and its name in the rows)
         blobs = {i: (ray.put(model_blob(path)), name) for i, (path, name) in models.items()}
         # Retries are the driver's (not Ray's max_retries), so that each rerun is counted in the row.
@@ -130,18 +151,29 @@ def run_chunks(address: str, chunks: Callable[[int], list[tuple[int, tuple]]], n
             blob, name = blobs.get(i, (None, None))
             return remote.remote(job, args, blob, name)
 
+        def head_gone() -> str | None:
+            """Why the cluster's head no longer answers, after :data:`SILENT_CHECKS` checks in a row (None: it answers)."""
+            for _ in range(SILENT_CHECKS):
+                if (why := answers(gcs, timeout=HEARTBEAT)) is None:
+                    return None
+            return f"the Ray cluster at {address} stopped answering during the run (its head {gcs}: {why})"
+
         pending = {submit(k): k for k in range(len(work))}
-        done: list[dict[str, Any] | None] = [None] * len(work)
-        reruns = [0] * len(work)
         with tqdm(total=len(work), desc=f"benchmark chunks on {len(nodes)} node(s), {cpus} CPU(s)", disable=not progress) as bar:
             while pending:
-                ready, _ = ray.wait(list(pending), num_returns=1)
+                ready, _ = ray.wait(list(pending), num_returns=1, timeout=HEARTBEAT)
+                if not ready:  # nothing came back: is the cluster still there? (Ray would wait for it for minutes)
+                    if (lost := head_gone()) is not None:
+                        raise ChunksStopped(work, done, where(), lost)
+                    continue
                 k = pending.pop(ready[0])
                 try:
                     done[k] = ray.get(ready[0])
                 except RayTaskError as exc:  # the chunk's own error: as a local run would raise it
                     raise (exc.cause if isinstance(exc.cause, Exception) else exc.as_instanceof_cause()) from None
                 except ray.exceptions.RayError as exc:  # its worker or node was lost: run it again
+                    if (lost := head_gone()) is not None:
+                        raise ChunksStopped(work, done, where(), lost) from None
                     if reruns[k] >= RERUNS:
                         raise ClusterError(f"a chunk of {work[k][1][0].env_id} {work[k][1][0].policy} was lost "
                                            f"{reruns[k] + 1} times ({type(exc).__name__}); last: {' '.join(str(exc).split())[:300]}") from None
@@ -151,17 +183,23 @@ def run_chunks(address: str, chunks: Callable[[int], list[tuple[int, tuple]]], n
                     pending[submit(k)] = k
                     continue
                 bar.update(1)
-        per_task = [{"chunks_per_node": Counter(), "reruns": 0} for _ in range(n_tasks)]
-        for k, ((i, _), part) in enumerate(zip(work, done)):
-            per_task[i]["chunks_per_node"][part.pop("node")] += 1
-            per_task[i]["reruns"] += reruns[k]
-        address_used = ray.get_runtime_context().gcs_address
+        return work, done, where()
+    except KeyboardInterrupt:  # the chunks that came back are kept (their rows written by the caller)
+        raise ChunksStopped(work, done, where()) from None
     finally:
-        if started:
+        if started and lost is None:
             ray.shutdown()
-    where = {"address": address_used, "nodes": len(nodes), "cpus": cpus, "chunk_episodes": len(work[0][1][1]),
-             "tasks": [{"chunks_per_node": dict(sorted(t["chunks_per_node"].items())), "reruns": t["reruns"]} for t in per_task]}
-    return work, done, where
+        elif started:  # the head is gone: Ray's shutdown would wait for it; the driver's own processes end with it
+            _shutdown_quietly(ray)
+
+
+def _shutdown_quietly(ray) -> None:
+    """``ray.shutdown()`` of a driver whose cluster is gone, in a daemon thread given a few seconds."""
+    import threading
+
+    thread = threading.Thread(target=ray.shutdown, daemon=True)
+    thread.start()
+    thread.join(10)
 
 
 def row_cluster(where: dict[str, Any], tasks: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -175,4 +213,4 @@ def row_cluster(where: dict[str, Any], tasks: Sequence[dict[str, Any]]) -> dict[
             "chunks_per_node": dict(sorted(per_node.items())), "reruns": sum(t["reruns"] for t in tasks)}
 
 
-__all__ = ["RERUNS", "ClusterError", "connect", "materialise", "model_blob", "row_cluster", "run_chunk", "run_chunks"]
+__all__ = ["HEARTBEAT", "RERUNS", "SILENT_CHECKS", "ChunksStopped", "ClusterError", "connect", "materialise", "model_blob", "row_cluster", "run_chunk", "run_chunks"]

@@ -140,8 +140,9 @@ def bench_main(args) -> int:
             check_int(flag, value)
         address = getattr(args, "address", None)
         if address is not None:
-            if not address.strip():
-                raise ValueError("--address needs a Ray cluster's address: HOST:PORT, or auto")
+            from gym_gridloc_agents.cluster import check_address
+
+            check_address(address)  # (host, port 1..65535, no spaces: before Ray is called)
             if args.jobs > 1:
                 raise ValueError("--jobs sets the processes of a run on this machine; with --address the cluster's CPUs run the chunks")
             import importlib.util
@@ -184,11 +185,13 @@ def bench_main(args) -> int:
         rows, interrupted = exc.rows, exc
     except (ValueError, TypeError, FileNotFoundError, ClusterError) as exc:  # ClusterError: --address could not run
         return fail("bench", " ".join(str(exc).split()))
+    # Ctrl-C: exit status 130; a cluster that stopped answering: 1 (the finished rows are written either way)
+    stopped, said = (130, "gridloc bench:") if interrupted is None or interrupted.lost is None else (1, "gridloc bench: error:")
     for note in notes:  # e.g. a policy that does not apply to an environment: one line each
         print(f"gridloc bench: {note.message}", file=sys.stderr)
     if interrupted is not None and not rows:
-        print(f"gridloc bench: {interrupted}; no row was finished, nothing written", file=sys.stderr)
-        return 130
+        print(f"{said} {interrupted}; no row was finished, nothing written", file=sys.stderr)
+        return stopped
     from gym_gridloc_agents.evaluation.report import env_label
 
     labels = {env_label(r) for r in rows}  # what this run measured (merged rows of other keywords are not plotted with it)
@@ -197,19 +200,23 @@ def bench_main(args) -> int:
         if args.update:  # re-read under the lock; the gaps are recomputed over the merged rows
             try:
                 old_rows = read_rows(json_path) if Path(json_path).exists() else []
-            except ValueError as exc:
-                return fail("bench", f"{exc} (it changed during the run)")
+            except ValueError as exc:  # the computed rows are never discarded: written beside it
+                try:
+                    files.rescue_write(lambda p: files.atomic_write_json(p, rows, files.BENCH_RESULTS), Path(json_path),
+                                       "results JSON", places=(Path(json_path).parent,), problem=f"{exc} (it changed during the run)")
+                except OutputError as rescued:
+                    return fail("bench", " ".join(str(rescued).split()))
             rows = add_gaps(merge_rows(old_rows, rows))
         code = _write_bench(args, rows, labels, json_path, frontier, table, here)
     if interrupted is not None and code == 0:
-        print(f"gridloc bench: {interrupted}; the {len(rows)} finished row(s) are kept"
-              + (f" in {json_path}" if json_path else " (printed above)"), file=sys.stderr)
-        return 130
+        print(f"{said} {interrupted}; the {len(rows)} finished row(s) are kept"
+              + (f" in {json_path} (run the others with --update)" if json_path else " (printed above)"), file=sys.stderr)
+        return stopped
     return code
 
 
 def _write_bench(args, rows, labels, json_path, frontier, table, here) -> int:
-    from gym_gridloc_agents.files import OutputError, atomic_write_json, atomic_write_text, rescue_write
+    from gym_gridloc_agents.files import BENCH_RESULTS, MARKDOWN, TABLE, OutputError, atomic_write_json, atomic_write_text, rescue_write
     from gym_gridloc_agents.evaluation.report import env_label, markdown_table, plot, plot_frontier, public_row, terminal_table
 
     mine = [r for r in rows if env_label(r) in labels]
@@ -223,8 +230,8 @@ def _write_bench(args, rows, labels, json_path, frontier, table, here) -> int:
     if not (args.markdown or json_path):
         print("(a short table; every column: --markdown PATH, every number: --json PATH)", file=sys.stderr)
     # (path or None, write, what, text before "wrote"); --all: a plot per environment
-    writes = [(json_path, lambda p: atomic_write_json(p, rows), "results JSON", "\n"),
-              (args.markdown, lambda p: atomic_write_text(p, markdown_table(rows) + "\n"), "markdown table", ""),
+    writes = [(json_path, lambda p: atomic_write_json(p, rows, BENCH_RESULTS), "results JSON", "\n"),
+              (args.markdown, lambda p: atomic_write_text(p, markdown_table(rows) + "\n", MARKDOWN), "markdown table", ""),
               (args.plot if mine else None, lambda p: plot(mine, p), "plot", ""),
               (frontier, lambda p: plot_frontier(rows, p), "frontier plot", "")]
     writes += [(here / f"bench_{e}.png", lambda p, e=e: plot([r for r in mine if r["env"] == e], p), "plot", "")
@@ -232,10 +239,10 @@ def _write_bench(args, rows, labels, json_path, frontier, table, here) -> int:
     try:  # the rows are computed: a failing write puts them elsewhere and says where
         for path, write, what, before in writes:
             if path:
-                rescue_write(write, Path(path), what)
+                rescue_write(write, Path(path), what, places=(Path(path).parent,))
                 print(f"{before}wrote {path}", file=sys.stderr)
         if args.all:
-            rescue_write(lambda p: atomic_write_json(p, [public_row(r) for r in rows]), table, "table JSON")
+            rescue_write(lambda p: atomic_write_json(p, [public_row(r) for r in rows], TABLE), table, "table JSON")
     except OutputError as exc:
         return fail("bench", str(exc))
     return 0
@@ -245,7 +252,7 @@ def bound_main(args) -> int:
     """``gridloc bound``: the depth-K lower bound of one environment."""
     from gym_gridloc_agents.envs import check_environment, make_env
     from gym_gridloc_agents import files
-    from gym_gridloc_agents.files import OutputError, atomic_write_json, rescue_write
+    from gym_gridloc_agents.files import BOUND, OutputError, atomic_write_json, rescue_write
     from gym_gridloc_agents.planners import lower_bound
     from gym_gridloc_agents.planners.expectimax import MAX_BOUND_DEPTH
 
@@ -276,7 +283,7 @@ def bound_main(args) -> int:
           f"(depth {args.depth}, {result['seconds']:.0f} s)")
     if args.json:  # every number, the value after each first reading too, only when asked for
         try:
-            rescue_write(lambda p: atomic_write_json(p, result), Path(args.json), "bound JSON")
+            rescue_write(lambda p: atomic_write_json(p, result, BOUND), Path(args.json), "bound JSON")
         except OutputError as exc:
             return fail("bound", str(exc))
         print(f"wrote {args.json}", file=sys.stderr)

@@ -67,11 +67,57 @@ def load_runs(path: str | Path) -> list[dict[str, Any]]:
             raise ValueError(f"{js}: no held-out evaluations (train with eval_freq > 0)")
         runs.append({"path": str(js.with_suffix(".zip")), "seed": meta.get("seed"), "env_id": meta.get("env_id"),
                      "env_kwargs": meta.get("env_kwargs") or {}, "method": model_method(meta),
-                     "evaluations": evals, "wall_time_seconds": meta.get("wall_time_seconds")})
+                     "evaluations": evals, "wall_time_seconds": meta.get("wall_time_seconds"),
+                     "config": meta.get("config") or {}})
     envs = {(r["env_id"], repr(sorted(r["env_kwargs"].items()))) for r in runs}
     if len(envs) != 1:
         raise ValueError(f"{path}: the runs were trained on different environments ({sorted(envs)}); a curve is one task")
+    one_configuration(runs)
     return runs
+
+
+#: Config keys in which the seeds of one configuration differ (where each training writes, its text).
+PER_SEED_KEYS = ("seed", "output", "checkpoint_dir", "tensorboard_log", "description")
+
+
+def one_configuration(runs: Sequence[dict[str, Any]]) -> None:
+    """Runs are seeds of a curve only when they are trainings of one configuration with different
+    seeds: ``ValueError`` naming two runs of one seed (two configurations, or one training's
+    checkpoints) or two runs of different configurations (and the keys they differ in)."""
+    import json
+
+    seen: dict[str, dict[str, Any]] = {}
+    for r in runs:
+        key = json.dumps(r["seed"])
+        if r["seed"] is None or key in seen:
+            raise ValueError(f"{r['path']}" + (" records no seed" if r["seed"] is None else
+                             f" and {seen[key]['path']} were trained with the same seed {r['seed']} (two configurations, "
+                             "or one training's checkpoints)") + ": a curve's runs are the seeds of one configuration")
+        seen[key] = r
+    first = runs[0]
+    for r in runs[1:]:
+        keys = sorted(set(first["config"]) | set(r["config"]))
+        diff = [k for k in keys if k not in PER_SEED_KEYS and json.dumps(first["config"].get(k), sort_keys=True)
+                != json.dumps(r["config"].get(k), sort_keys=True)]
+        if diff:
+            raise ValueError(f"{first['path']} and {r['path']} are two configurations (they differ in {', '.join(diff)}), "
+                             "not two seeds of one: give each configuration as its own --curves RUNS")
+
+
+def task_of(env_id: str, env_kwargs: dict[str, Any], test_set: bool = False) -> tuple[str, str, Any, bool]:
+    """What a row or a curve measures: the environment's model (its keywords, defaults filled in), its
+    episode length and whether its maps are drawn anew (at each reset, or a benchmark's held-out
+    test maps: ``test_set``)."""
+    import gymnasium as gym
+
+    from gym_gridloc_agents.envs import default_kwargs
+    from gym_gridloc_agents.loading import model_kwargs
+
+    full = {**(default_kwargs(env_id) if env_id in gym.registry else {}), **dict(env_kwargs)}
+    redrawn = True if test_set else full.get("new_map_each_reset")
+    if redrawn is None:  # (DepthMaze: a new maze at each reset unless a layout or a map_seed fixes one)
+        redrawn = full.get("layout") is None and full.get("map_seed") is None
+    return env_id, model_kwargs(env_id, env_kwargs), full.get("episode_length"), bool(redrawn)
 
 
 def metric_of(env_kwargs: dict[str, Any]) -> tuple[str, bool]:
@@ -104,14 +150,14 @@ def curve(runs: Sequence[dict[str, Any]], *, label: str = "", resamples: int = s
 
 def baselines(rows: Sequence[dict[str, Any]], env_id: str, metric: str, lower: bool,
               env_kwargs: dict[str, Any] | None = None) -> dict[str, float]:
-    """The horizontal lines of a curve from benchmark rows of ``env_id``: ``random``, ``greedy2``
-    and ``best planner`` (the best of the planners' rows); the rows' ``mean_steps`` or
-    ``accuracy_at_L``.  With ``env_kwargs`` (the curve's), only rows whose keywords it holds
-    (a row at ``episode_length`` 30 is not a line of a curve at 15)."""
+    """The horizontal lines of a curve from benchmark rows of its task (:func:`task_of`: ``env_id``
+    and ``env_kwargs``, the curve's; a row of the default map is no line of a curve on random
+    9x9 maps, a row at ``episode_length`` 30 none of a curve at 15): ``random``, ``greedy2`` and
+    ``best planner`` (the best of the planners' rows); the rows' ``mean_steps`` or ``accuracy_at_L``."""
     col = "mean_steps" if metric == "mean_steps" else "accuracy_at_L"
-    given = dict(env_kwargs or {})
+    task = task_of(env_id, env_kwargs or {})
     mine = [r for r in rows if r.get("env") == env_id and r.get(col) is not None
-            and all(given.get(k) == v for k, v in (r.get("env_kwargs") or {}).items())]
+            and isinstance(r.get("env_kwargs") or {}, dict) and task_of(env_id, r.get("env_kwargs") or {}, bool(r.get("test_set"))) == task]
     out = {r["policy"]: float(r[col]) for r in mine if r["policy"] in BASELINES}
     planners = [float(r[col]) for r in mine if r["policy"] in PLANNERS]
     if planners:

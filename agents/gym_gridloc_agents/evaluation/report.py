@@ -20,7 +20,7 @@ def read_rows(path: str | Path) -> list[dict[str, Any]]:
     """The rows of a bench JSON, or ``ValueError`` naming the file and what is wrong with it."""
     try:
         rows = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise ValueError(f"{path} is not a readable bench JSON ({exc}); --update merges into a file gridloc bench wrote") from None
     if not isinstance(rows, list) or not all(isinstance(r, dict) and all(k in r for k in ROW_KEYS) for r in rows):
         raise ValueError(f"{path} is not a bench JSON (a list of rows with {', '.join(ROW_KEYS)}); --update merges into a file gridloc bench wrote")
@@ -191,13 +191,13 @@ def save_figure(fig, path: str | Path, title: str | None = None, **savefig: Any)
     """Give ``fig`` its ``title``, lay it out and write it atomically as a PNG; then close it."""
     import matplotlib.pyplot as plt
 
-    from gym_gridloc_agents.files import atomic_path
+    from gym_gridloc_agents.files import FIGURE, atomic_path
 
     if title is not None:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     try:
-        with atomic_path(path) as tmp:
+        with atomic_path(path, FIGURE) as tmp:
             fig.savefig(tmp, format="png", **savefig)
     finally:
         plt.close(fig)

@@ -267,18 +267,21 @@ def run(spec: dict[str, Any], *, address: str | None = None, cpus: int | None = 
     from ray import tune
 
     started = False
-    if not ray.is_initialized():
+    if address is not None:  # a cluster: the address checked and a deadline on finding its head (as bench --address)
+        from gym_gridloc_agents.cluster import ClusterError, join
+
+        try:
+            started = join(address, include_dashboard=False)
+        except ClusterError as exc:
+            raise SweepError(str(exc)) from None
+    elif not ray.is_initialized():
         try:
             # address="local": always a Ray of our own, never a cluster someone else started here.
-            at = {"address": "local", "num_cpus": cpus or os.cpu_count()} if address is None else {"address": address}
-            ray.init(**at, include_dashboard=False, logging_level="WARNING")
+            ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, logging_level="WARNING")
         except Exception as exc:  # noqa: BLE001 - Ray raises bare Exception too (a node that timed out starting on a busy machine)
-            where = f"join the Ray cluster at {address}" if address is not None else "start Ray on this machine"
-            hint = (" (a cluster with token authentication needs RAY_AUTH_MODE=token and its token: RAY_AUTH_TOKEN or "
-                    "~/.ray/auth_token)") if isinstance(exc, ConnectionError) and address is not None else ""
-            if "timed out" in str(exc):
-                hint += " (an overloaded machine starts Ray slowly: try again when it is less busy; nothing was written)"
-            raise SweepError(f"cannot {where}: {' '.join(str(exc).split())}{hint}") from None
+            hint = (" (an overloaded machine starts Ray slowly: try again when it is less busy; nothing was written)"
+                    if "timed out" in str(exc) else "")
+            raise SweepError(f"cannot start Ray on this machine: {' '.join(str(exc).split())}{hint}") from None
         started = True
     try:
         if not resume:  # written once Ray is up: a sweep that could not start leaves no sweep behind

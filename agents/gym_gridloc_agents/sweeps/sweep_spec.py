@@ -155,12 +155,19 @@ def prepare(config: str | Path, *, seeds: int = 1, grid: Sequence[str] | dict | 
             cpus: int | None = None) -> dict[str, Any]:
     """Check the arguments and every configuration of the sweep before anything runs; returns
     the sweep's specification (what ``sweep.json`` holds).  Raises :class:`SweepError` or
-    :class:`ConfigError` with a one-line message.  (``address`` and ``cpus`` only go into the
-    recorded command: a sweep may be resumed elsewhere.)"""
+    :class:`ConfigError` with a one-line message.  (``address`` is checked, then it and ``cpus``
+    only go into the recorded command: a sweep may be resumed elsewhere.)"""
     command = command_line(config, seeds=seeds, grid=grid, search=search, trials=trials, output=output,
                            address=address, cpus=cpus)
 
     seeds = check_int("--seeds", seeds, 1, MAX_SEEDS, what=f"a whole number in 1..{MAX_SEEDS}", error=SweepError)
+    if address is not None:  # before any work, and before Ray is called
+        from gym_gridloc_agents.cluster import check_address
+
+        try:
+            check_address(address)
+        except ValueError as exc:
+            raise SweepError(str(exc)) from None
     if search not in (None, "optuna"):
         raise SweepError(f"--search must be optuna, got {search!r}")
     if search == "optuna" and trials is None:
@@ -203,7 +210,14 @@ def checked_configs(spec: dict[str, Any]) -> list[dict[str, Any]]:
         labels = [config_label(o, list(spec["grid"])) for o in configs]
         if len(set(labels)) != len(labels):  # (config_label hashes what it cannot spell; never expected)
             raise SweepError(f"--grid: two configurations share the name {next(x for x in labels if labels.count(x) > 1)}")
-        return [trial_config(spec, o, 0) for o in configs]
+        checked = [trial_config(spec, o, 0) for o in configs]
+        trained: dict[str, str] = {}  # two values the config reads as one (1 and 1.0 as n_epochs): one configuration
+        for label, cfg in zip(labels, checked):
+            same = trained.setdefault(canonical({k: v for k, v in cfg.items() if k not in ("output", "checkpoint_dir", "tensorboard_log")}), label)
+            if same != label:
+                raise SweepError(f"--grid: the configurations {same} and {label} are one configuration once the config is "
+                                 "checked (their values read alike): give each value once")
+        return checked
     return [trial_config(spec, {}, 0)] + [trial_config(spec, {k: v}, 0) for k, vs in spec["grid"].items() for v in vs]
 
 

@@ -27,14 +27,17 @@ from __future__ import annotations
 
 import copy
 import inspect
-import math
 from pathlib import Path
 from typing import Any
 
-from gym_gridloc.core.validation import check_int, is_int, unknown_names
+from gym_gridloc.core.validation import check_int, is_int
 from gym_gridloc_agents.history import history_options
-from gym_gridloc_agents.loading import ALGOS, algo_class
+from gym_gridloc_agents.loading import ALGOS
 from gym_gridloc_agents.policies import EXPERT_NAMES
+from gym_gridloc_agents.training.config_values import (HYPER_RANGES, SCHEDULED, ConfigError, allowed_hyperparams,  # noqa: F401
+                                                       check_buffer_memory, check_hyperparams, check_policy_values,
+                                                       known_keys as _known_keys,
+                                                       number as _num)
 
 TOP_KEYS = {
     "algo": "ppo, recurrent_ppo, a2c or dqn",
@@ -61,9 +64,6 @@ TOP_KEYS = {
                      "false sampled from the policy (seeded per episode)",
     "schedule": "final values of learning_rate, clip_range or ent_coef: each goes linearly from its hyperparams value to this",
 }
-
-#: Hyperparameters a ``schedule`` may anneal linearly over training (from ``hyperparams``' value).
-SCHEDULED = ("learning_rate", "clip_range", "ent_coef")
 
 PRETRAIN_KEYS = {
     "expert": "the policy to imitate (a policy name that needs no model file: greedy, greedy2, a planner)",
@@ -106,20 +106,6 @@ POLICY_KWARGS = {
             "features_extractor_kwargs"},
     "dqn": {"net_arch", "activation_fn", "features_extractor", "features_extractor_kwargs"},
 }
-
-# Keys of the algorithm's constructor that the config must not set through ``hyperparams``
-# (they come from elsewhere in the config, or would let a config run arbitrary code).
-_RESERVED = {"policy", "env", "seed", "policy_kwargs", "tensorboard_log", "verbose", "device",
-             "_init_setup_model", "rollout_buffer_class", "rollout_buffer_kwargs", "stats_window_size"}
-
-
-class ConfigError(ValueError):
-    """A training config is malformed; the message names the file and the key."""
-
-
-def allowed_hyperparams(algo: str) -> set[str]:
-    params = inspect.signature(algo_class(algo).__init__).parameters
-    return {k for k in params if k != "self"} - _RESERVED
 
 
 def activation(name: str):
@@ -178,44 +164,6 @@ def _depth(value: Any, level: int = 0) -> int:
     return level
 
 
-def _num(source: str, key: str, value: Any, *, integer: bool, minimum: float, maximum: float | None = None,
-         above: bool = False) -> Any:
-    """A finite number (a whole one with ``integer``) at least ``minimum`` (above it, with
-    ``above``) and at most ``maximum``; else a :class:`ConfigError` naming the key."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{source}: {key} must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ConfigError(f"{source}: {key} must be a finite number, got {value!r}")
-    if integer:  # (no integer range is open below)
-        return check_int(f"{source}: {key}", value, minimum, maximum, whole=True, error=ConfigError)
-    if value < minimum or (above and value == minimum):
-        raise ConfigError(f"{source}: {key} must be {'>' if above else '>='} {minimum}, got {value!r}")
-    if maximum is not None and value > maximum:
-        raise ConfigError(f"{source}: {key} must be <= {maximum}, got {value!r}")
-    return value
-
-
-def _known_keys(source: str, value: Any, allowed, name: str | None = None, qualifier: str = "") -> None:
-    """``value`` (the config, or its mapping ``name``) has only keys among ``allowed`` (listed in
-    this order, ``allowed{qualifier}:``), else a :class:`ConfigError` naming the others."""
-    if name is not None and not isinstance(value, dict):
-        raise ConfigError(f"{source}: {name} must be a mapping, got {value!r}")
-    bad = sorted(set(value) - set(allowed))
-    if bad:
-        where = "" if name is None else f"in {name}: "
-        raise ConfigError(f"{source}: unknown key(s) {where}{unknown_names(bad, list(allowed))}; "
-                          f"allowed{qualifier}: {', '.join(allowed)}")
-
-
-#: Ranges of the algorithms' numeric hyperparameters: (integer, minimum, strictly above it, maximum).
-HYPER_RANGES = {
-    "n_steps": (True, 1, False, None), "batch_size": (True, 2, False, None), "n_epochs": (True, 1, False, None),
-    "learning_rate": (False, 0, True, None), "gamma": (False, 0, True, 1), "gae_lambda": (False, 0, False, 1),
-    "clip_range": (False, 0, True, None), "ent_coef": (False, 0, False, None), "vf_coef": (False, 0, False, None),
-    "max_grad_norm": (False, 0, True, None), "target_kl": (False, 0, True, None),
-}
-
-
 def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     """Check a config dict (see the module docstring) and fill in defaults."""
     if not isinstance(raw, dict):
@@ -268,6 +216,18 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         if cfg["vec_env"] == "native":
             raise ConfigError(f"{source}: wrapper.previous_action needs vec_env: dummy (the native vector env "
                               "has no previous-action observation)")
+    if algo == "recurrent_ppo" and wrapper["belief"]:
+        raise ConfigError(f"{source}: algo recurrent_ppo reads the raw readings (wrapper.belief: false, its memory stands in for "
+                          "the belief): the evaluations and the benchmark give it no belief; use algo ppo on the belief")
+    from gym_gridloc_agents.envs import make_env  # the observation training builds (the buffers hold it) and its grid
+    import gymnasium.spaces
+
+    try:
+        probe = make_env(cfg["env_id"], cfg["env_kwargs"], wrapper)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{source}: wrapper {wrapper}: {exc}") from None
+    floats, grid = gymnasium.spaces.flatdim(probe.observation_space), probe.unwrapped.model.shape
+    probe.close()
 
     for key, default, minimum, maximum in (("n_envs", 8, 1, None), ("seed", 0, 0, 2**32 - 1),
                                            ("total_timesteps", None, 1, None), ("eval_freq", 0, 0, None),
@@ -288,6 +248,7 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
 
     pk = cfg.setdefault("policy_kwargs", {})
     _known_keys(source, pk, sorted(POLICY_KWARGS[algo]), "policy_kwargs", f" for {algo}")
+    check_policy_values(source, pk)
     if "features_extractor" in pk:
         from gym_gridloc_agents.features import EXTRACTORS
 
@@ -311,10 +272,12 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             decoded = EXTRACTORS["reading_cell"].reading_space(**fek)
         except ValueError as exc:
             raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs: {exc}") from None
-        if wrapper["belief"] or raw_space != decoded:
+        default = inspect.signature(EXTRACTORS["reading_cell"].reading_space).parameters
+        sides = tuple(fek.get(k, default[k].default) for k in ("height", "width"))  # the grid's sides, not only its cells
+        if wrapper["belief"] or raw_space != decoded or sides != tuple(grid):
             raise ConfigError(f"{source}: features_extractor reading_cell ({fek or 'its default sizes'}) reads raw readings "
-                              f"(wrapper.belief: false) of a sensor reporting a cell, {decoded}; "
-                              f"{cfg['env_id']} with {cfg['env_kwargs']} reads {raw_space}"
+                              f"(wrapper.belief: false) of a sensor reporting a cell of a {sides[0]}x{sides[1]} grid, {decoded}; "
+                              f"{cfg['env_id']} with {cfg['env_kwargs']} reads {raw_space} on a {grid[0]}x{grid[1]} grid"
                               f"{' behind the belief wrapper' if wrapper['belief'] else ''}")
     if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
         raise ConfigError(f"{source}: policy_kwargs.activation_fn must be one of {', '.join(ACTIVATIONS)}, got {pk['activation_fn']!r}")
@@ -326,27 +289,8 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         if not ok:
             raise ConfigError(f"{source}: policy_kwargs.net_arch must be a list of positive integers or {{pi: [...], vf: [...]}}, got {na!r}")
 
-    hp = cfg.setdefault("hyperparams", {})
-    _known_keys(source, hp, sorted(allowed_hyperparams(algo)), "hyperparams", f" for {algo}")
-    for k, v in hp.items():
-        if isinstance(v, str):
-            raise ConfigError(f"{source}: hyperparams.{k} must be a number or boolean (strings are not evaluated), got {v!r}")
-        if k in HYPER_RANGES and v is not None:
-            integer, lo, above, hi = HYPER_RANGES[k]
-            hp[k] = _num(source, f"hyperparams.{k}", v, integer=integer, minimum=lo, maximum=hi, above=above)
-        elif isinstance(v, float) and not math.isfinite(v):
-            raise ConfigError(f"{source}: hyperparams.{k} must be a finite number, got {v!r}")
-    sched = cfg.setdefault("schedule", {})
-    _known_keys(source, sched, SCHEDULED, "schedule")
-    for k, v in sched.items():
-        if k not in allowed_hyperparams(algo):
-            raise ConfigError(f"{source}: schedule.{k}: {algo} has no {k} to anneal")
-        if k not in hp:
-            raise ConfigError(f"{source}: schedule.{k} needs hyperparams.{k}, the value it starts from")
-        integer, lo, above, hi = HYPER_RANGES[k]
-        sched[k] = _num(source, f"schedule.{k}", v, integer=integer, minimum=lo, maximum=hi, above=above)
-    if hp.get("n_steps", 2048) * cfg["n_envs"] < 2:
-        raise ConfigError(f"{source}: hyperparams.n_steps x n_envs must be at least 2, got {hp.get('n_steps')} x {cfg['n_envs']}")
+    check_hyperparams(source, cfg)
+    check_buffer_memory(source, cfg, floats)
 
     if "output" not in cfg:
         raise ConfigError(f"{source}: missing required key 'output' (the model file to write, .zip)")
@@ -355,7 +299,8 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     for key in ("checkpoint_dir", "tensorboard_log"):
         if cfg.setdefault(key, None) is not None and not isinstance(cfg[key], str):
             raise ConfigError(f"{source}: {key} must be a path or null, got {cfg[key]!r}")
-    cfg.setdefault("description", "")
+    if not isinstance(cfg.setdefault("description", ""), str):  # (free text: 1 and '1' would print as one)
+        raise ConfigError(f"{source}: description must be text (quote a number: '1'), got {cfg['description']!r}")
     if not isinstance(cfg.setdefault("deterministic", True), bool):
         raise ConfigError(f"{source}: deterministic must be true or false, got {cfg['deterministic']!r}")
     pre = cfg.setdefault("pretrain", None)

@@ -298,49 +298,49 @@ def _train(
             state["warm_start"] = {"done": False, "episodes": exc.episodes, "epochs": exc.epochs, "rounds": exc.rounds}
             raise interrupted("warm start") from None
 
-    if cfg["eval_freq"] > 0 and cfg.get("pretrain") and int(model.num_timesteps) == 0 and not evaluations:
-        # The warm-started policy itself competes for "best" (PPO may not improve on it).
-        evaluate_now(model)
-    if resume is not None and cfg["eval_freq"] > 0:  # the evaluation due at the checkpoint's own step
-        due = int(model.num_timesteps) // cfg["eval_freq"] * cfg["eval_freq"]  # (it ran after the checkpoint was saved)
-        if due > 0 and not any(e["num_timesteps"] >= due for e in evaluations):
-            kept = best_entry(ckpt_dir)
-            if kept is not None and kept["num_timesteps"] == int(model.num_timesteps):
-                evaluations.append(kept)
-            else:
-                evaluate_now(model)
-    cbs = list(callbacks or []) + schedule_callbacks
-    if cfg["checkpoint_freq"] > 0:
-        cbs.append(_every(cfg["checkpoint_freq"], lambda m: save(m, f"step_{m.num_timesteps}.zip")))
-    if cfg["eval_freq"] > 0:
-        cbs.append(_every(cfg["eval_freq"], evaluate_now))
-    remaining = cfg["total_timesteps"] - int(model.num_timesteps)
+    phase = "evaluation"  # Ctrl-C in any phase below: an interrupted checkpoint of the model trained so far
     try:
+        if cfg["eval_freq"] > 0 and cfg.get("pretrain") and int(model.num_timesteps) == 0 and not evaluations:
+            evaluate_now(model)  # the warm-started policy itself competes for "best" (PPO may not improve on it)
+        if resume is not None and cfg["eval_freq"] > 0:  # the evaluation due at the checkpoint's own step
+            due = int(model.num_timesteps) // cfg["eval_freq"] * cfg["eval_freq"]  # (it ran after the checkpoint was saved)
+            if due > 0 and not any(e["num_timesteps"] >= due for e in evaluations):
+                kept = best_entry(ckpt_dir)
+                if kept is not None and kept["num_timesteps"] == int(model.num_timesteps):
+                    evaluations.append(kept)
+                else:
+                    evaluate_now(model)
+        cbs = list(callbacks or []) + schedule_callbacks
+        if cfg["checkpoint_freq"] > 0:
+            cbs.append(_every(cfg["checkpoint_freq"], lambda m: save(m, f"step_{m.num_timesteps}.zip")))
+        if cfg["eval_freq"] > 0:
+            cbs.append(_every(cfg["eval_freq"], evaluate_now))
+        remaining, phase = cfg["total_timesteps"] - int(model.num_timesteps), "training"
         if remaining > 0:
             model.learn(remaining, callback=cbs or None, progress_bar=progress_bar, reset_num_timesteps=resume is None,
                         tb_log_name=f"{cfg['algo']}_{cfg['env_id']}_seed{cfg['seed']}")
+        final, selected, phase = model, None, "final evaluation"
+        if cfg["eval_freq"] > 0:
+            # Keep the best of the held-out evaluations (the final model included), as rl-zoo's
+            # best_model: PPO's evaluation curve is noisy from one update to the next.
+            if not evaluations or evaluations[-1]["num_timesteps"] != int(model.num_timesteps):
+                evaluate_now(model)
+            best = best_entry(ckpt_dir) or min(evaluations, key=lambda h: score(cfg, h))
+            if best not in evaluations:  # evaluated before the checkpoint this run resumed from was written
+                evaluations.append({**best, "note": "evaluated before an interruption; kept as best.zip"})
+            selected = best["num_timesteps"]
+            final = Algo.load(ckpt_dir / "best.zip", device="cpu")
+            final.num_timesteps = int(model.num_timesteps)
+        # The final model is for acting: drop Adam's moment estimates (two thirds of the file); the
+        # checkpoints keep them for resuming.
+        final.policy.optimizer.state.clear()
+        info = {**meta(), "interrupted": False, "selected_timesteps": selected,
+                "eval_seeds": f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + cfg['eval_episodes'] - 1}" if evaluations else None,
+                "optimizer_state": "dropped (checkpoints keep it)"}
+        phase = "final write"
+        save_final(final, info, Path(cfg["output"]), ckpt_dir, force=force)
     except KeyboardInterrupt:
-        raise interrupted("training") from None
-    selected = None
-    if cfg["eval_freq"] > 0:
-        # Keep the best of the held-out evaluations (the final model included), as rl-zoo's
-        # best_model: PPO's evaluation curve is noisy from one update to the next.
-        if not evaluations or evaluations[-1]["num_timesteps"] != int(model.num_timesteps):
-            evaluate_now(model)
-        best = best_entry(ckpt_dir) or min(evaluations, key=lambda h: score(cfg, h))
-        if best not in evaluations:  # evaluated before the checkpoint this run resumed from was written
-            evaluations.append({**best, "note": "evaluated before an interruption; kept as best.zip"})
-        selected = best["num_timesteps"]
-        final_timesteps = int(model.num_timesteps)
-        model = Algo.load(ckpt_dir / "best.zip", device="cpu")
-        model.num_timesteps = final_timesteps
-    # The final model is for acting: drop Adam's moment estimates (two thirds of the file); the
-    # checkpoints keep them for resuming.
-    model.policy.optimizer.state.clear()
-    info = {**meta(), "interrupted": False, "selected_timesteps": selected,
-            "eval_seeds": f"{EVAL_SEED_BASE}..{EVAL_SEED_BASE + cfg['eval_episodes'] - 1}" if evaluations else None,
-            "optimizer_state": "dropped (checkpoints keep it)"}
-    save_final(model, info, Path(cfg["output"]), ckpt_dir, force=force)
+        raise interrupted(phase) from None
     venv.close()
     return info
 
@@ -350,7 +350,7 @@ train.__doc__ = _train.__doc__
 
 #: Config keys that define the model a checkpoint holds: a resumed training must not change them
 #: (its metadata would describe a model it is not).
-RESUME_KEYS = ("seed", "policy", "policy_kwargs", "hyperparams", "wrapper", "pretrain")
+RESUME_KEYS = ("seed", "policy", "policy_kwargs", "hyperparams", "schedule", "wrapper", "pretrain")
 
 
 def check_resumed_config(resume: Path, prev: dict[str, Any], cfg: dict[str, Any]) -> None:
