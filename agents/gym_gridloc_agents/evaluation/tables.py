@@ -15,7 +15,9 @@ the stem of a bench JSON in the results directory (``bench`` is ``results/bench.
 - ``improvement``: rliable's probability of improvement of each policy over each other, on the
   tasks both ran;
 - ``pairs``: the paired comparisons on common episodes (:mod:`gym_gridloc_agents.evaluation.paired`;
-  rows that keep their episodes' results only).
+  rows that keep their episodes' results only);
+- ``targets``: the targets of ``targets.json`` in the results directory whose rows are in these
+  files, each judged by an interval (:mod:`gym_gridloc_agents.evaluation.targets`).
 
 Normalised scores are computed per results file, from its rows (:func:`load`), so files written
 before rows carried them get them too.
@@ -30,7 +32,7 @@ from gym_gridloc_agents.evaluation import aggregate
 from gym_gridloc_agents.evaluation.report import env_label, read_rows
 from gym_gridloc_agents.evaluation.scores import add_normalised_scores, metric
 
-KINDS = ("rows", "seeds", "references", "normalised", "aggregate", "improvement", "pairs")
+KINDS = ("rows", "seeds", "references", "normalised", "aggregate", "improvement", "pairs", "targets")
 
 
 def load(results: str | Path, stems: Sequence[str]) -> list[tuple[str, list[dict[str, Any]]]]:
@@ -193,8 +195,12 @@ GENERATORS: dict[str, Callable[[list], str]] = {
 def table(name: str, results: str | Path) -> str:
     """The markdown table ``name`` (``KIND:STEM[+STEM...]``, module docstring) from the results files in ``results``."""
     kind, colon, sources = name.partition(":")
-    if kind not in GENERATORS or not colon or not sources:
+    if kind not in KINDS or not colon or not sources:
         raise ValueError(f"unknown table {name!r}: expected KIND:RESULTS (e.g. rows:bench), KIND one of {', '.join(KINDS)}")
+    if kind == "targets":
+        from gym_gridloc_agents.evaluation.targets import read_targets, targets_table
+
+        return targets_table(load(results, sources.split("+")), read_targets(results))
     return GENERATORS[kind](load(results, sources.split("+")))
 
 

@@ -1,0 +1,107 @@
+"""Targets judged by intervals: the ``targets`` table of ``gridloc report``.
+
+A target is a line of ``targets.json`` in the results directory: which row (``source``, the stem
+of a results file; ``env``; the ``env_kwargs`` the row must have; ``policy``) and what it must
+reach: ``at_least`` or ``at_most`` a number (of the row's metric: accuracy at L under the
+protocol, mean steps otherwise), or ``better_than`` another policy of the same task.  The verdict
+comes from an interval, never from a point estimate:
+
+- a number: ``met`` when the row's 95% interval (over the episodes, or over the seeds and then the
+  episodes for a row across training seeds) lies wholly on the target's side of it, ``not met``
+  when it lies wholly on the other side, else ``undecided`` (the interval holds the target);
+- another policy: the paired comparison on the common episodes
+  (:func:`gym_gridloc_agents.evaluation.paired.compare`): ``met`` when it says ``better``, ``not
+  met`` when it says ``worse``, ``tie`` otherwise.
+
+A target whose row is not in the results files is listed as ``not measured``: a table never
+leaves a target out.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Sequence
+
+from gym_gridloc_agents.evaluation.report import env_label
+from gym_gridloc_agents.evaluation.scores import metric
+
+SPEC = "targets.json"
+KEYS = {"task", "source", "env", "env_kwargs", "policy", "at_least", "at_most", "better_than"}
+
+
+def read_targets(results: str | Path) -> list[dict[str, Any]]:
+    """The targets of ``results/targets.json``, checked (``ValueError`` naming what is wrong)."""
+    path = Path(results) / SPEC
+    try:
+        targets = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: cannot read the targets ({exc})") from None
+    if not isinstance(targets, list):
+        raise ValueError(f"{path}: expected a list of targets, got {type(targets).__name__}")
+    for i, t in enumerate(targets):
+        if not isinstance(t, dict) or not {"task", "source", "env", "policy"} <= set(t) or set(t) - KEYS:
+            raise ValueError(f"{path}: target {i} must have task, source, env and policy, and only {', '.join(sorted(KEYS))}")
+        if sum(k in t for k in ("at_least", "at_most", "better_than")) != 1:
+            raise ValueError(f"{path}: target {i} ({t['task']}) needs exactly one of at_least, at_most, better_than")
+    return targets
+
+
+def _row(rows: Sequence[dict[str, Any]], target: dict[str, Any], policy: str) -> dict[str, Any] | None:
+    want = target.get("env_kwargs", {})
+    for r in rows:
+        kwargs = r.get("env_kwargs", {})
+        if r.get("env") == target["env"] and r.get("policy") == policy and all(kwargs.get(k) == v for k, v in want.items()):
+            return r
+    return None
+
+
+def _episodes(r: dict[str, Any]) -> str:
+    return f"{r['episodes']} x {r['seeds']} seeds" if "seeds" in r else f"{r['episodes']}, one model"
+
+
+def judge(target: dict[str, Any], rows: Sequence[dict[str, Any]]) -> dict[str, str]:
+    """The measured value, its interval and the verdict of one target on these rows."""
+    row = _row(rows, target, target["policy"])
+    if row is None:
+        return {"measured": "-", "episodes": "-", "verdict": "not measured"}
+    col, lower_is_better = metric(row)
+    digits = 3 if col == "accuracy_at_L" else 2
+    if "better_than" in target:
+        from gym_gridloc_agents.evaluation import paired
+
+        other = _row(rows, target, target["better_than"])
+        if other is None or "per_episode" not in row or "per_episode" not in other:
+            return {"measured": f"{row[col]:.{digits}f}", "episodes": _episodes(row), "verdict": "not measured"}
+        p = paired.compare(row, other)
+        lo, hi = p["ci95"]
+        return {"measured": f"{row[col]:.{digits}f} vs {other[col]:.{digits}f}: difference {p['difference']:+.{digits}f} "
+                            f"({lo:+.{digits}f} to {hi:+.{digits}f}, paired)",
+                "episodes": _episodes(row), "verdict": {"better": "met", "worse": "not met"}.get(p["verdict"], "tie")}
+    lo, hi = row.get(f"{col}_ci95") or (row[col], row[col])
+    goal, above = (target["at_least"], True) if "at_least" in target else (target["at_most"], False)
+    if (lo > goal if above else hi < goal):
+        verdict = "met"
+    elif (hi < goal if above else lo > goal):
+        verdict = "not met"
+    else:
+        verdict = "undecided"
+    return {"measured": f"{row[col]:.{digits}f} ({lo:.{digits}f}-{hi:.{digits}f})", "episodes": _episodes(row),
+            "verdict": verdict}
+
+
+def targets_table(files, targets: Sequence[dict[str, Any]]) -> str:
+    """One line per target whose ``source`` is among ``files`` (``(stem, rows)``)."""
+    by_stem = dict(files)
+    lines = ["| task | target | policy | episodes | measured (95% CI) | verdict |", "| --- | --- | --- | --- | --- | --- |"]
+    for t in targets:
+        if t["source"] not in by_stem:
+            continue
+        goal = (f">= {t['at_least']}" if "at_least" in t else f"<= {t['at_most']}" if "at_most" in t
+                else f"better than {t['better_than']} (paired)")
+        found = judge(t, by_stem[t["source"]])
+        lines.append(f"| {t['task']} | {goal} | {t['policy']} | {found['episodes']} | {found['measured']} | {found['verdict']} |")
+    return "\n".join(lines)
+
+
+__all__ = ["SPEC", "judge", "read_targets", "targets_table"]
