@@ -82,7 +82,7 @@ def test_the_first_training_runs_and_its_model_is_benchmarked(tmp_path, monkeypa
     monkeypatch.chdir(tmp_path)
     exec(compile(code.replace("model.learn(20_000)", "model.learn(2_048)"), "README.md", "exec"), {})
     assert (tmp_path / "my_ppo.zip").is_file()
-    command = re.search(r"`(gridloc bench --env WindyMaze-v0 --policies greedy2,ppo --ppo-model my_ppo.zip[^`]*)`", README)
+    command = re.search(r"(?m)^(gridloc bench --env WindyMaze-v0 --policies greedy2,ppo --ppo-model my_ppo.zip.*)$", README)
     assert command, "the README names the bench command for the trained model"
     from gym_gridloc_agents.cli import main
 
@@ -118,7 +118,7 @@ def test_the_first_command_prints_what_the_readme_shows(capsys):
 def test_the_benchmark_columns_are_explained_beside_the_first_command():
     head = _cells(_first_command_block())[0] + ["ms/dec"]
     section = README[README.index("## What the first command prints"):README.index("## Install")]
-    explained = set(re.findall(r"`([^`]+)`", section))
+    explained = set(re.findall(r"`([^`\n]+)`", re.sub(r"```.*?```", "", section, flags=re.S)))
     words = {"mean steps (95% CI)": "mean steps"}
     assert {words.get(h, h) for h in head} - {"env", "policy"} <= explained
     assert "--markdown PATH" in section and "--json PATH" in section
