@@ -20,7 +20,7 @@ from gym_gridloc.wrappers import previous_action_space, with_previous_action
 from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.files import read_metadata
 from gym_gridloc_agents.history import acting_history, with_history_space
-from gym_gridloc_agents.loading import METHODS, load_model, model_kwargs, model_method
+from gym_gridloc_agents.loading import METHODS, load_model, model_kwargs, model_method, plain_id
 
 #: Where the shipped models live: ``<env_id>[-size<N>]-<method>.zip``, method ``ppo``, ``distilled``
 #: or ``recurrent`` (:data:`gym_gridloc_agents.loading.METHODS`).
@@ -222,6 +222,7 @@ def default_model_path(env_id: str, method: str = "ppo", env_kwargs: dict[str, A
     keywords finds the model trained with ``size=7``; episode keywords such as ``episode_length``
     may differ)."""
     method = "recurrent" if method == "recurrent_ppo" else method
+    env_id = plain_id(env_id)
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     plain = POLICY_DIR / f"{env_id}-{method}.zip"

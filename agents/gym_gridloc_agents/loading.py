@@ -46,7 +46,8 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
     meta = read_metadata(path)
     if meta.get("algo") not in (None, algo):
         raise ValueError(f"{path} holds a {meta['algo']} model, not {algo}")
-    if env_id is not None and meta.get("env_id") not in (None, env_id):
+    env_id = plain_id(env_id)
+    if env_id is not None and plain_id(meta.get("env_id")) not in (None, env_id):
         raise ValueError(f"{path} was trained for {meta['env_id']}, not {env_id}; train one for {env_id} or pick its model")
     if (env_kwargs is not None and "env_kwargs" in meta
             and model_kwargs(meta.get("env_id") or env_id, meta["env_kwargs"]) != model_kwargs(meta.get("env_id") or env_id, env_kwargs)):
@@ -139,6 +140,13 @@ def expand_models(items: Sequence[str | Path], flag: str = "--ppo-model") -> lis
                                  "several models are one per seed")
             seeds[seed if seed is not None else object()] = m
     return models
+
+
+def plain_id(env_id: str | None) -> str | None:
+    """``env_id`` without gym_gridloc's namespace (``gym_gridloc/WindyMaze-v0`` is ``WindyMaze-v0``,
+    the same environment): how shipped models and their metadata name it."""
+    prefix = "gym_gridloc/"
+    return env_id[len(prefix):] if isinstance(env_id, str) and env_id.startswith(prefix) else env_id
 
 
 def model_kwargs(env_id: str | None, kwargs: dict) -> str:

@@ -352,3 +352,15 @@ def test_greedy_plans_on_large_maps_without_a_readings_table_and_greedy2_refuses
     assert p.act(None, belief) in range(4)
     with pytest.raises(ValueError, match=r"would predict \d+ beliefs .* use a one-step policy \(greedy\) or a smaller map"):
         Greedy2Policy(model, seed=0).act(None, belief)
+
+
+@pytest.mark.parametrize("method", ["ppo", "distilled"])
+def test_a_namespaced_id_finds_the_shipped_models(method):
+    from gym_gridloc_agents.loading import plain_id
+    from gym_gridloc_agents.policies import default_model_path
+
+    assert plain_id("gym_gridloc/DepthMaze-v0") == "DepthMaze-v0" and plain_id("CartPole-v1") == "CartPole-v1"
+    for env_id in ("WindyMaze-v0", "DepthMaze-v0"):
+        env = gym.make(f"gym_gridloc/{env_id}")
+        policy = make_policy(method, env.unwrapped.model, env_id=f"gym_gridloc/{env_id}")
+        assert policy.path == default_model_path(env_id, method)
