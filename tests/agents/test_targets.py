@@ -16,8 +16,7 @@ ACC = {"env": "DepthMaze-v0", "env_kwargs": {"size": 7, "episode_length": 15, "g
 
 
 def _target(**goal):
-    return {"task": "t", "source": "s", "env": "DepthMaze-v0", "env_kwargs": {"size": 7, "episode_length": 15},
-            "policy": "ppo", **goal}
+    return {"task": "t", "source": "s", "env": "DepthMaze-v0", "env_kwargs": dict(ACC["env_kwargs"]), "policy": "ppo", **goal}
 
 
 @pytest.mark.parametrize("ci,goal,verdict", [((0.991, 0.996), {"at_least": 0.99}, "met"),
@@ -33,9 +32,12 @@ def test_a_number_is_met_only_when_the_interval_excludes_it(ci, goal, verdict):
 def test_a_missing_row_is_not_measured_and_the_kwargs_must_match():
     row = {**ACC, "accuracy_at_L_ci95": [0.991, 0.996]}
     other = {**row, "env_kwargs": {**row["env_kwargs"], "generator": "eller"}}
-    target = {**_target(at_least=0.99), "env_kwargs": {"generator": "kruskal"}}
+    target = {**_target(at_least=0.99), "env_kwargs": dict(row["env_kwargs"])}
     assert judge(target, [other])["verdict"] == "not measured"
     assert judge(target, [other, row])["verdict"] == "met"
+    fixed = {**row, "env_kwargs": {}}  # a fixed map's target is not met by a random-map row of the same env
+    assert judge({**target, "env_kwargs": {}}, [row])["verdict"] == "not measured"
+    assert judge({**target, "env_kwargs": {}}, [row, fixed])["verdict"] == "met"
 
 
 def test_a_policy_against_itself_is_a_tie_and_against_the_random_walk_better(tmp_path):

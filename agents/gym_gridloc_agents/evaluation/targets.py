@@ -1,7 +1,7 @@
 """Targets judged by intervals: the ``targets`` table of ``gridloc report``.
 
 A target is a line of ``targets.json`` in the results directory: which row (``source``, the stem
-of a results file; ``env``; the ``env_kwargs`` the row must have; ``policy``) and what it must
+of a results file; ``env``; the row's ``env_kwargs``, all of them; ``policy``) and what it must
 reach: ``at_least`` or ``at_most`` a number (of the row's metric: accuracy at L under the
 protocol, mean steps otherwise), or ``better_than`` another policy of the same task.  The verdict
 comes from an interval, never from a point estimate:
@@ -50,8 +50,7 @@ def read_targets(results: str | Path) -> list[dict[str, Any]]:
 def _row(rows: Sequence[dict[str, Any]], target: dict[str, Any], policy: str) -> dict[str, Any] | None:
     want = target.get("env_kwargs", {})
     for r in rows:
-        kwargs = r.get("env_kwargs", {})
-        if r.get("env") == target["env"] and r.get("policy") == policy and all(kwargs.get(k) == v for k, v in want.items()):
+        if r.get("env") == target["env"] and r.get("policy") == policy and r.get("env_kwargs", {}) == want:
             return r
     return None
 
@@ -66,7 +65,7 @@ def judge(target: dict[str, Any], rows: Sequence[dict[str, Any]]) -> dict[str, s
     if row is None:
         return {"measured": "-", "episodes": "-", "verdict": "not measured"}
     col, lower_is_better = metric(row)
-    digits = 3 if col == "accuracy_at_L" else 2
+    digits = 4 if col == "accuracy_at_L" else 2  # (an interval's end can round onto the target at 3)
     if "better_than" in target:
         from gym_gridloc_agents.evaluation import paired
 
