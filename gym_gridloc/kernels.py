@@ -108,9 +108,16 @@ def make_plan(transitions, n_layers: int, shape: tuple[int, int]):
 @functools.cache
 def _sums_in_one_piece() -> bool:
     """Whether numpy sums a long array in one pairwise piece, as :class:`FusedPlan` does (numpy 2.4
-    does; numpy 2.0 and older sum it buffer by buffer, and then the fused plan is not used)."""
-    x = np.random.default_rng(0).random(3 * 8192 + 77) ** 3
-    return bool(_compiled().pairwise_sum(x, *_compiled().pairwise_program(x.size)) == np.add.reduce(x))
+    does; numpy 2.0 and older sum it buffer by buffer, and then the fused plan is not used):
+    numpy 2.4 or newer, and the same sums on a few long arrays."""
+    if np.lib.NumpyVersion(np.__version__) < "2.4.0":
+        return False
+    rng = np.random.default_rng(0)
+    for n in (17161, 3 * 8192 + 77, 65537):  # (one length can agree by chance)
+        x = rng.random(n) ** 3
+        if _compiled().pairwise_sum(x, *_compiled().pairwise_program(x.size)) != np.add.reduce(x):
+            return False
+    return True
 
 
 def weigh(out, liks, layered: int, n_layers: int, mode: int) -> np.ndarray:
