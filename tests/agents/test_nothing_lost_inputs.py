@@ -249,6 +249,8 @@ def test_baselines_of_another_task_are_refused(tmp_path, capsys):
     assert json.loads(js.read_text())["baselines"] == {"greedy2": 6.0, "random": 12.0}
 
 
+@pytest.mark.skipif(any(importlib.util.find_spec(m) is None for m in ("ray", "optuna")),
+                    reason="gridloc sweep needs the sweep extra (ray[tune], optuna)")
 def test_grid_values_that_make_one_configuration_are_refused(tmp_path, capsys, monkeypatch):
     import yaml
 
