@@ -70,7 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="benchmark this planner-distilled model (policy distilled) instead of the shipped one; several "
                         "files, a directory or a glob as --ppo-model")
     b.add_argument("--recurrent-model", metavar="PATH", help="benchmark this RecurrentPPO model instead of the shipped one")
-    b.add_argument("--size", type=int, metavar="N", help="map size (the size keyword of the environment, e.g. 7 for DepthMaze 7x7)")
+    b.add_argument("--size", type=int, metavar="N", help="map size (the size keyword of the environment, e.g. 7 for DepthMaze 7x7; WindyMaze and "
+                   "ColourGrid then run on one map of that size: add --env-kwarg new_map_each_reset=true for a new map "
+                   "every episode, or --test-set; every row says how many maps it ran on)")
     b.add_argument("--test-set", action="store_true",
                    help="run on the held-out test maps of gym_gridloc.maps.test_set (episode i: map i and its start pose; needs --size)")
     b.add_argument("--episode-length", type=int, metavar="L",

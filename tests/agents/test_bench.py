@@ -460,3 +460,12 @@ def test_depth_maze_test_sets_follow_the_maze_variant():
         held = maps.test_set("DepthMaze-v0", 7, 4, **variant)
         assert [s for s, _ in specs] == [10 + m.index for m in held]
         assert all(np.array_equal(o["map"].labels, m.grid.labels) and o["state"] == m.state for (_, o), m in zip(specs, held))
+
+
+def test_a_row_counts_the_maps_its_episodes_ran_on():
+    """A size keyword alone gives one generated map; new_map_each_reset a new one per episode: the
+    row says which, so a table never calls one map 'fresh random maps'."""
+    one = run_episodes("WindyMaze-v0", "random", 4, env_kwargs={"size": 5}, progress=False)
+    fresh = run_episodes("WindyMaze-v0", "random", 4, env_kwargs={"size": 9, "new_map_each_reset": True}, progress=False)
+    test = run_episodes("DepthMaze-v0", "random", 3, env_kwargs={"size": 7}, test_set=True, progress=False)
+    assert (one["maps"], fresh["maps"], test["maps"]) == (1, 4, 3)

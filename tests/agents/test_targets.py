@@ -52,7 +52,7 @@ def test_a_policy_against_itself_is_a_tie_and_against_the_random_walk_better(tmp
                                                        {**base, "task": "other file", "source": "x", "policy": "greedy",
                                                         "at_most": 3}]))
     text = table("targets:r", tmp_path)
-    assert "| ColourGrid | better than random (paired) | greedy | 60, one model |" in text and text.rstrip().endswith("| met |")
+    assert "| ColourGrid | better than random (paired) | greedy | 60 on one map, one model |" in text and text.rstrip().endswith("| met |")
     assert "other file" not in text  # its source is not among the table's files
 
 

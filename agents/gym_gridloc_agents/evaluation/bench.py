@@ -37,6 +37,7 @@ figures: :mod:`gym_gridloc_agents.evaluation.report`.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
 import warnings
@@ -164,6 +165,7 @@ def simulate(task: Task, specs: Sequence[tuple[int, Any]], *, budgets: Sequence[
     steps = np.zeros(n, dtype=np.int64)
     localised, success, truncated, collapsed_end = (np.zeros(n, dtype=bool) for _ in range(4))
     correct_at = np.zeros((n, max(limit, max(budgets)) + 1), dtype=bool)
+    maps = set()  # the maps the episodes ran on (a digest each): one, or a new one per episode
     if warmup and n:  # compile (numba) and first calls (caches, torch) outside the timed decisions
         seed, options = specs[0]
         rollout(env, policy.policy, int(seed), reset_options=options, max_steps=WARMUP_DECISIONS)
@@ -183,10 +185,11 @@ def simulate(task: Task, specs: Sequence[tuple[int, Any]], *, budgets: Sequence[
         correct_at[i, : len(ep.correct)] = ep.correct
         correct_at[i, len(ep.correct):] = ep.correct[-1]
         collapsed_end[i] = ep.collapsed[-1]
+        maps.add(hashlib.sha1(env.unwrapped.model.grid.labels.tobytes()).hexdigest())
     env.close()
     return {
         "steps": steps, "localised": localised, "success": success, "truncated": truncated, "correct_at": correct_at,
-        "collapsed_end": collapsed_end, "max_steps": int(limit), "episode_length": length,
+        "collapsed_end": collapsed_end, "maps": maps, "max_steps": int(limit), "episode_length": length,
         "seconds": time.perf_counter() - start, "decision_seconds": policy.seconds, "decisions": policy.decisions,
         "model": _model_name(getattr(policy.policy, "path", None)),
     }

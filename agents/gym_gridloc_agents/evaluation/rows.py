@@ -73,6 +73,7 @@ def summarise(task: Task | str, policy_name: str | None = None, parts: Sequence[
         "max_episode_steps": int(max_steps),
         "seed_start": int(seed_start),
         "seconds": round(sum(p["seconds"] for p in parts), 3),
+        **({"maps": len(set().union(*(p["maps"] for p in parts)))} if all("maps" in p for p in parts) else {}),
         "model": parts[0]["model"],
         "localised_curve": [float(np.mean(localised & (steps <= s))) for s in range(max_steps + 1)],
         "accuracy_curve": [float(x) for x in correct_at[:, : max_steps + 1].mean(axis=0)],

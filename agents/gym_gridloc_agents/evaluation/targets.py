@@ -56,7 +56,9 @@ def _row(rows: Sequence[dict[str, Any]], target: dict[str, Any], policy: str) ->
 
 
 def _episodes(r: dict[str, Any]) -> str:
-    return f"{r['episodes']} x {r['seeds']} seeds" if "seeds" in r else f"{r['episodes']}, one model"
+    maps = r.get("maps")
+    on = "" if maps is None else " on one map" if maps == 1 else f" on {maps} maps"
+    return f"{r['episodes']}{on} x {r['seeds']} seeds" if "seeds" in r else f"{r['episodes']}{on}, one model"
 
 
 def judge(target: dict[str, Any], rows: Sequence[dict[str, Any]]) -> dict[str, str]:
