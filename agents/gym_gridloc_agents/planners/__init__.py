@@ -15,10 +15,11 @@ hidden-state belief ``(L, H, W)``):
 
 :func:`lower_bound` computes a number no policy's expected steps can go below; :func:`fit_leaf`
 fits the entropy leaf from rollouts on the belief MDP (:func:`belief_rollouts`).  Every belief
-prediction goes through :func:`gym_gridloc.engine.predict` (batched).
+prediction, Bayes update and expected entropy is the core's belief MDP's
+(:class:`gym_gridloc.lookahead.Lookahead`, predictions through :func:`gym_gridloc.engine.predict`).
 
 The modules: :mod:`~gym_gridloc_agents.planners.ops` (:class:`BeliefOps`: what the planners need
-of a model), :mod:`~gym_gridloc_agents.planners.leaves` (leaf estimates, rollouts on the belief
+of a model, the core's belief MDP with the referee's test), :mod:`~gym_gridloc_agents.planners.leaves` (leaf estimates, rollouts on the belief
 MDP, fitting), :mod:`~gym_gridloc_agents.planners.base` (:class:`PlannerPolicy`),
 :mod:`~gym_gridloc_agents.planners.central`, :mod:`~gym_gridloc_agents.planners.expectimax` (with
 :func:`lower_bound`, the same recursion) and :mod:`~gym_gridloc_agents.planners.mcts`.

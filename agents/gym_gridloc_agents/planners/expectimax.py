@@ -56,19 +56,15 @@ def _q_values(ops, nodes, depth, leaf, prune, renormalise, memo, slack, stats, m
     w = p / mass[ii]
     m = len(ii)
     v = np.zeros(m)
-    flat_preds = preds.reshape(n * A, -1)
-    flat_lik = ops.lik.reshape(Z, -1)
-    L, H, W = ops.shape
     opens, open_idx = [], []
     chunk = 8192
     for s in range(0, m, chunk):
         sl = slice(s, min(m, s + chunk))
-        post = flat_preds[ii[sl]] * flat_lik[zz[sl]]
-        post /= p[sl, None]
-        op = np.flatnonzero(~ops.localised(post.reshape(-1, L, H, W), slack))
+        post = ops.posteriors(preds, ii[sl], zz[sl], p[sl])
+        op = np.flatnonzero(~ops.localised(post, slack))
         if len(op) == 0:
             continue
-        beliefs = post[op].reshape(-1, L, H, W)
+        beliefs = post[op]
         if depth == 1:
             v[s + op] = leaf(ops, beliefs)
         else:

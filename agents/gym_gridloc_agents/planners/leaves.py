@@ -131,8 +131,7 @@ def belief_rollouts(model, policy, episodes: int, *, seed: int = 1_000_000, max_
             pred = predict_batch(model, b[None], np.array([a]))[0]
             pz = ops.reading_probs(pred[None])[0]
             z = int(rng.choice(len(pz), p=pz / pz.sum()))
-            post = pred * ops.lik[z]
-            b = post / post.sum()
+            b = ops.update(pred, z)
             if ops.max_position(b[None])[0] >= threshold or len(seen) >= max_steps:
                 break
         steps[i] = len(seen)
