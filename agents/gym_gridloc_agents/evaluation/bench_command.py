@@ -276,10 +276,12 @@ def bound_main(args) -> int:
         return fail("bound", f"{args.env} draws a new map at every reset (new_map_each_reset): the bound is of one map; "
                               "give a fixed map (--env-kwarg map_seed=N or layout=PATH)")
     print(f"gridloc bound: {args.env}, depth {args.depth}: exhaustive search over actions and readings ...", file=sys.stderr)
-    result = lower_bound(u.model, args.depth, threshold=u.localise_threshold, prune=args.prune, progress=True)
+    result = lower_bound(u.model, args.depth, threshold=u.localise_threshold, pose=u.referee_pose, prune=args.prune,
+                         progress=True)
     env.close()
     result = {"env": args.env, "env_kwargs": kwargs, **result}
-    print(f"no policy localises {args.env} in fewer than {result['bound']:.4f} mean steps "
+    print(f"no policy localises {args.env}{' (its pose: the referee tests poses)' if result['pose'] else ''} in fewer "
+          f"than {result['bound']:.4f} mean steps "
           f"(depth {args.depth}, {result['seconds']:.0f} s)")
     if args.json:  # every number, the value after each first reading too, only when asked for
         try:

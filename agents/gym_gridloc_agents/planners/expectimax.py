@@ -106,13 +106,15 @@ class ExpectimaxPolicy(PlannerPolicy):
 MAX_BOUND_DEPTH = 12
 
 
-def lower_bound(model, depth: int, *, threshold: float = LOCALISE_THRESHOLD, prune: float = 0.0, progress: bool = False) -> dict:
+def lower_bound(model, depth: int, *, threshold: float = LOCALISE_THRESHOLD, pose: bool = False, prune: float = 0.0,
+                progress: bool = False) -> dict:
     """``LB_k = E_{z0}[ W_k(b0(z0)) ]``, below which no policy's expected steps can go.
 
     ``W_k(b) = 1 + min_a sum_z p(z | b, a) W'_{k-1}(b_az)`` with ``W'_j(b) = 0`` if ``b`` is
     localised, ``W_j(b)`` otherwise, and ``W_0 = 1`` for a non-localised belief (it needs at least
     one more step).  By induction ``W_k(b) <= min_pi E[min(T, k + 1)] <= min_pi E[T]`` where ``T``
-    counts steps from ``b`` to the referee's test: each level is the exact Bellman operator of the
+    counts steps from ``b`` to the referee's test (``threshold``; on the pose with ``pose``, the
+    environment's ``referee_pose``): each level is the exact Bellman operator of the
     belief MDP (cost 1 per step, 0 once localised) applied to a leaf that under-estimates the
     true cost-to-go.  Readings with probability below ``prune`` are dropped *without*
     renormalising (they count 0, less than their true cost), the localisation test is made with a
@@ -122,7 +124,7 @@ def lower_bound(model, depth: int, *, threshold: float = LOCALISE_THRESHOLD, pru
     """
     depth = check_int("depth", depth, 1, MAX_BOUND_DEPTH, error=ValueError,
                       what=f"a whole number in 1..{MAX_BOUND_DEPTH} (the search grows about |A x Z|^depth)")
-    ops = BeliefOps(model, threshold)
+    ops = BeliefOps(model, threshold, pose=pose)
     b0, p0 = initial_beliefs(ops)
     one = ConstantLeaf(1.0)
     t = time.perf_counter()
@@ -132,5 +134,5 @@ def lower_bound(model, depth: int, *, threshold: float = LOCALISE_THRESHOLD, pru
         if progress:  # W_k after this first reading: no policy localises from there in fewer mean steps
             print(f"  first reading {i + 1} of {len(b0)} (probability {p0[i]:.4f}): at least {vals[i]:.4f} mean steps "
                   f"from there ({time.perf_counter() - t:.0f} s)", file=sys.stderr, flush=True)
-    return {"depth": depth, "prune": prune, "bound": float(p0 @ vals), "per_reading": vals.tolist(),
+    return {"depth": depth, "prune": prune, "pose": ops.pose, "bound": float(p0 @ vals), "per_reading": vals.tolist(),
             "reading_probs": p0.tolist(), "seconds": time.perf_counter() - t}

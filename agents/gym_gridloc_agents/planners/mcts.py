@@ -120,7 +120,7 @@ class MCTSPolicy(_TreeSearch):
             z = _sample(self.rng, pz[a])
             b = self.ops.update(preds[a], z)
             cost += 1.0
-            if self.ops.max_position(b[None])[0] >= self.ops.threshold:
+            if self.ops.localised(b[None])[0]:
                 return cost
         return cost + float(self.leaf(self.ops, b[None])[0])
 
@@ -133,7 +133,7 @@ class MCTSPolicy(_TreeSearch):
         child = node.children.get(key)
         if child is None:
             post = self.ops.update(node.preds[a], z)
-            if self.ops.max_position(post[None])[0] >= self.ops.threshold:
+            if self.ops.localised(post[None])[0]:
                 node.children[key] = "done"
                 cost = 1.0
             else:
