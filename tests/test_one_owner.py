@@ -164,9 +164,15 @@ def test_one_policy_table():
     from gym_gridloc_agents.evaluation import bench
     from gym_gridloc_agents import policies
 
-    assert policies.POLICY_NAMES == tuple(policies.POLICIES)
-    assert set(policies.LEARNED_POLICIES) == set(policies.LEARNED_NAMES) == set(bench.LEARNED)
-    assert set(bench.PLANNERS) == {n for n, (kind, *_) in policies.POLICIES.items() if kind == "planner"}
+    from gym_gridloc_agents import loading, registry
+    from gym_gridloc_agents.evaluation import suite
+    from gym_gridloc_agents.planners import PLANNER_NAMES
+
+    assert policies.POLICIES is registry.POLICIES and policies.POLICY_NAMES == tuple(policies.POLICIES)
+    assert set(policies.LEARNED_POLICIES) == set(policies.LEARNED_NAMES) == set(bench.LEARNED) == set(suite.LEARNED)
+    assert loading.METHODS == policies.LEARNED_NAMES
+    assert set(bench.PLANNERS) == {n for n, spec in policies.POLICIES.items() if spec.kind == "planner"}
+    assert set(PLANNER_NAMES) == {n for n, spec in policies.POLICIES.items() if spec.values}
     assert bench.DEFAULT_POLICIES == policies.DEFAULT_POLICIES
 
 

@@ -87,6 +87,7 @@ class ExpectimaxPolicy(PlannerPolicy):
     """
 
     name = "expectimax"
+    takes_leaf = True
 
     def __init__(self, model, *, depth: int = 2, leaf: Any = "one", prune: float = 1e-3, memo: bool = True, **kw) -> None:
         super().__init__(model, **kw)

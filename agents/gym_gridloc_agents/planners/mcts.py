@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from gym_gridloc_agents.planners.base import PlannerPolicy
+from gym_gridloc_agents.planners.base import PlannerPolicy, keywords
 from gym_gridloc_agents.planners.central import nothing_reading
 from gym_gridloc_agents.planners.leaves import load_leaf
 
@@ -24,6 +24,8 @@ def _sample(rng: np.random.Generator, p: np.ndarray) -> int:
 class _TreeSearch(PlannerPolicy):
     """What both searches share: the budget (``simulations`` per decision, or ``time_ms``), the
     exploration constant ``c``, the ``leaf`` and the ``max_depth``."""
+
+    takes_leaf = True
 
     def __init__(self, model, *, simulations: int, time_ms: float | None, c: float, leaf: Any, max_depth: int,
                  **kw) -> None:
@@ -251,3 +253,20 @@ class ExpectedMCTSPolicy(_TreeSearch):
 
     def values(self, b: np.ndarray) -> np.ndarray:
         return self.search(b).q
+
+
+#: How ``mcts`` handles readings (its option ``readings``): the class of each.
+READINGS = {"enumerate": ExpectedMCTSPolicy, "sample": MCTSPolicy}
+
+
+def mcts_policy(model, context, *, readings: str = "enumerate", **options: Any) -> PlannerPolicy:
+    """``mcts`` as the policy table builds it: :class:`ExpectedMCTSPolicy` (``readings="enumerate"``,
+    the default) or :class:`MCTSPolicy` (``"sample"``), each refusing the options only the other takes."""
+    if readings not in READINGS:
+        raise ValueError(f"mcts readings must be 'enumerate' or 'sample', got {readings!r}")
+    cls = READINGS[readings]
+    takes = sorted(keywords(cls) - {"seed", "pose"})
+    if extra := sorted(set(options) - set(takes)):
+        raise ValueError(f"policy 'mcts' with readings={readings!r} takes no option {', '.join(map(repr, extra))} "
+                         f"(its options with readings={readings!r}: {', '.join(['readings', *takes])})")
+    return cls.build(model, context, **options)
