@@ -52,7 +52,7 @@ class PPOPolicy(Policy):
     def build(cls, model: GridModel, context) -> "PPOPolicy":
         """As the policy table builds it: the model file ``context.path`` (default: the shipped
         one for the environment's id and keywords) and the seed."""
-        return cls(model, env_id=context.env_id, env_kwargs=dict(context.env_kwargs), path=context.path, seed=context.seed)
+        return cls(model, env_id=context.env_id, env_kwargs=context.env_kwargs, path=context.path, seed=context.seed)
 
     def __init__(
         self,

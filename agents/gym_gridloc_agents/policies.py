@@ -136,5 +136,6 @@ def make_policy(
     environment's ``episode_length`` (or ``horizon=``, default 30)."""
     spec = policy_spec(name)
     spec.check_options(options)
-    context = PolicyContext(env_id=env_id, env_kwargs=dict(env_kwargs or {}), seed=seed, path=path, pose=bool(pose))
+    context = PolicyContext(env_id=env_id, env_kwargs=None if env_kwargs is None else dict(env_kwargs), seed=seed, path=path,
+                            pose=bool(pose))
     return spec.load()(model, context, **options)

@@ -12,7 +12,7 @@ is loaded when a policy is made), so every other module may read the table.
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -27,11 +27,12 @@ KINDS = ("baseline", "planner", "learned")
 @dataclass(frozen=True)
 class PolicyContext:
     """What :func:`~gym_gridloc_agents.policies.make_policy` knows of the environment, handed to a
-    constructor beside the options: the environment's id and keywords, the policy's seed, a model
-    file (learned policies) and whether the referee tests poses (``referee_pose``)."""
+    constructor beside the options: the environment's id and keywords (None: not given, so a
+    learned policy's model file is not checked against them), the policy's seed, a model file
+    (learned policies) and whether the referee tests poses (``referee_pose``)."""
 
     env_id: str | None = None
-    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    env_kwargs: Mapping[str, Any] | None = None
     seed: int | None = None
     path: str | Path | None = None
     pose: bool = False
@@ -39,7 +40,7 @@ class PolicyContext:
     @property
     def threshold(self) -> float:
         """The referee's threshold: the environment's ``localise_threshold``, else the default."""
-        value = self.env_kwargs.get("localise_threshold")
+        value = (self.env_kwargs or {}).get("localise_threshold")
         return LOCALISE_THRESHOLD if value is None else value
 
 

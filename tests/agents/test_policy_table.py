@@ -121,3 +121,15 @@ def test_the_planner_docs_name_every_option_of_the_table():
         missing = [o for o in spec.options if o != "threshold" and f"`{o}`" not in section]
         assert not missing, (name, missing)
     assert "`threshold`" in page
+
+
+def test_keywords_not_given_stay_not_given(monkeypatch):
+    """A learned policy's model file is checked against the environment's keywords only when they
+    are given: make_policy hands ``env_kwargs=None`` on as None, not as ``{}``."""
+    from gym_gridloc_agents import learned
+
+    seen = []
+    monkeypatch.setattr(learned.PPOPolicy, "__init__", lambda self, model, **kw: seen.append(kw["env_kwargs"]))
+    make_policy("ppo", colour_grid(), env_id="ColourGrid-v0")
+    make_policy("ppo", colour_grid(), env_id="ColourGrid-v0", env_kwargs={"slip": 0.2})
+    assert seen == [None, {"slip": 0.2}]

@@ -124,7 +124,7 @@ class OptimalPolicy(Policy):
     @classmethod
     def build(cls, model: GridModel, context, *, horizon: int | None = None) -> "OptimalPolicy":
         """As the policy table builds it: ``horizon``, else the environment's ``episode_length``, else 30."""
-        return cls(model, seed=context.seed, horizon=horizon or context.env_kwargs.get("episode_length") or 30)
+        return cls(model, seed=context.seed, horizon=horizon or (context.env_kwargs or {}).get("episode_length") or 30)
 
     def set_model(self, model: GridModel) -> None:
         super().set_model(model)
