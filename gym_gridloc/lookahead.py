@@ -70,7 +70,7 @@ class Lookahead:
         return engine.predict(self.model, np.repeat(beliefs, A, axis=0), np.tile(np.arange(A), n))
 
     def predict_all(self, beliefs: np.ndarray) -> np.ndarray:
-        """:meth:`expand` as ``(N, A, L, H, W)``, refused above :data:`MAX_WORK` cells."""
+        """:meth:`expand` as ``(N, A, L, H, W)``, refused above ``MAX_WORK`` cells."""
         n, A = beliefs.shape[0], self.n_actions
         self._check_work(n * A, "the lookahead")
         return self.expand(beliefs).reshape(n, A, *self.model.belief_shape)
@@ -78,7 +78,7 @@ class Lookahead:
     @functools.cached_property
     def likelihood_table(self) -> np.ndarray:
         """``P(z | state)`` of every reading, ``(Z, L, H, W)`` (a position sensor's repeated over
-        the layers), built on first use; refused above :data:`MAX_WORK` entries."""
+        the layers), built on first use; refused above ``MAX_WORK`` entries."""
         model = self.model
         Z, (L, H, W) = int(model.sensor.n_readings), model.belief_shape
         if Z * L * H * W > MAX_WORK:
