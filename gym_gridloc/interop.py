@@ -149,13 +149,13 @@ class PomdpPy:
 
     def confidence(self, belief: np.ndarray) -> float:
         """The referee's confidence in an exact belief ``(L, H, W)``: the largest position (pose,
-        with ``pose``) probability."""
-        b = np.asarray(belief)
-        return float((b if self.pose or b.shape[0] == 1 else b.sum(axis=0)).max())
+        with ``pose``) probability (:func:`gym_gridloc.referee.confidences`)."""
+        return float(referee.confidences(np.asarray(belief)[None], pose=self.pose)[0])
 
     def localised(self, belief: np.ndarray) -> bool:
-        """The referee's test: :meth:`confidence` reaches ``threshold``."""
-        return self.confidence(belief) >= self.threshold
+        """The referee's test (:func:`gym_gridloc.referee.localised`): :meth:`confidence` reaches
+        ``threshold``."""
+        return bool(referee.localised(np.asarray(belief)[None], self.threshold, pose=self.pose)[0])
 
     # -- conversions -----------------------------------------------------------------------------
     def to_state(self, state: Any):

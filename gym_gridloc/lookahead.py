@@ -1,10 +1,13 @@
-"""Exact lookahead on the belief: what the entropy-greedy policies, the planners and the wrapper's
-``lookahead`` observation (:func:`lookahead_features`) compute.
+"""The belief MDP of one model (:class:`Lookahead`): its prediction, its Bayes update and the exact
+one- and two-step expected entropies, what the entropy-greedy policies, the planners (through
+their view, ``gym_gridloc_agents.planners.ops.BeliefOps``) and the wrapper's ``lookahead``
+observation (:func:`lookahead_features`) compute.
 
 Every prediction goes through :func:`gym_gridloc.engine.predict` (batched, kidnapping included,
-never a dense S x S matrix), and every expectation over readings through the sensor's
-:meth:`~gym_gridloc.Sensor.reading_probabilities` and :meth:`~gym_gridloc.Sensor.reading_entropy`,
-so no (readings x states) posterior table is built.
+never a dense S x S matrix); every Bayes update is :meth:`Lookahead.update` (the prediction times
+the reading's likelihood, normalised); the expected entropies take their expectations over
+readings through the sensor's :meth:`~gym_gridloc.Sensor.reading_probabilities` and
+:meth:`~gym_gridloc.Sensor.reading_entropy`, so no (readings x states) posterior table is built.
 
 The identity used: for an unnormalised predicted mass ``c`` over the target variable X (positions,
 or full states where the referee tests poses) and a sensor ``P(z | x)``, the expected posterior
@@ -16,6 +19,7 @@ first), and for full states always.
 
 from __future__ import annotations
 
+import functools
 import weakref
 
 import numpy as np
@@ -29,7 +33,8 @@ MAX_WORK = 50_000_000
 
 
 class Lookahead:
-    """Exact one- and two-step expectations on one model (see the module docstring).
+    """The belief MDP of one model: prediction, Bayes update, exact one- and two-step expectations
+    (see the module docstring).
 
     ``pose``: the target variable is the full hidden state (the referee of DepthMaze), else the
     position.  ``weak``: hold the model by a weak reference (for a cache keyed by the model, which a
@@ -57,13 +62,69 @@ class Lookahead:
                 f"({work:.3g} cells, limit {MAX_WORK:.3g}); use a one-step policy (greedy) or a smaller map"
             )
 
+    # -- the belief MDP: prediction, the readings' likelihoods, the Bayes update -------------------
+    def expand(self, beliefs: np.ndarray) -> np.ndarray:
+        """Every action applied to each of N beliefs ``(N, L, H, W)``, node-major: ``(N * A, L, H, W)``
+        (row ``i * A + a`` is belief ``i`` after action ``a``; mass kept, kidnapping mixed in)."""
+        n, A = beliefs.shape[0], self.n_actions
+        return engine.predict(self.model, np.repeat(beliefs, A, axis=0), np.tile(np.arange(A), n))
+
     def predict_all(self, beliefs: np.ndarray) -> np.ndarray:
-        """Every action applied to each of N beliefs ``(N, L, H, W)``: ``(N, A, L, H, W)``."""
+        """:meth:`expand` as ``(N, A, L, H, W)``, refused above ``MAX_WORK`` cells."""
         n, A = beliefs.shape[0], self.n_actions
         self._check_work(n * A, "the lookahead")
-        out = engine.predict(self.model, np.repeat(beliefs, A, axis=0), np.tile(np.arange(A), n))
-        return out.reshape(n, A, *self.model.belief_shape)
+        return self.expand(beliefs).reshape(n, A, *self.model.belief_shape)
 
+    @functools.cached_property
+    def likelihood_table(self) -> np.ndarray:
+        """``P(z | state)`` of every reading, ``(Z, L, H, W)`` (a position sensor's repeated over
+        the layers), built on first use; refused above ``MAX_WORK`` entries."""
+        model = self.model
+        Z, (L, H, W) = int(model.sensor.n_readings), model.belief_shape
+        if Z * L * H * W > MAX_WORK:
+            raise ValueError(f"{model!r}: a (readings x cells) likelihood table of {Z} x {L * H * W} is too large")
+        table = np.empty((Z, L, H, W))
+        table[:] = engine.likelihoods(model, np.arange(Z)).reshape(Z, -1, H, W)
+        return table
+
+    def likelihoods(self, readings) -> np.ndarray:
+        """``P(z | state)`` of ``readings`` (an index or an array of them), ``(*readings.shape, L, H, W)``
+        from :attr:`likelihood_table`; where that table would be too large, computed for these
+        readings alone (a position sensor's with one layer, which broadcasts over the layers)."""
+        L, H, W = self.model.belief_shape
+        if "likelihood_table" in self.__dict__ or self.model.sensor.n_readings * L * H * W <= MAX_WORK:
+            return self.likelihood_table[readings]
+        z = np.asarray(readings, dtype=np.int64)
+        lik = engine.likelihoods(self.model, z.reshape(-1))
+        return lik.reshape(*z.shape, L if lik.shape[1] == L * H * W else 1, H, W)
+
+    @functools.cached_property
+    def _likelihood_columns(self) -> np.ndarray:
+        table = self.likelihood_table
+        return np.ascontiguousarray(table.reshape(table.shape[0], -1).T)  # (L*H*W, Z)
+
+    def reading_masses(self, predicted: np.ndarray) -> np.ndarray:
+        """``(M, Z)``: each reading's probability under M predicted masses ``(M, L, H, W)`` (times
+        their mass), through :attr:`likelihood_table`, the table :meth:`update` weighs with."""
+        return predicted.reshape(predicted.shape[0], -1) @ self._likelihood_columns
+
+    def joint(self, predicted: np.ndarray, readings) -> np.ndarray:
+        """The Bayes update's numerator: predicted masses ``(..., L, H, W)`` times the likelihoods
+        of ``readings`` (an index, or indices broadcasting against ``predicted``'s leading axes)."""
+        return predicted * self.likelihoods(readings)
+
+    def update(self, predicted: np.ndarray, readings, mass=None) -> np.ndarray:
+        """The Bayes update: :meth:`joint` normalised, by ``mass`` (the readings' probabilities
+        under the predictions, :meth:`reading_masses`, where the caller has them: ``(M,)``) or by
+        its own sum (one belief ``(L, H, W)`` and one reading, or ``(M, L, H, W)`` and ``(M,)``)."""
+        post = self.joint(predicted, readings)
+        if mass is not None:
+            return post / np.reshape(mass, (-1, 1, 1, 1))
+        if post.ndim == 3:
+            return post / post.sum()
+        return post / post.reshape(post.shape[0], -1).sum(axis=1)[:, None, None, None]
+
+    # -- expectations over readings ----------------------------------------------------------------
     def target(self, masses: np.ndarray) -> np.ndarray:
         """Masses over hidden states ``(..., L, H, W)`` as masses over the target variable."""
         return masses if self.pose else masses.sum(axis=-3)
@@ -92,10 +153,7 @@ class Lookahead:
         belief can give (probability above ``prune`` for one of them)."""
         keep = np.flatnonzero(self.reading_probabilities(predicted).max(axis=0) > prune)
         self._check_work(predicted.shape[0] * keep.size, "the lookahead")
-        lik = engine.likelihoods(self.model, keep)  # (K, cells) or (K, L*cells)
-        shape = self.model.belief_shape
-        lik = lik.reshape(keep.size, *shape) if lik.shape[1] == np.prod(shape) else lik.reshape(keep.size, 1, *shape[1:])
-        return keep, predicted[:, None] * lik[None]
+        return keep, self.joint(predicted[:, None], keep[None])
 
     def two_step(self, belief: np.ndarray) -> np.ndarray:
         """``sum_{z1} min_{a2} m * E_z2[H]`` for each first action (the two-step expectimax)."""

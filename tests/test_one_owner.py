@@ -164,9 +164,15 @@ def test_one_policy_table():
     from gym_gridloc_agents.evaluation import bench
     from gym_gridloc_agents import policies
 
-    assert policies.POLICY_NAMES == tuple(policies.POLICIES)
-    assert set(policies.LEARNED_POLICIES) == set(policies.LEARNED_NAMES) == set(bench.LEARNED)
-    assert set(bench.PLANNERS) == {n for n, (kind, *_) in policies.POLICIES.items() if kind == "planner"}
+    from gym_gridloc_agents import loading, registry
+    from gym_gridloc_agents.evaluation import suite
+    from gym_gridloc_agents.planners import PLANNER_NAMES
+
+    assert policies.POLICIES is registry.POLICIES and policies.POLICY_NAMES == tuple(policies.POLICIES)
+    assert set(policies.LEARNED_POLICIES) == set(policies.LEARNED_NAMES) == set(bench.LEARNED) == set(suite.LEARNED)
+    assert loading.METHODS == policies.LEARNED_NAMES
+    assert set(bench.PLANNERS) == {n for n, spec in policies.POLICIES.items() if spec.kind == "planner"}
+    assert set(PLANNER_NAMES) == {n for n, spec in policies.POLICIES.items() if spec.values}
     assert bench.DEFAULT_POLICIES == policies.DEFAULT_POLICIES
 
 
@@ -290,6 +296,52 @@ def test_entropy_in_one_place():
     b = rng.random((5, *model.belief_shape)) * model.state_mask
     b /= b.reshape(5, -1).sum(axis=1)[:, None, None, None]
     np.testing.assert_array_equal(BeliefOps(model, 0.9).entropy(b), referee.entropy(b.sum(axis=1).reshape(5, -1)))
+
+
+def _times_a_likelihood(node: ast.AST) -> bool:
+    """``x * lik[z]`` (``ops.lik``, ``likelihood_table``): a Bayes update written inline."""
+    return isinstance(node, ast.BinOp) and isinstance(node.op, ast.Mult) and any(
+        isinstance(e, ast.Subscript) and _name(e.value) in ("lik", "likelihood_table") for e in (node.left, node.right))
+
+
+def test_one_bayes_update():
+    """The belief MDP's Bayes update (``Lookahead.update``: the prediction times the reading's
+    likelihood, normalised) is the planners' one (``BeliefOps.update``) and the engine's numbers;
+    no module but the engine's (its step, compiled or not) and the belief MDP's multiplies by
+    likelihoods inline."""
+    from gym_gridloc.lookahead import Lookahead
+    from gym_gridloc_agents.planners.ops import BeliefOps
+
+    owners = {"gym_gridloc/lookahead.py", "gym_gridloc/derived.py", "gym_gridloc/_numba_filter.py"}
+    assert _found(_times_a_likelihood, owners) == []
+    assert _times_a_likelihood(ast.parse("post = preds[a] * self.ops.lik[z]").body[0].value)
+    for model in (gym_gridloc.ring_sensor_model((5, 5), dynamics="passive"), gym.make("DepthMaze-v0", size=7).unwrapped.model,
+                  gym_gridloc.windy_maze_model().with_kidnapping(0.05)):
+        look, ops = Lookahead(model), BeliefOps(model)
+        b = model.prior()
+        pred = engine.predict(model, b, 0)
+        pz = look.reading_masses(pred[None])[0]
+        z = int(np.argmax(pz))
+        want, _ = engine.step(model, b, 0, z)
+        np.testing.assert_allclose(look.update(pred, z), want, atol=1e-14)
+        np.testing.assert_array_equal(ops.update(pred, z), look.update(pred, z))
+        np.testing.assert_allclose(look.update(pred[None], [z], pz[[z]])[0], want, atol=1e-14)
+
+
+def _numeric_threshold_defaults(node: ast.AST) -> list[str]:
+    if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+        return []
+    args = node.args
+    pairs = list(zip(args.args[len(args.args) - len(args.defaults):], args.defaults)) + list(zip(args.kwonlyargs, args.kw_defaults))
+    return [a.arg for a, d in pairs if a.arg in ("threshold", "localise_threshold") and isinstance(d, ast.Constant)
+            and isinstance(d.value, float)]
+
+
+def test_the_localise_threshold_is_named_once():
+    """0.9 is ``referee.LOCALISE_THRESHOLD``: no signature defaults a threshold to a number of its own."""
+    assert _found(lambda n: bool(_numeric_threshold_defaults(n)), set()) == []
+    assert _numeric_threshold_defaults(ast.parse("def f(*, threshold: float = 0.9): pass").body[0]) == ["threshold"]
+    assert referee.LOCALISE_THRESHOLD == 0.9
 
 
 def _private_imports(tree: ast.AST) -> list[ast.ImportFrom]:

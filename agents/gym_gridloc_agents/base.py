@@ -24,6 +24,14 @@ class Policy:
         Policy.set_model(self, model)  # (not a subclass's: it may need what its __init__ sets next)
         self.rng = np.random.default_rng(seed)
 
+    @classmethod
+    def build(cls, model: GridModel, context, **options: Any) -> "Policy":
+        """The policy for ``model`` as the policy table builds it: from what
+        :func:`~gym_gridloc_agents.policies.make_policy` knows of the environment (``context``, a
+        :class:`~gym_gridloc_agents.registry.PolicyContext`) and the options (their names already
+        checked against the table).  By default ``cls(model, seed=context.seed, **options)``."""
+        return cls(model, seed=context.seed, **options)
+
     def reset(self, seed: int | None = None, model: GridModel | None = None) -> None:
         """Start an episode: reseed the policy's generator, forget any memory, and follow the
         episode's model when one is given (e.g. a map redrawn at reset)."""

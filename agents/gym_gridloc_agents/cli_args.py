@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from gym_gridloc_agents.evaluation.bench_command import RESULTS
-from gym_gridloc_agents.policies import DEFAULT_POLICIES, POLICY_NAMES
+from gym_gridloc_agents.registry import DEFAULT_POLICIES, names_by_kind, options_text
 
 
 class _BenchHelp(argparse.HelpFormatter):
@@ -56,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the {fixed} (the others draw a new map every episode: --env ENV_ID with --size N --test-set), "
                         "the default policies, 1000 episodes; writes results/bench.json and results/bench_<env>.png")
     b.add_argument("--policies", default=None,
-                   help=f"comma-separated policy names, of: {', '.join(POLICY_NAMES)} (default: {','.join(DEFAULT_POLICIES)})")
+                   help=f"comma-separated policy names, of the {names_by_kind()} (default: {','.join(DEFAULT_POLICIES)})")
     b.add_argument("--episodes", type=int, default=None, help="episodes per policy (default 200; 1000 with --all)")
     b.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode i uses seed+i)")
     b.add_argument("--json", metavar="PATH", help="write the rows as JSON (every number)")
@@ -80,7 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
                    help="another keyword of gym.make (a YAML scalar, e.g. n_colours=4); repeat for several")
     b.add_argument("--option", action="append", default=[], metavar="POLICY.KEY=VALUE",
-                   help="an option of one policy (a YAML scalar), e.g. expectimax.depth=3 or mcts.simulations=2000")
+                   help=f"an option of one policy (a YAML scalar), e.g. expectimax.depth=3 or mcts.simulations=2000; the "
+                        f"options: {options_text()} (the others take none)")
     b.add_argument("--frontier", metavar="PATH.png", help="write the speed-quality plot: mean steps against ms per decision")
     b.add_argument("--jobs", type=int, default=1, help="parallel processes, each running chunks of episodes (default 1)")
     b.add_argument("--address", metavar="ADDRESS",

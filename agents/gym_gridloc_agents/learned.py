@@ -48,6 +48,12 @@ class PPOPolicy(Policy):
     #: How the default (shipped) model was made: :func:`gym_gridloc_agents.loading.model_method`.
     method = "ppo"
 
+    @classmethod
+    def build(cls, model: GridModel, context) -> "PPOPolicy":
+        """As the policy table builds it: the model file ``context.path`` (default: the shipped
+        one for the environment's id and keywords) and the seed."""
+        return cls(model, env_id=context.env_id, env_kwargs=context.env_kwargs, path=context.path, seed=context.seed)
+
     def __init__(
         self,
         model: GridModel,
@@ -238,5 +244,6 @@ def default_model_path(env_id: str, method: str = "ppo", env_kwargs: dict[str, A
                             f"train one (gridloc train CONFIG) and pass --{method}-model PATH")
 
 
-#: The learned policies by name (each loads a model file; the name says how the model was made).
-LEARNED_POLICIES = {"ppo": PPOPolicy, "distilled": DistilledPolicy, "recurrent": RecurrentPolicy}
+#: The learned policies' classes by name (each loads a model file; the name, a line of the policy
+#: table, says how the model was made).
+LEARNED_POLICIES = {cls.name: cls for cls in (PPOPolicy, DistilledPolicy, RecurrentPolicy)}

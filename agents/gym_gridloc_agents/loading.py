@@ -16,6 +16,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from gym_gridloc_agents.files import read_metadata
+from gym_gridloc_agents.registry import LEARNED_NAMES
 
 #: The algorithms a config may name: ``algo`` -> (module, class).  Another stable-baselines3
 #: algorithm that acts on the belief observation trains from the same config format once it has a
@@ -78,7 +79,7 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
 
 
 #: How a model was made (its metadata's ``method``): the names of the learned policies.
-METHODS = ("ppo", "distilled", "recurrent")
+METHODS = LEARNED_NAMES
 
 
 def model_method(meta: dict[str, Any]) -> str:

@@ -14,7 +14,13 @@ information; each uses what it needs:
   environment's reward alone (no planner);
 - ``distilled``: a PPO network on the belief observation that imitated a planner (behaviour
   cloning and DAgger, then a short PPO phase): the planner's play at a network's speed;
-- ``recurrent``: an sb3-contrib RecurrentPPO model on the raw observation only (LSTM memory).
+- ``recurrent``: an sb3-contrib RecurrentPPO model on the raw observation only (LSTM memory);
+- ``central``, ``expectimax``, ``mcts``, ``optimal``, ``pomcp``: the planners
+  (:mod:`gym_gridloc_agents.planners`).
+
+Every name is a line of the one table of policies (:data:`POLICIES`, from
+:mod:`gym_gridloc_agents.registry`: constructor, options, kind, expert, default);
+:func:`make_policy` is a lookup in it.
 
 Call ``reset(seed=..., model=...)`` at the start of every episode: it seeds the policy's own
 random generator (random actions, tie-breaking), clears any memory, and gives the model of the
@@ -30,45 +36,18 @@ import numpy as np
 
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.lookahead import Lookahead
-from gym_gridloc.referee import LOCALISE_THRESHOLD
 from gym_gridloc_agents.base import Policy
 from gym_gridloc_agents.learned import (LEARNED_POLICIES, POLICY_DIR, DistilledPolicy, PPOPolicy, RecurrentPolicy,
                                         default_model_path, renamed_model, wrapped_observation)
+from gym_gridloc_agents.registry import (DEFAULT_POLICIES, EXPERT_NAMES, LEARNED_NAMES, PLANNER_POLICIES, POLICIES,
+                                         POLICY_NAMES, PolicyContext, PolicySpec, policy_spec)
 
 __all__ = [
     "POLICIES", "POLICY_NAMES", "EXPERT_NAMES", "PLANNER_POLICIES", "LEARNED_NAMES", "DEFAULT_POLICIES", "POLICY_DIR",
-    "LEARNED_POLICIES", "Policy", "RandomPolicy", "GreedyPolicy", "Greedy2Policy", "PPOPolicy", "DistilledPolicy",
-    "RecurrentPolicy", "default_model_path", "renamed_model", "wrapped_observation", "make_policy",
+    "LEARNED_POLICIES", "Policy", "PolicyContext", "PolicySpec", "RandomPolicy", "GreedyPolicy", "Greedy2Policy",
+    "PPOPolicy", "DistilledPolicy", "RecurrentPolicy", "default_model_path", "renamed_model", "wrapped_observation",
+    "make_policy", "policy_spec",
 ]
-
-
-#: The one table of policies, in the benchmark's order: name -> (kind, a warm start may imitate it,
-#: ``gridloc bench`` runs it by default).  Kinds: ``baseline`` (random, the entropy lookaheads),
-#: ``planner`` (plans on the exact belief: the "best planner" of the benchmark's gaps), ``learned``
-#: (loads a model file).  :func:`make_policy` builds them; the benchmark, the configs, the warm
-#: start, the viewer and the CLI read their lists from here.
-POLICIES: dict[str, tuple[str, bool, bool]] = {
-    "random": ("baseline", False, True),
-    "greedy": ("baseline", True, True),
-    "greedy2": ("baseline", True, True),
-    "central": ("planner", True, False),
-    "expectimax": ("planner", True, False),
-    "mcts": ("planner", True, False),
-    "optimal": ("planner", True, False),
-    "pomcp": ("planner", False, False),
-    "ppo": ("learned", False, True),
-    "distilled": ("learned", False, True),
-    "recurrent": ("learned", False, True),
-}
-#: Names accepted by :func:`make_policy`.
-POLICY_NAMES = tuple(POLICIES)
-#: Policies a warm start may imitate (no model file of their own).
-EXPERT_NAMES = tuple(name for name, (_, expert, _) in POLICIES.items() if expert)
-#: Policies that plan on the exact belief, and those that load a model file.
-PLANNER_POLICIES = tuple(name for name, (kind, _, _) in POLICIES.items() if kind == "planner")
-LEARNED_NAMES = tuple(name for name, (kind, _, _) in POLICIES.items() if kind == "learned")
-#: The policies ``gridloc bench`` runs when none are named.
-DEFAULT_POLICIES = tuple(name for name, (_, _, default) in POLICIES.items() if default)
 
 
 class RandomPolicy(Policy):
@@ -95,6 +74,10 @@ class GreedyPolicy(Policy):
         super().__init__(model, seed=seed)
         self.pose = bool(pose)
         self.look = Lookahead(model, pose=self.pose)
+
+    @classmethod
+    def build(cls, model: GridModel, context: PolicyContext) -> "GreedyPolicy":
+        return cls(model, seed=context.seed, pose=context.pose)
 
     def set_model(self, model: GridModel) -> None:
         super().set_model(model)
@@ -140,36 +123,19 @@ def make_policy(
     pose: bool = False,
     **options: Any,
 ) -> Policy:
-    """A policy by name (one of :data:`POLICY_NAMES`) for an environment's model.
+    """A policy by name (one of :data:`POLICY_NAMES`) for an environment's model: a lookup in the
+    table (:data:`POLICIES`), its options checked against the options the table gives it (an
+    unknown one is a ``ValueError`` naming it and the accepted ones), then its constructor.
 
     ``path`` gives the model file for ``ppo`` / ``distilled`` / ``recurrent`` (default: the shipped one for
     ``env_id``; a model trained with other ``env_kwargs`` is refused).  ``pose``: the referee
-    tests poses (the entropy policies then minimise the entropy of the full hidden state).
+    tests poses (the entropy policies then minimise the entropy of the full hidden state, the
+    planners stop on the pose).  The planners' ``threshold`` defaults to the environment's
+    ``localise_threshold`` (in ``env_kwargs``) or :data:`gym_gridloc.referee.LOCALISE_THRESHOLD`;
     ``optimal`` (noiseless models only, :mod:`gym_gridloc_agents.planners.optimal`) plans for the
-    environment's ``episode_length`` (or ``horizon=``, default 30).  An unknown option is an error."""
-    takes = {"optimal": ("horizon",), "random": (), "greedy": (), "greedy2": (), **dict.fromkeys(LEARNED_POLICIES, ()),
-             "pomcp": ("num_sims", "planning_time", "max_depth", "discount", "exploration_const", "n_particles", "threshold")}.get(name)
-    if takes is not None and (extra := sorted(set(options) - set(takes))):  # never ignored (nor printed in a row's label)
-        raise ValueError(f"policy {name!r} takes no option {', '.join(map(repr, extra))}"
-                         f" ({'its options: ' + ', '.join(takes) if takes else 'it takes no options'})")
-    if name == "random":
-        return RandomPolicy(model, seed=seed)
-    if name in ("greedy", "greedy2"):
-        return {"greedy": GreedyPolicy, "greedy2": Greedy2Policy}[name](model, seed=seed, pose=pose)
-    from gym_gridloc_agents.planners import PLANNER_NAMES, make_planner
-
-    if name in PLANNER_NAMES:
-        return make_planner(name, model, env_id=env_id, seed=seed, pose=pose, **options)
-    if name == "optimal":
-        from gym_gridloc_agents.planners.optimal import OptimalPolicy
-
-        horizon = options.get("horizon") or (env_kwargs or {}).get("episode_length") or 30
-        return OptimalPolicy(model, seed=seed, horizon=horizon)
-    if name == "pomcp":
-        from gym_gridloc_agents.planners.pomcp import PomcpPolicy
-
-        threshold = options.pop("threshold", None) or (env_kwargs or {}).get("localise_threshold", LOCALISE_THRESHOLD)
-        return PomcpPolicy(model, seed=seed, threshold=threshold, pose=pose, **options)
-    if name in LEARNED_POLICIES:
-        return LEARNED_POLICIES[name](model, env_id=env_id, env_kwargs=env_kwargs, path=path, seed=seed)
-    raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(POLICY_NAMES)}")
+    environment's ``episode_length`` (or ``horizon=``, default 30)."""
+    spec = policy_spec(name)
+    spec.check_options(options)
+    context = PolicyContext(env_id=env_id, env_kwargs=None if env_kwargs is None else dict(env_kwargs), seed=seed, path=path,
+                            pose=bool(pose))
+    return spec.load()(model, context, **options)

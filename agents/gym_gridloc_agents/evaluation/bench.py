@@ -50,8 +50,8 @@ from gym_gridloc.core.validation import check_int, is_int, unknown_names
 from gym_gridloc_agents.envs import make_env, served_env
 from gym_gridloc_agents.files import metadata_path, read_metadata
 from gym_gridloc_agents.loading import model_method
-from gym_gridloc_agents.policies import (DEFAULT_POLICIES, LEARNED_NAMES, PLANNER_POLICIES, POLICY_DIR, POLICY_NAMES,
-                                         default_model_path, make_policy)
+from gym_gridloc_agents.policies import (DEFAULT_POLICIES, LEARNED_NAMES, PLANNER_POLICIES, POLICIES, POLICY_DIR,
+                                         POLICY_NAMES, default_model_path, make_policy)
 from gym_gridloc_agents.evaluation.rollout import rollout
 from gym_gridloc_agents.evaluation.rows import BUDGETS, Task, add_gaps, seed_aggregate, summarise
 
@@ -119,10 +119,10 @@ class _Timed:
 
 
 def make_task_policy(task: Task, env):
-    """The task's policy for ``env`` (planners take the referee's threshold, ``optimal`` the
-    episode length)."""
+    """The task's policy for ``env`` (the policies with a ``threshold`` option take the referee's,
+    ``optimal`` the episode length)."""
     options = dict(task.options)
-    if task.policy in PLANNERS and task.policy != "optimal":
+    if "threshold" in POLICIES[task.policy].options:
         options.setdefault("threshold", env.unwrapped.localise_threshold)
     return make_policy(task.policy, env.unwrapped.model, env_id=task.env_id, env_kwargs=dict(task.env_kwargs),
                        path=task.model_path, pose=env.unwrapped.referee_pose, **options)

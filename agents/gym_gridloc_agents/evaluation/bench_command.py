@@ -43,6 +43,7 @@ def _bench_env_kwargs(args) -> dict:
 
 def _policy_options(items: list[str], policies: list[str]) -> dict[str, dict]:
     from gym_gridloc.core.validation import unknown_names
+    from gym_gridloc_agents.registry import policy_spec
 
     options: dict[str, dict] = {}
     for key, value in _key_values(items, "--option").items():
@@ -52,6 +53,10 @@ def _policy_options(items: list[str], policies: list[str]) -> dict[str, dict]:
         if policy not in policies:
             raise ValueError(f"--option {key}: {unknown_names([policy], policies)} is not among the benchmarked policies "
                              f"({', '.join(policies)})")
+        try:
+            policy_spec(policy).check_options({name: value})  # the table's options: refused here, before any run
+        except ValueError as exc:
+            raise ValueError(f"--option {key}: {exc}") from None
         options.setdefault(policy, {})[name] = value
     return options
 
@@ -60,7 +65,7 @@ def _available_defaults(envs: list[str], policies: list[str], env_kwargs: dict, 
     """The default policies without the learned ones (``ppo``, ``distilled``, ``recurrent``) that
     have no model for these environments and keywords and no ``--<name>-model``; says which rows
     it leaves out on stderr."""
-    from gym_gridloc_agents.policies import default_model_path
+    from gym_gridloc_agents.policies import LEARNED_NAMES, default_model_path
 
     def shipped(env_id: str, method: str) -> bool:
         try:
@@ -68,7 +73,7 @@ def _available_defaults(envs: list[str], policies: list[str], env_kwargs: dict, 
         except FileNotFoundError:
             return False
 
-    given = {"ppo": args.ppo_model, "distilled": args.distilled_model, "recurrent": args.recurrent_model}
+    given = {name: getattr(args, f"{name}_model") for name in LEARNED_NAMES}  # (--<name>-model)
     keep = []
     for name in policies:
         missing = [] if name not in given or given[name] else [e for e in envs if not shipped(e, name)]
@@ -90,7 +95,7 @@ def bench_main(args) -> int:
     from gym_gridloc_agents import files
     from gym_gridloc_agents.files import OutputError
     from gym_gridloc_agents.loading import expand_models
-    from gym_gridloc_agents.policies import POLICY_NAMES
+    from gym_gridloc_agents.policies import LEARNED_NAMES, POLICY_NAMES
     from gym_gridloc_agents.evaluation.report import merge_rows, read_rows
 
     if args.all == bool(args.env):
@@ -130,8 +135,9 @@ def bench_main(args) -> int:
             from gym_gridloc.envs.depth_maze import map_options
 
             env_kwargs = {**env_kwargs, **map_options(env_kwargs)}
-        for flag, name in (("--ppo-model", "ppo"), ("--distilled-model", "distilled"), ("--recurrent-model", "recurrent")):
-            if getattr(args, flag[2:].replace("-", "_")) and name not in policies:
+        for name in LEARNED_NAMES:
+            flag = f"--{name}-model"
+            if getattr(args, f"{name}_model") and name not in policies:
                 raise ValueError(f"{flag} is given but {name!r} is not among the benchmarked policies "
                                  f"({', '.join(policies)}): add it to --policies or leave {flag} out")
         if args.seed < 0 or args.seed + episodes > 2**32:
@@ -276,10 +282,12 @@ def bound_main(args) -> int:
         return fail("bound", f"{args.env} draws a new map at every reset (new_map_each_reset): the bound is of one map; "
                               "give a fixed map (--env-kwarg map_seed=N or layout=PATH)")
     print(f"gridloc bound: {args.env}, depth {args.depth}: exhaustive search over actions and readings ...", file=sys.stderr)
-    result = lower_bound(u.model, args.depth, threshold=u.localise_threshold, prune=args.prune, progress=True)
+    result = lower_bound(u.model, args.depth, threshold=u.localise_threshold, pose=u.referee_pose, prune=args.prune,
+                         progress=True)
     env.close()
     result = {"env": args.env, "env_kwargs": kwargs, **result}
-    print(f"no policy localises {args.env} in fewer than {result['bound']:.4f} mean steps "
+    print(f"no policy localises {args.env}{' (its pose: the referee tests poses)' if result['pose'] else ''} in fewer "
+          f"than {result['bound']:.4f} mean steps "
           f"(depth {args.depth}, {result['seconds']:.0f} s)")
     if args.json:  # every number, the value after each first reading too, only when asked for
         try:

@@ -25,8 +25,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
+from gym_gridloc_agents.registry import LEARNED_NAMES
+
 #: The learned policies (a model per task).
-LEARNED = ("ppo", "distilled", "recurrent")
+LEARNED = LEARNED_NAMES
 
 
 @dataclass(frozen=True)

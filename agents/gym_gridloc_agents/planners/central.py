@@ -48,7 +48,7 @@ class CentralPolicy(PlannerPolicy):
         pn = preds.reshape(self.n_actions, -1) @ lik_nothing
         if self.depth == 2:  # + E_z1[ min_a2 P(nothing at step 2 | b_a1z1, a2) ], closed loop
             A, Z = self.n_actions, self.ops.Z
-            joint = (preds[:, None] * self.ops.lik[None]).reshape(A * Z, *self.ops.shape)  # mass p(z1 | a1)
+            joint = self.ops.mdp.joint(preds[:, None], np.arange(Z)[None]).reshape(A * Z, *self.ops.shape)  # mass p(z1 | a1)
             pn2 = (self.ops.predict_all(joint).reshape(A * Z * A, -1) @ lik_nothing).reshape(A, Z, A)
             pn = pn + pn2.min(axis=2).sum(axis=1)
         return pn

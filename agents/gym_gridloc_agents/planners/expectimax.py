@@ -56,19 +56,15 @@ def _q_values(ops, nodes, depth, leaf, prune, renormalise, memo, slack, stats, m
     w = p / mass[ii]
     m = len(ii)
     v = np.zeros(m)
-    flat_preds = preds.reshape(n * A, -1)
-    flat_lik = ops.lik.reshape(Z, -1)
-    L, H, W = ops.shape
     opens, open_idx = [], []
     chunk = 8192
     for s in range(0, m, chunk):
         sl = slice(s, min(m, s + chunk))
-        post = flat_preds[ii[sl]] * flat_lik[zz[sl]]
-        post /= p[sl, None]
-        op = np.flatnonzero(~ops.localised(post.reshape(-1, L, H, W), slack))
+        post = ops.posteriors(preds, ii[sl], zz[sl], p[sl])
+        op = np.flatnonzero(~ops.localised(post, slack))
         if len(op) == 0:
             continue
-        beliefs = post[op].reshape(-1, L, H, W)
+        beliefs = post[op]
         if depth == 1:
             v[s + op] = leaf(ops, beliefs)
         else:
@@ -91,6 +87,7 @@ class ExpectimaxPolicy(PlannerPolicy):
     """
 
     name = "expectimax"
+    takes_leaf = True
 
     def __init__(self, model, *, depth: int = 2, leaf: Any = "one", prune: float = 1e-3, memo: bool = True, **kw) -> None:
         super().__init__(model, **kw)
@@ -110,13 +107,15 @@ class ExpectimaxPolicy(PlannerPolicy):
 MAX_BOUND_DEPTH = 12
 
 
-def lower_bound(model, depth: int, *, threshold: float = LOCALISE_THRESHOLD, prune: float = 0.0, progress: bool = False) -> dict:
+def lower_bound(model, depth: int, *, threshold: float = LOCALISE_THRESHOLD, pose: bool = False, prune: float = 0.0,
+                progress: bool = False) -> dict:
     """``LB_k = E_{z0}[ W_k(b0(z0)) ]``, below which no policy's expected steps can go.
 
     ``W_k(b) = 1 + min_a sum_z p(z | b, a) W'_{k-1}(b_az)`` with ``W'_j(b) = 0`` if ``b`` is
     localised, ``W_j(b)`` otherwise, and ``W_0 = 1`` for a non-localised belief (it needs at least
     one more step).  By induction ``W_k(b) <= min_pi E[min(T, k + 1)] <= min_pi E[T]`` where ``T``
-    counts steps from ``b`` to the referee's test: each level is the exact Bellman operator of the
+    counts steps from ``b`` to the referee's test (``threshold``; on the pose with ``pose``, the
+    environment's ``referee_pose``): each level is the exact Bellman operator of the
     belief MDP (cost 1 per step, 0 once localised) applied to a leaf that under-estimates the
     true cost-to-go.  Readings with probability below ``prune`` are dropped *without*
     renormalising (they count 0, less than their true cost), the localisation test is made with a
@@ -126,7 +125,7 @@ def lower_bound(model, depth: int, *, threshold: float = LOCALISE_THRESHOLD, pru
     """
     depth = check_int("depth", depth, 1, MAX_BOUND_DEPTH, error=ValueError,
                       what=f"a whole number in 1..{MAX_BOUND_DEPTH} (the search grows about |A x Z|^depth)")
-    ops = BeliefOps(model, threshold)
+    ops = BeliefOps(model, threshold, pose=pose)
     b0, p0 = initial_beliefs(ops)
     one = ConstantLeaf(1.0)
     t = time.perf_counter()
@@ -136,5 +135,5 @@ def lower_bound(model, depth: int, *, threshold: float = LOCALISE_THRESHOLD, pru
         if progress:  # W_k after this first reading: no policy localises from there in fewer mean steps
             print(f"  first reading {i + 1} of {len(b0)} (probability {p0[i]:.4f}): at least {vals[i]:.4f} mean steps "
                   f"from there ({time.perf_counter() - t:.0f} s)", file=sys.stderr, flush=True)
-    return {"depth": depth, "prune": prune, "bound": float(p0 @ vals), "per_reading": vals.tolist(),
+    return {"depth": depth, "prune": prune, "pose": ops.pose, "bound": float(p0 @ vals), "per_reading": vals.tolist(),
             "reading_probs": p0.tolist(), "seconds": time.perf_counter() - t}

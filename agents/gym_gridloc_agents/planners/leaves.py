@@ -109,14 +109,15 @@ def load_leaf(spec: Any, env_id: str | None = None) -> Leaf:
 
 
 def belief_rollouts(model, policy, episodes: int, *, seed: int = 1_000_000, max_steps: int = 100,
-                    threshold: float = LOCALISE_THRESHOLD, record: bool = True) -> dict:
+                    threshold: float = LOCALISE_THRESHOLD, pose: bool = False, record: bool = True) -> dict:
     """Episodes of ``policy`` simulated on the belief MDP itself: the first reading and every later
     one drawn from the exact predictive distribution of the current belief (the same law as the
-    environment's readings seen through its filter).  Returns the steps of each episode and, with
-    ``record``, every belief at which the policy acted with the steps it still took (a truncated
-    episode counts ``max_steps``).  Episode ``i`` seeds the policy and the reading draws with
-    ``seed + i``."""
-    ops = BeliefOps(model, threshold)
+    environment's readings seen through its filter), each ended by the referee's test
+    (``threshold``; on the pose with ``pose``, the environment's ``referee_pose``).  Returns the
+    steps of each episode and, with ``record``, every belief at which the policy acted with the
+    steps it still took (a truncated episode counts ``max_steps``).  Episode ``i`` seeds the policy
+    and the reading draws with ``seed + i``."""
+    ops = BeliefOps(model, threshold, pose=pose)
     b0, p0 = initial_beliefs(ops)
     steps = np.zeros(episodes, dtype=np.int64)
     beliefs, remaining = [], []
@@ -131,9 +132,8 @@ def belief_rollouts(model, policy, episodes: int, *, seed: int = 1_000_000, max_
             pred = predict_batch(model, b[None], np.array([a]))[0]
             pz = ops.reading_probs(pred[None])[0]
             z = int(rng.choice(len(pz), p=pz / pz.sum()))
-            post = pred * ops.lik[z]
-            b = post / post.sum()
-            if ops.max_position(b[None])[0] >= threshold or len(seen) >= max_steps:
+            b = ops.update(pred, z)
+            if ops.localised(b[None])[0] or len(seen) >= max_steps:
                 break
         steps[i] = len(seen)
         if record:

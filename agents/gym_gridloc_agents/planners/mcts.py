@@ -11,8 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from gym_gridloc.core.sensors import xlogx
-from gym_gridloc_agents.planners.base import PlannerPolicy
+from gym_gridloc_agents.planners.base import PlannerPolicy, keywords
 from gym_gridloc_agents.planners.central import nothing_reading
 from gym_gridloc_agents.planners.leaves import load_leaf
 
@@ -25,6 +24,8 @@ def _sample(rng: np.random.Generator, p: np.ndarray) -> int:
 class _TreeSearch(PlannerPolicy):
     """What both searches share: the budget (``simulations`` per decision, or ``time_ms``), the
     exploration constant ``c``, the ``leaf`` and the ``max_depth``."""
+
+    takes_leaf = True
 
     def __init__(self, model, *, simulations: int, time_ms: float | None, c: float, leaf: Any, max_depth: int,
                  **kw) -> None:
@@ -105,15 +106,9 @@ class MCTSPolicy(_TreeSearch):
             return int(self.rng.integers(A))
         if self.rollout == "central":
             return self._break_ties(preds.reshape(A, -1) @ self.lik_nothing)
-        # greedy: expected posterior position entropy E_z[H(b_az)] via H(joint) identity; joint: (A, Z, HW).
-        # (gym_gridloc.lookahead's one_step is the owner of this number, through another identity: its
-        # sums differ in the last bits (up to 2e-15 bits on WindyMaze and ColourGrid), so seeded
-        # rollouts could flip on near-ties; kept here, on the predictions the node already holds.)
-        if self.ops.shape[0] == 1:
-            joint = preds.sum(axis=1).reshape(A, -1)[:, None, :] * self.ops.lik[:, 0].reshape(1, self.ops.Z, -1)
-        else:  # layered: marginalise layers after weighting by the likelihood (A, Z, L, H, W)
-            joint = (preds[:, None] * self.ops.lik[None]).sum(axis=2).reshape(A, self.ops.Z, -1)
-        return self._break_ties(-xlogx(joint).sum(axis=(1, 2)) + xlogx(pz).sum(axis=1))
+        # greedy: the expected entropy after each action's reading, as the greedy policy's (the belief
+        # MDP's, on the predictions the node already holds)
+        return self._break_ties(self.ops.mdp.weighted_entropy(preds))
 
     def _evaluate(self, b: np.ndarray) -> float:
         """Rollout cost from a non-localised belief."""
@@ -125,10 +120,9 @@ class MCTSPolicy(_TreeSearch):
             pz = self.ops.reading_probs(preds)
             a = self._rollout_action(b, preds, pz)
             z = _sample(self.rng, pz[a])
-            post = preds[a] * self.ops.lik[z]
-            b = post / post.sum()
+            b = self.ops.update(preds[a], z)
             cost += 1.0
-            if self.ops.max_position(b[None])[0] >= self.ops.threshold:
+            if self.ops.localised(b[None])[0]:
                 return cost
         return cost + float(self.leaf(self.ops, b[None])[0])
 
@@ -140,9 +134,8 @@ class MCTSPolicy(_TreeSearch):
         key = (a, z)
         child = node.children.get(key)
         if child is None:
-            post = node.preds[a] * self.ops.lik[z]
-            post /= post.sum()
-            if self.ops.max_position(post[None])[0] >= self.ops.threshold:
+            post = self.ops.update(node.preds[a], z)
+            if self.ops.localised(post[None])[0]:
                 node.children[key] = "done"
                 cost = 1.0
             else:
@@ -260,3 +253,20 @@ class ExpectedMCTSPolicy(_TreeSearch):
 
     def values(self, b: np.ndarray) -> np.ndarray:
         return self.search(b).q
+
+
+#: How ``mcts`` handles readings (its option ``readings``): the class of each.
+READINGS = {"enumerate": ExpectedMCTSPolicy, "sample": MCTSPolicy}
+
+
+def mcts_policy(model, context, *, readings: str = "enumerate", **options: Any) -> PlannerPolicy:
+    """``mcts`` as the policy table builds it: :class:`ExpectedMCTSPolicy` (``readings="enumerate"``,
+    the default) or :class:`MCTSPolicy` (``"sample"``), each refusing the options only the other takes."""
+    if readings not in READINGS:
+        raise ValueError(f"mcts readings must be 'enumerate' or 'sample', got {readings!r}")
+    cls = READINGS[readings]
+    takes = sorted(keywords(cls) - {"seed", "pose"})
+    if extra := sorted(set(options) - set(takes)):
+        raise ValueError(f"policy 'mcts' with readings={readings!r} takes no option {', '.join(map(repr, extra))} "
+                         f"(its options with readings={readings!r}: {', '.join(['readings', *takes])})")
+    return cls.build(model, context, **options)

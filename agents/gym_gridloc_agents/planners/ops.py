@@ -1,5 +1,6 @@
-"""What the planners need of a model (:class:`BeliefOps`), built once from its public interface
-through the engine; merging equal beliefs; the beliefs after the first reading."""
+"""The planners' view of the belief MDP (:class:`BeliefOps`: the core's
+:class:`~gym_gridloc.lookahead.Lookahead` with the referee's test, on normalised beliefs); merging
+equal beliefs; the beliefs after the first reading."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 
 from gym_gridloc import engine, referee
 from gym_gridloc.core.model import GridModel
+from gym_gridloc.lookahead import Lookahead
 
 
 def predict_batch(model: GridModel, beliefs: np.ndarray, actions: np.ndarray) -> np.ndarray:
@@ -18,22 +20,21 @@ def predict_batch(model: GridModel, beliefs: np.ndarray, actions: np.ndarray) ->
 
 
 class BeliefOps:
-    """What the planners need of a model, built once from the public interface."""
+    """What the planners need of a model: the core's belief MDP (:attr:`mdp`, a
+    :class:`~gym_gridloc.lookahead.Lookahead`: prediction, the Bayes update, expected entropies)
+    and the referee's test at ``threshold`` (on the pose with ``pose``), built once per model."""
 
     def __init__(self, model, threshold: float = referee.LOCALISE_THRESHOLD, *, pose: bool = False) -> None:
         self.model = model
         self.threshold = float(threshold)
         #: The referee tests poses (the most probable hidden state), not positions (DepthMaze).
         self.pose = bool(pose)
+        #: The belief MDP (its expected entropies are of the pose where the referee tests poses).
+        self.mdp = Lookahead(model, pose=self.pose)
         self.A = int(model.n_actions)
         self.Z = int(model.sensor.n_readings)
         self.shape = tuple(model.belief_shape)  # (L, H, W)
-        L, H, W = self.shape
-        if self.Z * L * H * W > 50_000_000:
-            raise ValueError(f"{model!r}: a (readings x cells) likelihood table of {self.Z} x {L * H * W} is too large")
-        self.lik = np.empty((self.Z, L, H, W))  # a position sensor's likelihoods broadcast over the layers
-        self.lik[:] = engine.likelihoods(model, np.arange(self.Z)).reshape(self.Z, -1, H, W)
-        self.lik_flat_t = np.ascontiguousarray(self.lik.reshape(self.Z, -1).T)  # (LHW, Z)
+        self.lik = self.mdp.likelihood_table  # (Z, L, H, W); refused here when too large
         self.free = np.asarray(model.grid.free, dtype=bool)
         self.n_free = int(self.free.sum())
 
@@ -64,16 +65,22 @@ class BeliefOps:
         return referee.localised(beliefs, self.threshold, pose=self.pose, slack=slack)
 
     def predict_all(self, beliefs: np.ndarray) -> np.ndarray:
-        """Every action for every belief: (N, L, H, W) -> (N * A, L, H, W), node-major."""
-        n = beliefs.shape[0]
-        return predict_batch(self.model, np.repeat(beliefs, self.A, axis=0), np.tile(np.arange(self.A), n))
+        """Every action for every belief: (N, L, H, W) -> (N * A, L, H, W), node-major
+        (:meth:`Lookahead.expand <gym_gridloc.lookahead.Lookahead.expand>`)."""
+        return self.mdp.expand(beliefs)
 
     def reading_probs(self, preds: np.ndarray) -> np.ndarray:
         """P(z) (unnormalised by the predictions' mass) for (M, L, H, W) -> (M, Z)."""
-        return preds.reshape(preds.shape[0], -1) @ self.lik_flat_t
+        return self.mdp.reading_masses(preds)
+
+    def update(self, preds: np.ndarray, z, pz=None) -> np.ndarray:
+        """The Bayes update of predictions after readings ``z`` (normalised by ``pz``, their
+        probabilities, where given): :meth:`Lookahead.update <gym_gridloc.lookahead.Lookahead.update>`."""
+        return self.mdp.update(preds, z, pz)
 
     def posteriors(self, preds: np.ndarray, idx: np.ndarray, z: np.ndarray, pz: np.ndarray) -> np.ndarray:
-        return preds[idx] * self.lik[z] / pz[:, None, None, None]
+        """The posteriors of predictions ``preds[idx]`` after readings ``z`` of probabilities ``pz``."""
+        return self.mdp.update(preds[idx], z, pz)
 
     def entropy(self, beliefs: np.ndarray) -> np.ndarray:
         """The position entropy (bits) of N beliefs (:func:`gym_gridloc.referee.entropy`), ``(N,)``."""
@@ -106,5 +113,4 @@ def initial_beliefs(ops: BeliefOps) -> tuple[np.ndarray, np.ndarray]:
     prior = free / free.sum()
     pz = ops.reading_probs(prior[None])[0]
     zs = np.flatnonzero(pz > 0)
-    posts = prior[None] * ops.lik[zs] / pz[zs, None, None, None]
-    return posts, pz[zs]
+    return ops.update(prior[None], zs, pz[zs]), pz[zs]

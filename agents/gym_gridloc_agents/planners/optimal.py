@@ -115,11 +115,16 @@ class OptimalPolicy(Policy):
 
     name = "optimal"
 
-    def __init__(self, model: GridModel, *, seed: int | None = None, horizon: int = 30, **_: Any) -> None:
+    def __init__(self, model: GridModel, *, seed: int | None = None, horizon: int = 30) -> None:
         super().__init__(model, seed=seed)
         self.horizon = int(horizon)
         self.search = BeliefSetSearch(model)
         self.t = 0
+
+    @classmethod
+    def build(cls, model: GridModel, context, *, horizon: int | None = None) -> "OptimalPolicy":
+        """As the policy table builds it: ``horizon``, else the environment's ``episode_length``, else 30."""
+        return cls(model, seed=context.seed, horizon=horizon or (context.env_kwargs or {}).get("episode_length") or 30)
 
     def set_model(self, model: GridModel) -> None:
         super().set_model(model)

@@ -87,6 +87,14 @@ class PomcpPolicy(Policy):
         self.decision_times: list[float] = []
         self._build()
 
+    @classmethod
+    def build(cls, model: GridModel, context, **options: Any) -> "PomcpPolicy":
+        """As the policy table builds it: the seed and the referee's pose from ``context``, the
+        threshold the environment's unless given."""
+        if options.get("threshold") is None:
+            options["threshold"] = context.threshold
+        return cls(model, seed=context.seed, pose=context.pose, **options)
+
     def _build(self) -> None:
         import pomdp_py
 

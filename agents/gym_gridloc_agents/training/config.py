@@ -33,7 +33,7 @@ from typing import Any
 from gym_gridloc.core.validation import check_int, is_int
 from gym_gridloc_agents.history import history_options
 from gym_gridloc_agents.loading import ALGOS
-from gym_gridloc_agents.policies import EXPERT_NAMES
+from gym_gridloc_agents.registry import EXPERT_NAMES, VALUE_NAMES, either
 from gym_gridloc_agents.training.config_values import (HYPER_RANGES, SCHEDULED, ConfigError, allowed_hyperparams,  # noqa: F401
                                                        check_buffer_memory, check_hyperparams, check_policy_values,
                                                        known_keys as _known_keys,
@@ -324,10 +324,9 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
         if not isinstance(pre.setdefault("episode_batches", False), bool):
             raise ConfigError(f"{source}: pretrain.episode_batches must be true or false, got {pre['episode_batches']!r}")
         pre["temperature"] = _num(source, "pretrain.temperature", pre.get("temperature", 0.0), integer=False, minimum=0)
-        from gym_gridloc_agents.planners import PLANNER_NAMES
-
-        if pre["temperature"] > 0 and pre["expert"] not in PLANNER_NAMES:
-            raise ConfigError(f"{source}: pretrain.temperature needs a planner's action values: expert central, expectimax or mcts, not {pre['expert']!r}")
+        if pre["temperature"] > 0 and pre["expert"] not in VALUE_NAMES:
+            raise ConfigError(f"{source}: pretrain.temperature needs a planner's action values: expert "
+                              f"{either(VALUE_NAMES)}, not {pre['expert']!r}")
         if pre.get("learning_rate_final") is not None:
             pre["learning_rate_final"] = _num(source, "pretrain.learning_rate_final", pre["learning_rate_final"], integer=False,
                                               minimum=0, maximum=pre["learning_rate"])

@@ -36,7 +36,7 @@ from tqdm.auto import tqdm
 
 from gym_gridloc_agents.envs import make_env
 from gym_gridloc_agents.files import atomic_path
-from gym_gridloc_agents.policies import PPOPolicy, make_policy
+from gym_gridloc_agents.policies import POLICIES, PPOPolicy, make_policy
 
 PRETRAIN_SEED_BASE = 1_000_000
 DAGGER_SEED_BASE = 1_500_000
@@ -204,9 +204,7 @@ def _env(cfg: dict[str, Any]):
 def _expert(cfg: dict[str, Any], env):
     pre = cfg["pretrain"]
     options = dict(pre.get("expert_kwargs", {}))
-    from gym_gridloc_agents.planners import PLANNER_NAMES
-
-    if pre["expert"] in PLANNER_NAMES:  # the planners plan for the referee's own test
+    if "threshold" in POLICIES[pre["expert"]].options:  # the planners plan for the referee's own test
         options.setdefault("threshold", env.unwrapped.localise_threshold)
     return make_policy(pre["expert"], env.unwrapped.model, env_id=cfg["env_id"], pose=env.unwrapped.referee_pose,
                        env_kwargs=cfg["env_kwargs"], **options)

@@ -29,18 +29,20 @@ def play_app(argv: Sequence[str]) -> tuple[PlayApp, argparse.Namespace]:
 
 def view_app(argv: Sequence[str]) -> tuple[ViewApp, argparse.Namespace]:
     """Parse ``gridloc view``'s arguments, run the episode and build the app (raises :class:`UsageError`)."""
-    from gym_gridloc_agents.policies import POLICY_NAMES, make_policy
+    from gym_gridloc_agents.policies import make_policy
+    from gym_gridloc_agents.registry import LEARNED_NAMES, POLICY_NAMES, either, names_by_kind
 
     p = viewer_parser("gridloc view", "step through an episode of a policy: belief, smoothing, Viterbi, inspector")
-    p.add_argument("--policy", default="greedy", choices=POLICY_NAMES, help="the policy (default greedy)")
+    p.add_argument("--policy", default="greedy", choices=POLICY_NAMES, metavar="NAME",
+                   help=f"the policy (default greedy), of the {names_by_kind()}")
     p.add_argument("--ppo-model", metavar="PATH",
-                   help="the model file of --policy ppo, distilled or recurrent (default: the shipped one for ENV)")
+                   help=f"the model file of --policy {either(LEARNED_NAMES)} (default: the shipped one for ENV)")
     p.add_argument("--smooth", action="store_true", help="start with the smoothed belief shown (key s)")
     p.add_argument("--viterbi", action="store_true", help="start with the Viterbi path shown (key v)")
     args = p.parse_args(list(argv))
     check_args(args)
-    if args.ppo_model is not None and args.policy not in ("ppo", "distilled", "recurrent"):
-        raise UsageError(f"--ppo-model is the model of --policy ppo, distilled or recurrent, not of --policy {args.policy}")
+    if args.ppo_model is not None and args.policy not in LEARNED_NAMES:
+        raise UsageError(f"--ppo-model is the model of --policy {either(LEARNED_NAMES)}, not of --policy {args.policy}")
     if args.ppo_model is not None and not Path(args.ppo_model).is_file():
         raise UsageError(f"--ppo-model: {args.ppo_model} is not a file")
     kwargs = env_kwargs(args)
