@@ -344,7 +344,7 @@ def test_same_step_autoreset_gives_final_observations():
         for i in np.flatnonzero(done):
             assert set(info["final_obs"][i]) == {"observation", "belief"}
             assert set(info["final_info"][i]) >= {"position", "confidence", "localised"}
-        assert np.all(env.unwrapped._elapsed[done] == 0)  # already reset
+        assert np.all(env.unwrapped.batch.rows.elapsed[done] == 0)  # already reset
         assert np.all(rew == -1.0)  # every env stepped: no reset step in between
         ever |= done
     assert ever.all()  # every episode ends by the 5th step at the latest
@@ -436,7 +436,7 @@ def test_readings_only_and_flat_observations():
     for _ in range(20):
         assert flat.observation_space.contains(o1)
         np.testing.assert_allclose(o1[:, 4:].reshape(3, 5, 5), flat.unwrapped.position_beliefs, rtol=0, atol=1e-7)
-        np.testing.assert_array_equal(o1[:, :4], np.eye(4, dtype=np.float32)[flat.unwrapped._readings])
+        np.testing.assert_array_equal(o1[:, :4], np.eye(4, dtype=np.float32)[flat.unwrapped.batch.rows.readings])
         o1, *_ = flat.step(np.array([1, 2, 3]))
 
 
