@@ -70,12 +70,12 @@ class Rows:
         self._compiled = None
 
 
-def vector_bank(model: GridModel, n_rows: int) -> "VectorBank | None":
+def vector_bank(model: GridModel, n_rows: int, keep: int | None = None) -> "VectorBank | None":
     """A :class:`VectorBank` for ``n_rows`` robots whose first model is ``model``, or None when
     ``model`` has no compiled step: a large grid, kidnapping, a sensor without
     :meth:`~gym_gridloc.core.sensors.Sensor.draw_table`, or too many readings for the tables."""
     tables = _vector_tables(model)
-    return None if tables is None else VectorBank(model, n_rows, tables)
+    return None if tables is None else VectorBank(model, n_rows, tables, keep)
 
 
 def _vector_tables(model: GridModel) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]] | None:
@@ -108,9 +108,10 @@ class VectorBank:
     :func:`vector_bank` makes one.  :meth:`slot` places a model (its tables are copied once; a
     model already placed keeps its slot); :meth:`advance` is the step.
 
-    The bank holds at most ``max(N + 1, BYTES / one model's tables)`` models; when it is full, a
-    new model takes the least recently placed slot that no row uses (N rows use at most N).  It
-    holds its models (strongly: the bank belongs to one environment).
+    The bank holds at most ``max(N + 1, BYTES / one model's tables)`` models (``keep``: at most
+    that many, but N + 1); when it is full, a new model takes the least recently placed slot that
+    no row uses (N rows use at most N).  It holds its models (strongly: the bank belongs to one
+    environment).
 
     A bank can also draw the maps of the rows that start an episode, in the step's own call
     (:meth:`draw_maps`: mazes, by their codes, a table from each code to its slot)."""
@@ -120,11 +121,12 @@ class VectorBank:
     #: The most walls of the mazes whose codes :meth:`draw_maps` keeps a table of slots for (2**16 codes: 512 KiB).
     CODE_WALLS = 16
 
-    def __init__(self, model: GridModel, n_rows: int, tables: tuple[tuple[int, ...], tuple[np.ndarray, ...]]) -> None:
+    def __init__(self, model: GridModel, n_rows: int, tables: tuple[tuple[int, ...], tuple[np.ndarray, ...]],
+                 keep: int | None = None) -> None:
         self.scalars, arrays = tables
         self.signature = self._signature(tables)
         per_model = sum(a.nbytes for a in arrays)
-        self.limit = max(n_rows + 1, min(self.BYTES // max(per_model, 1), 4096))
+        self.limit = max(n_rows + 1, min(self.BYTES // max(per_model, 1), 4096, keep or 4096))
         self.n_rows = n_rows
         self.models: list[GridModel | None] = []
         self._slot_of: dict[int, int] = {}
@@ -151,8 +153,9 @@ class VectorBank:
         generator, and each row's slot set (new codes' models placed by Python between two
         calls).  An impossible reading raises (it cannot happen to readings drawn from the model)."""
         bits = rng.bit_generator
-        functions = kernels.bit_functions(bits)
-        fast = kernels.compiled(1)
+        if bits is not self._bits:  # (the addresses of the last bit generator are kept)
+            self._bits, self._functions = bits, kernels.bit_functions(bits)
+        functions, fast = self._functions, self._fast
         if maps:
             with bits.lock:  # (the draws are the generator's: as its own methods, under its lock)
                 missing = fast.draw_maps(self._maze_struct, rows.slots, modes, functions)
@@ -244,12 +247,13 @@ class VectorBank:
 
     def _bind(self) -> None:
         """The compiled structures of the tables (and the maze), made again when the tables grow."""
-        fast = kernels.compiled(1)
+        self._fast = fast = kernels.compiled(1)
+        self._bits = self._functions = None
         self._tables = fast.step_tables(*self._stacked, *(int(x) for x in self.scalars))
         self._maze_struct = None if self._maze is None else fast.step_maze(*self._maze)
 
     def __getstate__(self) -> dict:
-        return {k: v for k, v in self.__dict__.items() if k not in ("_tables", "_maze_struct", "_slot_of")}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_tables", "_maze_struct", "_slot_of", "_fast", "_bits", "_functions")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)

@@ -52,11 +52,14 @@ class Batch:
     ``limit`` (the step count that truncates; None: never) and ``fixed_length`` (episodes end by
     truncation only).  ``observed``: the steps also make the observation's float32 position
     beliefs.  ``reuse``: the referee's arrays are filled again at every step (the caller reads
-    them before the next; else each step's are new, the caller's to keep)."""
+    them before the next; else each step's are new, the caller's to keep), and the compiled step
+    keeps the tables of N + 1 models, not of as many as its bytes allow (the single environment:
+    the maps of past episodes are let go)."""
 
     def __init__(self, model: GridModel, n: int, *, threshold: float, pose: bool = False, reward: str = "step",
                  limit: int | None = None, fixed_length: bool = False, observed: bool = False,
                  map_factory: Any = None, reuse: bool = False) -> None:
+        model = engine.checked_model(model, "the step of N robots needs a GridModel")
         self.n, self.shape, self.map_factory, self.reuse = n, model.belief_shape, map_factory, reuse
         self.rows = Rows(n, int(np.prod(model.belief_shape)))
         self.rules = dict(threshold=threshold, pose=pose, kind=reward, limit=limit, fixed_length=fixed_length)
@@ -65,7 +68,7 @@ class Batch:
         self._models, self._stale = [model] * n, False  # (stale: the bank's slots say which, see models)
         self._groups = [np.arange(n)]  # row indices per distinct model, in index order
         #: The compiled step of the rows' models (None: the numpy reference, once per distinct model).
-        self.bank = engine.vector_bank(model, n)
+        self.bank = engine.vector_bank(model, n, n + 1 if reuse else None)
         self._coded: dict[int, GridModel] = {}  # map code -> model: the last codes' (MapFactory.models), as many as the bank holds
         graph = None if map_factory is None else map_factory.graph  # perfect mazes: the compiled step draws them in its call
         self._maps_in_call = bool(self.bank is not None and graph is not None and self.bank.draw_maps(*graph, map_factory.model_of_code))
@@ -84,7 +87,8 @@ class Batch:
         return self.rows.belief.reshape(self.n, *self.shape)
 
     # -- the one step ----------------------------------------------------------------------------
-    def advance(self, actions: np.ndarray | None, modes: np.ndarray, rng: np.random.Generator, *, maps: bool = False) -> Outcome:
+    def advance(self, actions: np.ndarray | None, modes: np.ndarray, rng: np.random.Generator, *, maps: bool = False,
+                one: bool = False) -> Outcome:
         """One step of the N rows: row ``i`` with ``modes[i]`` (int8) ``STEP`` moves under
         ``actions[i]`` (N int64 in ``0..A-1``, checked by the caller; only the moving rows' are
         read; None: no row moves), reads and filters; ``START`` starts an episode at a state
@@ -92,19 +96,26 @@ class Batch:
         the state ``rows.states[i]`` holds; ``KEEP`` keeps the row (its step count too).  All
         draws from ``rng``: with ``maps`` the new maps first where the compiled step draws them
         (after the moves in the numpy reference), the moves, the readings of the moving rows, the
-        drawn starts, the readings of the starting rows.  Returns the :class:`Outcome`."""
+        drawn starts, the readings of the starting rows.  Returns the :class:`Outcome`; ``one``
+        (the N = 1 view): of row 0 as the single environment reports it, the ``info`` of
+        :func:`~gym_gridloc.referee.scalars`, the reward a ``float``, the ends ``bool`` (the same
+        numbers; no ``positions``)."""
         acts = self._no_actions if actions is None else actions
         redrawn = maps and self.bank is not None and not self._maps_in_call
         if redrawn:  # (the maps first; placing them may leave the numpy reference to step)
             self._redraw(np.flatnonzero(modes == START), rng)
         if self.bank is not None:  # one compiled call
-            return self._compiled(acts, modes, rng, maps and self._maps_in_call)
-        return self._reference(acts, modes, rng, maps and not redrawn)
+            return self._compiled(acts, modes, rng, maps and self._maps_in_call, one)
+        out = self._reference(acts, modes, rng, maps and not redrawn)
+        return Outcome(referee.scalars(out.info, 0), None, None, *(x.item(0) for x in out[3:])) if one else out
 
-    def _compiled(self, actions: np.ndarray, modes: np.ndarray, rng: np.random.Generator, maps: bool) -> Outcome:
+    def _compiled(self, actions: np.ndarray, modes: np.ndarray, rng: np.random.Generator, maps: bool, one: bool) -> Outcome:
         blocks = self.blocks if self.reuse else self.blocks.renewed()
         self.bank.advance(self.rows, actions, modes, rng, blocks, maps)
         self._stale |= maps
+        if one:
+            ends = blocks.ends
+            return Outcome(blocks.one(self.shape[0]), None, None, blocks.rewards.item(0), ends.item(0, 0), ends.item(1, 0), ends.item(2, 0))
         info, positions = blocks.infos(self.shape[0])
         return Outcome(info, positions, blocks.observed if blocks.observed.shape[0] else None, *blocks.outcomes())
 

@@ -15,8 +15,7 @@ the particle filter, smoothing and Viterbi, and the lookahead policies.
 * :func:`sample_initial`, :func:`sample_next`, :func:`sample_readings`, :func:`simulate` -- the
   simulator's side, batched: states are ``(N, 3)`` int64 arrays of ``(layer, row, col)``
   (:mod:`gym_gridloc.sampling`, re-exported here).
-* :func:`stepper`, :func:`sampler` -- bound functions for hot loops: one belief's step, one
-  robot's move and reading.
+* :func:`stepper` -- a bound function for hot loops: one belief's step (the filter's).
 * :class:`VectorBank` (:func:`vector_bank`) -- the compiled step of N robots (:class:`Rows`: moves,
   new episodes, readings, beliefs, the referee's readout) in one call, each robot on its own model
   (:mod:`gym_gridloc.bank`, re-exported here); :class:`gym_gridloc.batch.Batch` calls it, or these
@@ -46,11 +45,11 @@ from gym_gridloc.bank import Rows, VectorBank, vector_bank
 from gym_gridloc.core.grid import read_only
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.derived import action_indices, checked_model, impossible, likelihoods, path, plan, terms
-from gym_gridloc.sampling import OUTCOMES_CACHED, sample_initial, sample_next, sample_readings, sampler, simulate, states_of
+from gym_gridloc.sampling import OUTCOMES_CACHED, sample_initial, sample_next, sample_readings, simulate, states_of
 
 __all__ = [
     "predict", "update", "step", "backward", "kidnapped", "transition_matrix", "likelihood", "likelihoods", "impossible", "plan",
-    "first_posterior", "sample_initial", "sample_next", "sample_readings", "sampler", "stepper", "vector_bank", "VectorBank", "Rows", "states_of", "simulate", "action_indices", "path", "terms",
+    "first_posterior", "sample_initial", "sample_next", "sample_readings", "stepper", "vector_bank", "VectorBank", "Rows", "states_of", "simulate", "action_indices", "path", "terms",
     "checked_model", "OUTCOMES_CACHED",
 ]
 
@@ -257,8 +256,8 @@ def stepper(model: GridModel, *, normalise: bool = True) -> Callable[[np.ndarray
     """:func:`step` for one belief as a bound function ``(belief, action, reading, out) -> z``,
     for hot loops (the single filter): ``belief`` and ``out`` C-contiguous float64 arrays of the
     belief's ``L*H*W`` values, ``(L, H, W)`` or flat (not checked), ``action`` an int or None,
-    ``reading`` an int.  Normalising multiplies by ``1.0 / z`` (both kernels), except with
-    kidnapping, which divides by ``z``; :class:`~gym_gridloc.ForwardFilter` relies on it."""
+    ``reading`` an int.  Normalising multiplies by ``1.0 / z`` (every kernel, and the mixing of
+    kidnapping): :class:`~gym_gridloc.ForwardFilter` relies on it."""
     d = derived.of(model)
     if normalise not in d.steppers:
         d.steppers[normalise] = _make_stepper(model, d, normalise)

@@ -135,7 +135,7 @@ class Blocks:
     (:meth:`renewed`: the infos it returns are its caller's), the single env fills the same ones."""
 
     __slots__ = ("pose", "threshold", "limit", "fixed_length", "belief_reward", "scratch", "kept", "ints", "confidence",
-                 "estimate", "flags", "observed", "rewards", "ends", "_compiled")
+                 "estimate", "flags", "observed", "rewards", "ends", "_compiled", "_views")
 
     def __init__(self, n: int, cells: int, threshold: float, pose: bool, *, kind: str = "step", limit: int | None = None,
                  fixed_length: bool = False, observed: bool = False) -> None:
@@ -146,7 +146,7 @@ class Blocks:
         self.estimate, self.flags = np.empty((2, n, 2), dtype=np.int64), np.empty((2, n), dtype=bool)
         self.observed = np.empty((n if observed else 0, cells), dtype=np.float32)
         self.rewards, self.ends = np.empty(n), np.empty((3, n), dtype=bool)
-        self._compiled = None
+        self._compiled = self._views = None
 
     def renewed(self) -> "Blocks":
         """New blocks of the same sizes and rules."""
@@ -164,12 +164,12 @@ class Blocks:
         return self._compiled
 
     def __getstate__(self) -> dict:
-        return {k: getattr(self, k) for k in self.__slots__ if k != "_compiled"}
+        return {k: getattr(self, k) for k in self.__slots__ if k not in ("_compiled", "_views")}
 
     def __setstate__(self, state: dict) -> None:
         for k, v in state.items():
             setattr(self, k, v)
-        self._compiled = None
+        self._compiled = self._views = None
 
     def infos(self, n_layers: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
         """:func:`readout`'s infos and position beliefs from the filled blocks of beliefs of
@@ -197,6 +197,30 @@ class Blocks:
     def outcomes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(rewards, terminated, truncated, done)`` of the filled blocks."""
         return self.rewards, self.ends[0], self.ends[1], self.ends[2]
+
+    def one(self, n_layers: int) -> dict[str, Any]:
+        """:meth:`infos` of blocks of ONE row as the single environment reports them
+        (:func:`scalars`: the same numbers), read from the blocks directly (no arrays of rows:
+        the single environment pays this at every step)."""
+        if self._views is None:  # (the blocks are filled again at every step: their views are kept)
+            self._views = (self.scratch[0], self.scratch[1].reshape(-1), self.ints[3], np.empty(1))
+        pos, q, ends, ent = self._views
+        cells = pos.shape[1]
+        if cells <= COMPILED_ENTROPY_CELLS:
+            q = q[:ends.item(0)]
+            kernels.compiled(1).batch_entropy(pos, np.log2(q, out=q), self.kept, ends, ent)
+            h = ent.item(0)
+        else:
+            h = entropy(pos).item(0)
+        ints, est, flags = self.ints, self.estimate, self.flags
+        info = {"position": (est.item(1, 0, 0), est.item(1, 0, 1)), "estimate": (est.item(0, 0, 0), est.item(0, 0, 1)),
+                "confidence": self.confidence.item(0), "error": ints.item(2, 0), "localised": flags.item(0, 0),
+                "success": flags.item(1, 0), "entropy": h}
+        if n_layers > 1:
+            info["heading"] = ints.item(4, 0)
+        if self.pose:
+            info["estimate_heading"] = ints.item(1, 0)
+        return info
 
 
 def scalars(info: dict[str, np.ndarray], i: int) -> dict[str, Any]:

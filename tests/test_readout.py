@@ -1,8 +1,7 @@
-"""The single step's fast paths give the numbers of the code they replace, bit for
-bit: the compiled readout of one belief (the referee's summary, the observed float32 belief)
-against their numpy code, a referee filter normalised in its step against the lazy one read after
-every step, the engine's one-robot sampler against the batched draws, and the numpy diagonal pass
-against its definition."""
+"""The compiled code gives the numbers of the numpy code it stands for, bit for bit: the step of N
+robots against its numpy reference, the compiled readout (the referee's summary, the observed
+float32 belief), the sensors' draw tables, a filter normalised in its step against the lazy one
+read after every step, and the numpy diagonal pass against its definition."""
 
 from __future__ import annotations
 
@@ -193,25 +192,6 @@ def test_a_filter_normalised_in_its_step_equals_the_lazy_one_read_every_step(env
         eager.step(a, reading=r)
         assert lazy.full_belief.tobytes() == eager.belief_view.tobytes()
         assert repr(lazy.log_likelihood) == repr(eager.log_likelihood)
-
-
-@pytest.mark.parametrize("env_id, kwargs", [("WindyMaze-v0", {}), ("ColourGrid-v0", {}), ("RingSensor8x8-v0", {}),
-                                             ("RingSensor8x8-v0", {"dynamics": "passive"}), ("DepthMaze-v0", {}),
-                                             ("ColourGrid-v0", {"kidnap_prob": 0.2})])
-def test_the_one_robot_sampler_draws_what_the_batched_functions_draw(env_id, kwargs):
-    model = gym.make(env_id, **kwargs).unwrapped.model
-    sample = engine.sampler(model)
-    one, batch = np.random.default_rng(3), np.random.default_rng(3)
-    state = tuple(engine.sample_initial(model, 1, one)[0].tolist())
-    states = engine.sample_initial(model, 1, batch)
-    actions = np.random.default_rng(4).integers(model.n_actions, size=300).tolist()
-    for k, a in enumerate(actions):
-        state, reading = sample(state, np.int64(a) if k % 5 == 0 else a, one)
-        states = engine.sample_next(model, states, a, batch)
-        assert type(reading) is int and all(type(v) is int for v in state)
-        assert state == tuple(states[0].tolist())
-        assert reading == int(engine.sample_readings(model, states, batch)[0])
-    assert one.random() == batch.random()  # as many draws
 
 
 def test_diagonal_add_is_the_dia_product_of_one_diagonal():
