@@ -51,8 +51,9 @@ class Batch:
     ``pose`` (:func:`~gym_gridloc.referee.summarise`), ``reward`` (:data:`~gym_gridloc.referee.REWARDS`),
     ``limit`` (the step count that truncates; None: never) and ``fixed_length`` (episodes end by
     truncation only).  ``observed``: the steps also make the observation's float32 position
-    beliefs.  ``reuse``: the referee's arrays are filled again at every step (the caller reads
-    them before the next; else each step's are new, the caller's to keep), and the compiled step
+    beliefs.  ``reuse``: the referee's arrays are given as they are, filled again at every step
+    (the caller reads them before the next; else they are copies, the caller's to keep), and the
+    compiled step
     keeps the tables of N + 1 models, not of as many as its bytes allow (the single environment:
     the maps of past episodes are let go)."""
 
@@ -110,14 +111,16 @@ class Batch:
         return Outcome(referee.scalars(out.info, 0), None, None, *(x.item(0) for x in out[3:])) if one else out
 
     def _compiled(self, actions: np.ndarray, modes: np.ndarray, rng: np.random.Generator, maps: bool, one: bool) -> Outcome:
-        blocks = self.blocks if self.reuse else self.blocks.renewed()
+        blocks = self.blocks
         self.bank.advance(self.rows, actions, modes, rng, blocks, maps)
         self._stale |= maps
         if one:
             ends = blocks.ends
             return Outcome(blocks.one(self.shape[0]), None, None, blocks.rewards.item(0), ends.item(0, 0), ends.item(1, 0), ends.item(2, 0))
-        info, positions = blocks.infos(self.shape[0])
-        return Outcome(info, positions, blocks.observed if blocks.observed.shape[0] else None, *blocks.outcomes())
+        keep = not self.reuse  # (the infos are the caller's: copies of the blocks, which the next step fills)
+        info, positions = blocks.infos(self.shape[0], copy=keep)
+        observed = None if not blocks.observed.shape[0] else blocks.observed.copy() if keep else blocks.observed
+        return Outcome(info, positions, observed, *blocks.outcomes(copy=keep))
 
     def _reference(self, actions: np.ndarray, modes: np.ndarray, rng: np.random.Generator, maps: bool) -> Outcome:
         """The numpy reference of the compiled step: the engine's functions once per distinct model."""

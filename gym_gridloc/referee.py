@@ -130,9 +130,9 @@ class Blocks:
     (2, N, 2) the estimated and true positions, ``flags`` (2, N) localised and success,
     ``observed`` (float32 (N, cells) with ``observed``: the observation's position beliefs, as
     ``observation.observed_belief`` makes them; else no rows), ``rewards`` and ``ends`` (3, N)
-    terminated, truncated and their or.  :meth:`infos` and :meth:`outcomes` read them.  Few
-    allocations (blocks whose rows are the arrays): a vector env takes new ones at every step
-    (:meth:`renewed`: the infos it returns are its caller's), the single env fills the same ones."""
+    terminated, truncated and their or.  :meth:`infos` and :meth:`outcomes` read them (copied
+    for a caller that keeps them: a vector env's infos are its caller's).  Few allocations (blocks
+    whose rows are the arrays); the compiled structure of the blocks is made once."""
 
     __slots__ = ("pose", "threshold", "limit", "fixed_length", "belief_reward", "scratch", "kept", "ints", "confidence",
                  "estimate", "flags", "observed", "rewards", "ends", "_compiled", "_views")
@@ -147,12 +147,6 @@ class Blocks:
         self.observed = np.empty((n if observed else 0, cells), dtype=np.float32)
         self.rewards, self.ends = np.empty(n), np.empty((3, n), dtype=bool)
         self._compiled = self._views = None
-
-    def renewed(self) -> "Blocks":
-        """New blocks of the same sizes and rules."""
-        return Blocks(self.confidence.shape[0], self.scratch.shape[2], self.threshold, self.pose,
-                      kind="belief" if self.belief_reward else "step", limit=self.limit or None,
-                      fixed_length=self.fixed_length, observed=self.observed.shape[0] > 0)
 
     @property
     def compiled(self):
@@ -171,22 +165,26 @@ class Blocks:
             setattr(self, k, v)
         self._compiled = self._views = None
 
-    def infos(self, n_layers: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    def infos(self, n_layers: int, *, copy: bool = False) -> tuple[dict[str, np.ndarray], np.ndarray]:
         """:func:`readout`'s infos and position beliefs from the filled blocks of beliefs of
         ``n_layers`` layers (the readout copied the true positions and headings): numpy's log2 (of
-        the positive probabilities only: the others' terms are zeros), then the entropies."""
+        the positive probabilities only: the others' terms are zeros), then the entropies.
+        ``copy``: the infos are copies, the caller's to keep (the blocks are filled again)."""
         pos, q = self.scratch
         n, cells = pos.shape
-        _, layer, error, ends, heading = self.ints
+        ints = self.ints.copy() if copy else self.ints
+        _, layer, error, _, heading = ints
+        ends = self.ints[3]
         if cells <= COMPILED_ENTROPY_CELLS:
             ent = np.empty(n)
             q = q.reshape(-1)[:ends[-1]]
             kernels.compiled(1).batch_entropy(pos, np.log2(q, out=q), self.kept, ends, ent)
         else:
             ent = entropy(pos)
-        localised, success = self.flags
-        estimate, position = self.estimate
-        info = {"position": position, "estimate": estimate, "confidence": self.confidence, "error": error,
+        localised, success = self.flags.copy() if copy else self.flags
+        estimate, position = self.estimate.copy() if copy else self.estimate
+        confidence = self.confidence.copy() if copy else self.confidence
+        info = {"position": position, "estimate": estimate, "confidence": confidence, "error": error,
                 "localised": localised, "success": success, "entropy": ent}
         if n_layers > 1:
             info["heading"] = heading
@@ -194,9 +192,10 @@ class Blocks:
             info["estimate_heading"] = layer
         return info, pos
 
-    def outcomes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(rewards, terminated, truncated, done)`` of the filled blocks."""
-        return self.rewards, self.ends[0], self.ends[1], self.ends[2]
+    def outcomes(self, *, copy: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(rewards, terminated, truncated, done)`` of the filled blocks (``copy``: copies)."""
+        ends = self.ends.copy() if copy else self.ends
+        return self.rewards.copy() if copy else self.rewards, ends[0], ends[1], ends[2]
 
     def one(self, n_layers: int) -> dict[str, Any]:
         """:meth:`infos` of blocks of ONE row as the single environment reports them
