@@ -310,18 +310,21 @@ def batch_entropy(pos, log2q, kept, ends, out):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def batch_outcomes(localised, confidence, restarted, elapsed, limit, fixed_length, belief_reward, rewards, flags):  # pragma: no cover - compiled
-    """The vector step's end of N steps, as the referee's numpy code computes it: ``elapsed``
-    (N,) is advanced in place (+1, or 0 where ``restarted``); ``rewards`` (N,) gets
-    -1.0 or the ``confidence`` (``belief_reward``), 0.0 where restarted; ``flags`` (3, N)
-    terminated (localised, on a step, unless ``fixed_length``), truncated (``elapsed >= limit``,
-    ``limit`` > 0) and their or."""
+def batch_outcomes(modes, localised, confidence, elapsed, limit, fixed_length, belief_reward, rewards, flags):  # pragma: no cover - compiled
+    """How N rows' steps end, as the referee's numpy code computes it (``referee.outcomes``):
+    ``modes`` as the step's (0 a step, 1 or 3 a new episode, 2 kept); ``elapsed`` (N,) is
+    advanced in place (+1 on a step, 0 on a new episode, kept); ``rewards`` (N,) gets -1.0 or the
+    ``confidence`` (``belief_reward``) on a step, else 0.0; ``flags`` (3, N) terminated
+    (localised, on a step, unless ``fixed_length``), truncated (``elapsed >= limit``, ``limit`` >
+    0, not on a kept row) and their or."""
     for i in range(elapsed.shape[0]):
-        r = restarted[i]
-        elapsed[i] = 0 if r else elapsed[i] + 1
-        rewards[i] = 0.0 if r else (confidence[i] if belief_reward else -1.0)
-        term = localised[i] and not r and not fixed_length
-        trunc = limit > 0 and elapsed[i] >= limit
+        mode = modes[i]
+        stepped = mode == 0
+        if mode != 2:
+            elapsed[i] = elapsed[i] + 1 if stepped else 0
+        rewards[i] = (confidence[i] if belief_reward else -1.0) if stepped else 0.0
+        term = localised[i] and stepped and not fixed_length
+        trunc = limit > 0 and mode != 2 and elapsed[i] >= limit
         flags[0, i] = term
         flags[1, i] = trunc
         flags[2, i] = term or trunc

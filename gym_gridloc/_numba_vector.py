@@ -1,7 +1,8 @@
-"""The native vector environment's step of N robots in one compiled call (:func:`vector_advance`):
-moves (:func:`sample_moves`, as ``engine.sample_next`` draws them), readings from the sensors' draw
-tables (:func:`draw_reading`), new episodes and their maps, the filter step, and the referee's
-readout and outcomes, with the generator's draws."""
+"""The compiled step of N robots (:func:`vector_advance`, on the named structures of
+:mod:`gym_gridloc._numba_structs`): moves (:func:`sample_moves`, as ``engine.sample_next`` draws
+them), readings from the sensors' draw tables (:func:`draw_reading`), new episodes, the filter
+step, and the referee's readout and outcomes, with the generator's draws; the new episodes' maps
+(:func:`draw_maps`), drawn first."""
 
 from __future__ import annotations
 
@@ -78,30 +79,53 @@ def draw_reading(kind, cum, total, values, R, s, u, j):  # pragma: no cover - co
 
 
 @numba.njit(cache=True, nogil=True)
-def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
-                   free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, bits, n_states,
-                   walls, n_rooms, code_slots, codes, read, pose, threshold, rscratch, kept, ints, confidence, estimate, flags, observed,
-                   end, restarted, elapsed, limit, fixed_length, belief_reward, rewards, ends):  # pragma: no cover - compiled
-    """A vector step of N robots, row ``i`` on the model of slot ``slots[i]`` (every table has
-    a leading slot axis: one model's tables, or a bank of models of the same sizes).  Row ``i``
-    with ``modes[i]`` 0 moves under ``actions[i]``, reads and filters (``out[i]`` the normalised
-    posterior of ``beliefs[i]``); 1 starts an episode at a state index drawn uniformly among the
-    ``n_states`` free states (layer-major), reads, and takes the first posterior
-    ``posts[reading]``; 2 keeps its state, reading and belief.  Random numbers from the numpy bit
-    generator of ``bits`` (the addresses of its ``next_uint32``, its ``next_double`` and its
-    state), as the engine's Python drew them: ``Generator.random`` of the moving rows' move
-    uniforms, then their readings' (``per_draw`` each), rows in order; ``Generator.integers`` of
-    the starting rows' states; ``Generator.random`` of their readings'.  With ``read``, every
-    row's readout as :func:`batch_readout` fills it (``rscratch`` and the blocks after it); with
-    ``end`` too, how every row's step ends, as :func:`batch_outcomes` (``restarted`` and after).
-    With ``codes`` of N places (else none), the starting rows' maps are drawn first, in the same
-    call: ``codes[j]`` the code of the ``j``-th starting row's maze (:func:`maze_code` on ``walls`` (2, W), the rooms of
-    each wall, and ``n_rooms``), ``slots`` its slot ``code_slots[code]``; when a code has no
-    slot (-1), nothing else is drawn and the call returns -2 (the caller places those models,
-    sets the rows' slots, and calls again without ``codes``).
+def draw_maps(maze, slots, modes, bits):  # pragma: no cover - compiled
+    """The maps of the rows that start an episode (``modes`` 1), drawn first in a step, in row
+    order: ``maze.codes[j]`` the code of the ``j``-th starting row's maze (:func:`maze_code` on
+    the graph ``maze.walls`` (2, W), the rooms of each wall, of ``maze.n_rooms`` rooms), and the
+    row's slot ``maze.code_slots[code]``.  Returns how many codes have no slot (-1): from the
+    first of them on, the rows' slots are left as they were, for the caller to place those
+    codes' models and set every starting row's slot (the draws are made all the same)."""
+    walls, code_slots, codes = maze.walls, maze.code_slots, maze.codes
+    u32, state = bits[0], bits[2]
+    order = np.empty(walls.shape[1], dtype=np.int64)
+    parent = np.empty(maze.n_rooms, dtype=np.int64)
+    j = 0
+    missing = 0
+    for i in range(modes.shape[0]):
+        if modes[i] == 1:
+            codes[j] = code = maze_code(u32, state, walls[0], walls[1], maze.n_rooms, order, parent)
+            if code_slots[code] < 0:
+                missing += 1
+            if missing == 0:
+                slots[i] = code_slots[code]
+            j += 1
+    return missing
+
+
+@numba.njit(cache=True, nogil=True)
+def vector_advance(tables, rows, actions, modes, blocks, bits):  # pragma: no cover - compiled
+    """One step of N robots, row ``i`` on the model of slot ``rows.slots[i]`` (``tables``: every
+    table with a leading slot axis, one model's or a bank's of models of the same sizes).  Row
+    ``i`` with ``modes[i]`` 0 moves under ``actions[i]``, reads and filters (its posterior
+    normalised); 1 starts an episode at a state drawn uniformly among the ``n_states`` free
+    states (layer-major), reads and takes the first posterior ``posts[reading]``; 3 starts one
+    at its state as given; 2 keeps its state, reading and belief.  The beliefs are read from
+    ``rows.beliefs[current]`` and written to the other buffer, which becomes current.  Random
+    numbers from the numpy bit generator of ``bits`` (the addresses of its ``next_uint32``, its
+    ``next_double`` and its state), as ``Generator.random`` and ``Generator.integers`` draw them:
+    the moving rows' move uniforms, then their readings' (``per_draw`` each), rows in order; the
+    drawn starts' states; the starting rows' readings'.  Moves are drawn from the filter's own
+    weights ``w`` with the ``keys`` (as :func:`sample_moves` draws them).  Then the referee's
+    ``blocks``: every row's readout (:func:`batch_readout`) and how its step ended
+    (:func:`batch_outcomes`).  The tables are read flat, each row's at its slot's offset.
     Returns -1, or the first row whose reading is impossible (z not positive and finite: the
-    caller raises).  Moves are drawn from the filter's own weights ``w`` with the ``keys`` (as
-    :func:`sample_moves` draws them).  The tables are read flat, each row's at its slot's offset."""
+    caller raises)."""
+    w, liks, cum, free_cells, posts, possible = tables.w, tables.liks, tables.cum, tables.free_cells, tables.posts, tables.possible
+    width, n_layers, layered, kind, per_draw = tables.width, tables.n_layers, tables.layered, tables.kind, tables.per_draw
+    states, readings, slots = rows.states, rows.readings, rows.slots
+    cur = rows.current[0]
+    beliefs, out = rows.beliefs[cur], rows.beliefs[1 - cur]
     n = states.shape[0]
     n_free = free_cells.shape[1]
     A, K, hw = w.shape[1], w.shape[2], w.shape[3]
@@ -109,40 +133,29 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
     S, R = cum.shape[1], cum.shape[2]
     size = beliefs.shape[1]
     n_moving = 0
+    n_drawn = 0
     n_starting = 0
     for i in range(n):
         n_moving += modes[i] == 0
-        n_starting += modes[i] == 1
+        n_drawn += modes[i] == 1
+        n_starting += modes[i] == 1 or modes[i] == 3
     u32, f64, state = bits[0], bits[1], bits[2]
-    if codes.shape[0]:
-        order = np.empty(walls.shape[1], dtype=np.int64)
-        parent = np.empty(n_rooms, dtype=np.int64)
-        j = 0
-        placed = True
-        for i in range(n):
-            if modes[i] == 1:
-                codes[j] = code = maze_code(u32, state, walls[0], walls[1], n_rooms, order, parent)
-                if code_slots[code] < 0:
-                    placed = False
-                slots[i] = code_slots[code] if placed else slots[i]
-                j += 1
-        if not placed:
-            return -2
     u_move = np.empty(n_moving * (1 + per_draw))
     for j in range(u_move.size):
         u_move[j] = draw_double(f64, state)
-    starts = np.zeros(n_starting, dtype=np.int64)
-    if n_states > 1:
-        for j in range(n_starting):
-            starts[j] = bounded(u32, state, n_states - 1)
+    starts = np.zeros(n_drawn, dtype=np.int64)
+    if tables.n_states > 1:
+        for j in range(n_drawn):
+            starts[j] = bounded(u32, state, tables.n_states - 1)
     u_start = np.empty(n_starting * per_draw)
     for j in range(u_start.size):
         u_start[j] = draw_double(f64, state)
-    kf, wf, mf = keys.reshape(keys.size), w.reshape(w.size), meta.reshape(meta.size)
+    kf, wf, mf = tables.keys.reshape(tables.keys.size), w.reshape(w.size), tables.meta.reshape(tables.meta.size)
     lf, pf, bf, of = liks.reshape(liks.size), posts.reshape(posts.size), beliefs.reshape(beliefs.size), out.reshape(out.size)
-    cf, tf, vf = cum.reshape(cum.size), total.reshape(total.size), values.reshape(values.size)
+    cf, tf, vf = cum.reshape(cum.size), tables.total.reshape(tables.total.size), tables.values.reshape(tables.values.size)
     scratch = np.empty(K)
     jm = 0
+    jd = 0
     js = 0
     bad = -1
     for i in range(n):
@@ -157,18 +170,20 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
             rd = draw_reading(kind, cf, tf, vf, R, m * S + s, u_move, n_moving + jm * per_draw)
             readings[i] = rd
             z = stencil(bf, oi, wf, _U((m * A + a) * K * hw), mf, _U((m * A + a) * 5 * K), K,
-                         lf, _U((m * n_read + rd) * lsize), of, oi, n_layers, hw, layered, 1)
+                        lf, _U((m * n_read + rd) * lsize), of, oi, n_layers, hw, layered, 1)
             if not (z > 0.0 and z < np.inf) and bad < 0:
                 bad = i
             jm += 1
-        elif mode == 1:
-            idx = starts[js]
-            layer = idx // n_free
-            cell = idx - layer * n_free
-            states[i, 0] = layer
-            states[i, 1] = free_cells[m, cell, 0]
-            states[i, 2] = free_cells[m, cell, 1]
-            s = (layer * hw if layered else 0) + states[i, 1] * width + states[i, 2]
+        elif mode == 1 or mode == 3:
+            if mode == 1:
+                idx = starts[jd]
+                layer = idx // n_free
+                cell = idx - layer * n_free
+                states[i, 0] = layer
+                states[i, 1] = free_cells[m, cell, 0]
+                states[i, 2] = free_cells[m, cell, 1]
+                jd += 1
+            s = (states[i, 0] * hw if layered else 0) + states[i, 1] * width + states[i, 2]
             rd = draw_reading(kind, cf, tf, vf, R, m * S + s, u_start, js * per_draw)
             readings[i] = rd
             if possible[m, rd]:
@@ -181,10 +196,11 @@ def vector_advance(keys, w, meta, width, n_layers, layered, liks, kind, cum, tot
         else:
             for c in range(_U(size)):
                 of[oi + c] = bf[oi + c]
-    if read:
-        batch_readout(out, n_layers, pose, width, states, threshold, rscratch, kept, ints, confidence, estimate, flags, observed)
-        if end:
-            batch_outcomes(flags[0], confidence, restarted, elapsed, limit, fixed_length, belief_reward, rewards, ends)
+    rows.current[0] = 1 - cur
+    batch_readout(out, n_layers, blocks.pose, width, states, blocks.threshold, blocks.scratch, blocks.kept, blocks.ints,
+                  blocks.confidence, blocks.estimate, blocks.flags, blocks.observed)
+    batch_outcomes(modes, blocks.flags[0], blocks.confidence, rows.elapsed, blocks.limit, blocks.fixed_length,
+                   blocks.belief_reward, blocks.rewards, blocks.ends)
     return bad
 
 

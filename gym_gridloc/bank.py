@@ -1,53 +1,81 @@
-"""The native vector environment's whole step of N robots in one compiled call
-(:func:`gym_gridloc._numba_vector.vector_advance`): moves, new episodes and their random draws,
-readings, beliefs, and with the referee's blocks its readout and outcomes.  :class:`VectorBank`
-holds each robot's model (the tables of models of one size stacked, one slot each;
-:meth:`VectorBank.draw_maps`: the new episodes' small mazes drawn in the same call, a table from
-code to slot); :func:`vector_advancer` is a bank of one.  The same draws and numbers as the
-engine's functions called in turn (:mod:`gym_gridloc.engine` re-exports these names).
+"""The compiled step of N robots, each on its own model (:class:`VectorBank`: the tables of
+models of one size stacked, one slot each; :meth:`VectorBank.draw_maps`: the new episodes' small
+mazes drawn in the same call, a table from code to slot), and the robots it steps (:class:`Rows`).
+One call (:func:`gym_gridloc._numba_vector.vector_advance`, on named structures) moves, reads and
+filters the N, starts the episodes that start, with their random draws, and fills the referee's
+blocks.  :mod:`gym_gridloc.batch` calls it, or its numpy reference, behind one function; the same
+draws and numbers as the engine's functions called in turn (:mod:`gym_gridloc.engine`
+re-exports these names).
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
 from gym_gridloc import derived, kernels
 from gym_gridloc.core.model import GridModel
 
-__all__ = ["vector_advancer", "vector_bank", "VectorBank"]
+__all__ = ["Rows", "vector_bank", "VectorBank"]
+
+#: What a step does with each row (``modes``, int8): move, read and filter; start an episode at a
+#: drawn state; keep the row as it is; start an episode at the state the row holds.
+STEP, START, KEEP, START_AT = 0, 1, 2, 3
 
 
-def vector_advancer(model: GridModel) -> Callable[..., None] | None:
-    """A vector step of N robots on ``model`` as one compiled call, for the native vector
-    environment: ``(states, readings, actions, beliefs, out, modes, rng)``.  Row ``i``
-    with ``modes[i]`` 0 moves under ``actions[i]``, reads, and ``out[i]`` receives its normalised
-    posterior (:func:`~gym_gridloc.engine.sample_next`, :func:`~gym_gridloc.engine.sample_readings`, :func:`~gym_gridloc.engine.step`); 1 starts an episode
-    (:func:`~gym_gridloc.engine.sample_initial`, :func:`~gym_gridloc.engine.sample_readings`, :func:`~gym_gridloc.engine.first_posterior`); 2 keeps its state,
-    reading and belief.  ``states`` ``(N, 3)`` and ``readings`` (N,) int64 are updated in place
-    (``out`` gets the kept beliefs too); ``actions`` N int64 in
-    ``0..A-1`` (not checked: the caller has); ``modes`` N int8; ``beliefs`` and ``out``
-    C-contiguous float64 ``(N, L*H*W)``, apart.  The same random draws and numbers as those
-    functions called in that order (the moving rows, then the starting rows): a test holds them
-    equal.  None when the model has no compiled path (a large grid, kidnapping, a sensor without
-    :meth:`~gym_gridloc.core.sensors.Sensor.draw_table`, or too many readings for the tables).
-    N robots each on its own model: :class:`VectorBank`."""
-    bank = vector_bank(model, 1)
-    if bank is None:
-        return None
+class Rows:
+    """N robots as the step keeps them, by name: ``states`` (N, 3) int64 (layer, row, col),
+    ``readings`` (N,) int64, ``beliefs`` (2, N, L*H*W) float64, two buffers: ``current[0]``
+    names the one that holds the beliefs (:attr:`belief`; a step writes the other and makes it
+    current), ``slots`` (N,) int64 each robot's model in its bank, ``elapsed`` (N,) int64 the
+    steps of each episode.  :attr:`compiled` is the same arrays as the compiled step takes them."""
 
-    def advance_one_model(states, readings, actions, beliefs, out, modes, rng):
-        bank.advance(states, readings, actions, beliefs, out, modes, rng, np.zeros(modes.size, dtype=np.int64))
+    __slots__ = ("states", "readings", "beliefs", "current", "slots", "elapsed", "_compiled")
 
-    return advance_one_model
+    def __init__(self, n: int, size: int) -> None:
+        self.states, self.readings = np.zeros((n, 3), dtype=np.int64), np.zeros(n, dtype=np.int64)
+        self.beliefs, self.current = np.zeros((2, n, size)), np.zeros(1, dtype=np.int64)
+        self.slots, self.elapsed = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+        self._compiled = None
+
+    @property
+    def belief(self) -> np.ndarray:
+        """The current beliefs, (N, L*H*W) (a view)."""
+        return self.beliefs[self.current[0]]
+
+    @property
+    def spare(self) -> np.ndarray:
+        """The other buffer, which a step writes, (N, L*H*W) (a view)."""
+        return self.beliefs[1 - self.current[0]]
+
+    def flip(self) -> None:
+        """Make the other buffer current (after a step wrote it)."""
+        self.current[0] = 1 - self.current[0]
+
+    @property
+    def compiled(self):
+        """The compiled structure of these arrays (``_numba_structs.ROWS``), made once."""
+        if self._compiled is None:
+            self._compiled = kernels.compiled(1).step_rows(self.states, self.readings, self.beliefs, self.current,
+                                                           self.slots, self.elapsed)
+        return self._compiled
+
+    def __getstate__(self) -> dict:
+        return {k: getattr(self, k) for k in self.__slots__ if k != "_compiled"}
+
+    def __setstate__(self, state: dict) -> None:
+        for k, v in state.items():
+            setattr(self, k, v)
+        self._compiled = None
 
 
-def vector_bank(model: GridModel, n_rows: int) -> "VectorBank | None":
+def vector_bank(model: GridModel, n_rows: int, keep: int | None = None) -> "VectorBank | None":
     """A :class:`VectorBank` for ``n_rows`` robots whose first model is ``model``, or None when
-    ``model`` has no compiled vector step (see :func:`vector_advancer`)."""
+    ``model`` has no compiled step: a large grid, kidnapping, a sensor without
+    :meth:`~gym_gridloc.core.sensors.Sensor.draw_table`, or too many readings for the tables."""
     tables = _vector_tables(model)
-    return None if tables is None else VectorBank(model, n_rows, tables)
+    return None if tables is None else VectorBank(model, n_rows, tables, keep)
 
 
 def _vector_tables(model: GridModel) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]] | None:
@@ -74,65 +102,16 @@ def _vector_tables(model: GridModel) -> tuple[tuple[int, ...], tuple[np.ndarray,
     return scalars, tuple(np.ascontiguousarray(a) for a in arrays)
 
 
-def _vector_function(scalars: tuple[int, ...], stacked: tuple[np.ndarray, ...], model_at: Callable[[int], GridModel],
-                     maze: tuple | None = None, place: Callable[[np.ndarray, np.ndarray, np.ndarray], Callable] | None = None):
-    """The vector step over ``stacked`` tables (a leading slot axis):
-    ``(states, readings, actions, beliefs, out, modes, rng, slots, readout=None, ending=None,
-    maps=False)``; ``model_at(slot)`` names the model in an impossible reading's error.
-    ``readout``: the referee's blocks (:func:`gym_gridloc.referee.readout_blocks`), which the same call fills
-    for every row; ``ending`` (with ``readout``): the referee's :func:`gym_gridloc.referee.ending_blocks`,
-    the same for how each row's step ends; ``maps`` (with ``maze``, a bank's ``(walls, rooms,
-    code slots)``): the starting rows' maps are drawn first, in the same call, and
-    ``place(codes, modes, slots)`` places the models of codes without a slot and returns the
-    bank's step (its tables may have grown), which goes on (:meth:`VectorBank.draw_maps`)."""
-    width, n_layers, layered, kind, per_draw, n_states = scalars
-    keys, w, meta, liks, cum, total, values, free_cells, posts, possible = stacked
-    kernel = kernels.compiled(1).vector_advance
-
-    def advance(states, readings, actions, beliefs, out, modes, rng, slots, readout=None, ending=None, maps=False):
-        bits = rng.bit_generator
-        functions = kernels.bit_functions(bits)
-        pose, threshold, scratch, kept, ints, confidence, estimate, flags, observed = _NO_READOUT if readout is None else readout
-        restarted, elapsed, limit, fixed, belief, rewards, ends = _NO_ENDING if ending is None else ending
-        walls, rooms, code_slots, codes = _NO_MAZE if not maps else (*maze, np.empty(modes.shape[0], dtype=np.int64))
-        with bits.lock:  # (the draws are the generator's: as its own methods, under its lock)
-            bad = kernel(keys, w, meta, width, n_layers, layered, liks, kind, cum, total, values, per_draw,
-                         free_cells, posts, possible, slots, modes, states, actions, beliefs, out, readings, functions, n_states,
-                         walls, rooms, code_slots, codes, readout is not None, pose, threshold, scratch, kept, ints,
-                         confidence, estimate, flags, observed, ending is not None, restarted, elapsed, limit, fixed, belief,
-                         rewards, ends)
-        if bad == -2:  # new maps: their models placed, the rows' slots set; then the rest of the step
-            return place(codes, modes, slots)(states, readings, actions, beliefs, out, modes, rng, slots, readout, ending)
-        if bad >= 0:
-            model = model_at(int(slots[bad]))
-            text = model.sensor.observation_text(int(readings[bad]))
-            raise derived.impossible(model, int(readings[bad]), label=f"observation {text} of belief {bad}")
-
-    return advance
-
-
-#: The ending arguments of a vector step that computes none (the types of the real blocks).
-_NO_ENDING = (np.empty(0, dtype=bool), np.empty(0, dtype=np.int64), 0, False, False, np.empty(0), np.empty((3, 0), dtype=bool))
-#: The map arguments of a vector step that draws no maps (the types of the real ones).
-_NO_MAZE = (np.empty((2, 0), dtype=np.int64), 1, np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64))
-#: The readout arguments of a vector step that reads nothing (the types of the real blocks).
-_NO_READOUT = (False, 0.0, np.empty((2, 0, 1)), np.empty(0, dtype=np.int64), np.empty((5, 0), dtype=np.int64), np.empty(0), np.empty((2, 0, 2), dtype=np.int64),
-               np.empty((2, 0), dtype=bool), np.empty((0, 1), dtype=np.float32))
-
-
 class VectorBank:
-    """The vector step of N robots each on its own model, in one compiled call: the tables of
-    models of the same sizes (the first model's) stacked, one slot per model (the native vector
-    environment with maps redrawn at reset); :func:`vector_bank` makes one.  :meth:`slot` places a model (its tables are copied
-    once; a model already placed keeps its slot); ``advance`` is :func:`vector_advancer`'s
-    step with the row's slots last: ``(states, readings, actions, beliefs, out, modes, rng,
-    slots, readout=None, ending=None, maps=False)``, the same draws and numbers as
-    :func:`vector_advancer` of each row's model (``readout``, ``ending``, ``maps``: see
-    :meth:`draw_maps` and ``_vector_function``).
+    """The compiled step of N robots each on its own model: the tables of models of the same
+    sizes (the first model's) stacked, one slot per model (one model: a bank of one slot);
+    :func:`vector_bank` makes one.  :meth:`slot` places a model (its tables are copied once; a
+    model already placed keeps its slot); :meth:`advance` is the step.
 
-    The bank holds at most ``max(N + 1, BYTES / one model's tables)`` models; when it is full, a
-    new model takes the least recently placed slot that no row uses (N rows use at most N).  It
-    holds its models (strongly: the bank belongs to one vector environment).
+    The bank holds at most ``max(N + 1, BYTES / one model's tables)`` models (``keep``: at most
+    that many, but N + 1); when it is full, a new model takes the least recently placed slot that
+    no row uses (N rows use at most N).  It holds its models (strongly: the bank belongs to one
+    environment).
 
     A bank can also draw the maps of the rows that start an episode, in the step's own call
     (:meth:`draw_maps`: mazes, by their codes, a table from each code to its slot)."""
@@ -142,20 +121,52 @@ class VectorBank:
     #: The most walls of the mazes whose codes :meth:`draw_maps` keeps a table of slots for (2**16 codes: 512 KiB).
     CODE_WALLS = 16
 
-    def __init__(self, model: GridModel, n_rows: int, tables: tuple[tuple[int, ...], tuple[np.ndarray, ...]]) -> None:
+    def __init__(self, model: GridModel, n_rows: int, tables: tuple[tuple[int, ...], tuple[np.ndarray, ...]],
+                 keep: int | None = None) -> None:
         self.scalars, arrays = tables
         self.signature = self._signature(tables)
         per_model = sum(a.nbytes for a in arrays)
-        self.limit = max(n_rows + 1, min(self.BYTES // max(per_model, 1), 4096))
+        self.limit = max(n_rows + 1, min(self.BYTES // max(per_model, 1), 4096, keep or 4096))
+        self.n_rows = n_rows
         self.models: list[GridModel | None] = []
         self._slot_of: dict[int, int] = {}
         self._placed = np.zeros(0, dtype=np.int64)  # when each slot was last placed (its model asked for)
         self._clock = 0
         self._stacked = tuple(np.empty((0, *a.shape), dtype=a.dtype) for a in arrays)
-        self._maze: tuple | None = None  # (walls, rooms, code -> slot) of draw_maps
+        self._maze: tuple | None = None  # (walls, rooms, code -> slot, codes drawn) of draw_maps
         self._model_of_code: Callable[[int], GridModel] | None = None
         self._slot_codes: dict[int, int] = {}  # slot -> the code its model was placed for
         self._place(model, tables, np.zeros(0, dtype=np.int64))
+
+    def advance(self, rows: Rows, actions: np.ndarray, modes: np.ndarray, rng: np.random.Generator, blocks: Any,
+                maps: bool = False) -> None:
+        """One step of the N ``rows`` (:class:`Rows`, ``rows.slots`` each one's model), in one
+        compiled call: row ``i`` with ``modes[i]`` (int8) ``STEP`` moves under ``actions[i]``
+        (int64 in ``0..A-1``, not checked: the caller has; those of other rows are not read),
+        reads and filters; ``START`` starts an episode (a state drawn uniformly); ``START_AT``
+        starts one at its state ``rows.states[i]``; ``KEEP`` keeps its state, reading and
+        belief (``rows.elapsed`` too).  Random numbers from ``rng``'s bit generator, as
+        ``Generator.random`` and ``Generator.integers`` draw them: the moving rows' moves, then
+        their readings, the drawn starts, the starting rows' readings.  ``blocks``
+        (:class:`gym_gridloc.referee.Blocks`) receive the referee's readout and how each step ended.
+        ``maps`` (after :meth:`draw_maps`): the starting rows' maps are drawn first, from the same
+        generator, and each row's slot set (new codes' models placed by Python between two
+        calls).  An impossible reading raises (it cannot happen to readings drawn from the model)."""
+        bits = rng.bit_generator
+        if bits is not self._bits:  # (the addresses of the last bit generator are kept)
+            self._bits, self._functions = bits, kernels.bit_functions(bits)
+        functions, fast = self._functions, self._fast
+        if maps:
+            with bits.lock:  # (the draws are the generator's: as its own methods, under its lock)
+                missing = fast.draw_maps(self._maze_struct, rows.slots, modes, functions)
+            if missing:
+                self._place_codes(self._maze[3], modes, rows.slots)
+        with bits.lock:
+            bad = fast.vector_advance(self._tables, rows.compiled, actions, modes, blocks.compiled, functions)
+        if bad >= 0:
+            model = self.models[int(rows.slots[bad])]
+            reading = int(rows.readings[bad])
+            raise derived.impossible(model, reading, label=f"observation {model.sensor.observation_text(reading)} of belief {bad}")
 
     def draw_maps(self, walls: np.ndarray, rooms: int, model_of_code: Callable[[int], GridModel]) -> bool:
         """Let ``advance(..., maps=True)`` draw the starting rows' maps in the step's own call:
@@ -165,20 +176,19 @@ class VectorBank:
         ``model_of_code(code)``, placed when its code first comes (its slot then kept in a table
         of every code).  False, and nothing changes, when the table would be too large (more than
         :data:`CODE_WALLS` walls)."""
-        walls = np.ascontiguousarray(walls, dtype=np.int64)
+        walls = np.array(walls, dtype=np.int64, order="C")  # (a writable copy: the compiled structure's type)
         if walls.ndim != 2 or walls.shape[0] != 2 or walls.shape[1] > self.CODE_WALLS:
             return False
-        self._maze = (walls, int(rooms), np.full(1 << walls.shape[1], -1, dtype=np.int64))
+        self._maze = (walls, int(rooms), np.full(1 << walls.shape[1], -1, dtype=np.int64), np.empty(self.n_rows, dtype=np.int64))
         self._model_of_code = model_of_code
         self._bind()
         return True
 
-    def _place_codes(self, codes: np.ndarray, modes: np.ndarray, slots: np.ndarray) -> Callable:
+    def _place_codes(self, codes: np.ndarray, modes: np.ndarray, slots: np.ndarray) -> None:
         """The slots of the starting rows (``modes`` 1, in order) for their maps' ``codes``:
-        each code's model placed if its code has no slot yet (the other rows' slots kept).
-        Returns the bank's step (bound again if the tables grew)."""
+        each code's model placed if its code has no slot yet (the other rows' slots kept)."""
         table = self._maze[2]
-        for i, code in zip(np.flatnonzero(modes == 1).tolist(), codes.tolist()):
+        for i, code in zip(np.flatnonzero(modes == START).tolist(), codes.tolist()):
             s = int(table[code])
             if s < 0:
                 s = self.slot(self._model_of_code(code), slots)
@@ -187,7 +197,6 @@ class VectorBank:
                 table[code] = s
                 self._slot_codes[s] = code
             slots[i] = s
-        return self.advance
 
     @staticmethod
     def _signature(tables) -> tuple:
@@ -237,10 +246,14 @@ class VectorBank:
         return int(np.argmin(placed))
 
     def _bind(self) -> None:
-        self.advance = _vector_function(self.scalars, self._stacked, lambda s: self.models[s], self._maze, self._place_codes)
+        """The compiled structures of the tables (and the maze), made again when the tables grow."""
+        self._fast = fast = kernels.compiled(1)
+        self._bits = self._functions = None
+        self._tables = fast.step_tables(*self._stacked, *(int(x) for x in self.scalars))
+        self._maze_struct = None if self._maze is None else fast.step_maze(*self._maze)
 
     def __getstate__(self) -> dict:
-        return {k: v for k, v in self.__dict__.items() if k not in ("advance", "_slot_of")}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_tables", "_maze_struct", "_slot_of", "_fast", "_bits", "_functions")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)

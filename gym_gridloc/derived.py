@@ -35,12 +35,10 @@ class Derived:
         self.liks: dict[int, np.ndarray] = {}
         self._lik_bytes = 0
         self.layered = int(model.sensor.layered)
-        #: The engine's bound functions of this model: steppers (by ``normalise``), the sampler, the advancer.
+        #: The engine's bound functions of this model: steppers (by ``normalise``).
         self.steppers: dict[bool, Any] = {}
-        self.sampler: Any = None
         self._first: tuple[np.ndarray, np.ndarray] | None = None
         self._first_asked = False  # a model used once (a map of one episode) never builds the table
-        self.advancer: Any = None
         #: One state's outcomes under one action, keyed ``(action, layer, row, col)``:
         #: ``(cumulative probabilities, last possible outcome)`` (one-state draws).
         self.outcomes: dict[tuple[int, int, int, int], tuple[tuple[float, ...], int]] = {}

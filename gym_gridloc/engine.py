@@ -15,11 +15,11 @@ the particle filter, smoothing and Viterbi, and the lookahead policies.
 * :func:`sample_initial`, :func:`sample_next`, :func:`sample_readings`, :func:`simulate` -- the
   simulator's side, batched: states are ``(N, 3)`` int64 arrays of ``(layer, row, col)``
   (:mod:`gym_gridloc.sampling`, re-exported here).
-* :func:`stepper`, :func:`sampler`, :func:`advancer`, :func:`vector_advancer` -- bound functions
-  for hot loops: one belief's step, one robot's move and reading, N robots moved, read and
-  filtered at once, and a vector step of N robots (moves, new episodes, readings, beliefs) as
-  one compiled call; :class:`VectorBank`, the same step with each robot on its own model
-  (:mod:`gym_gridloc.bank`, re-exported here).
+* :func:`stepper` -- a bound function for hot loops: one belief's step (the filter's).
+* :class:`VectorBank` (:func:`vector_bank`) -- the compiled step of N robots (:class:`Rows`: moves,
+  new episodes, readings, beliefs, the referee's readout) in one call, each robot on its own model
+  (:mod:`gym_gridloc.bank`, re-exported here); :class:`gym_gridloc.batch.Batch` calls it, or these
+  functions as its numpy reference.
 
 Kidnapping (``model.kidnap_prob``: after a move, the robot is teleported to a uniformly chosen free
 state) is mixed in here and nowhere else: :func:`predict` and :func:`backward` mix it into the
@@ -41,15 +41,15 @@ from typing import Any, Callable
 import numpy as np
 
 from gym_gridloc import derived, kernels, sampling
-from gym_gridloc.bank import VectorBank, vector_advancer, vector_bank
+from gym_gridloc.bank import Rows, VectorBank, vector_bank
 from gym_gridloc.core.grid import read_only
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.derived import action_indices, checked_model, impossible, likelihoods, path, plan, terms
-from gym_gridloc.sampling import OUTCOMES_CACHED, sample_initial, sample_next, sample_readings, sampler, simulate, states_of
+from gym_gridloc.sampling import OUTCOMES_CACHED, sample_initial, sample_next, sample_readings, simulate, states_of
 
 __all__ = [
     "predict", "update", "step", "backward", "kidnapped", "transition_matrix", "likelihood", "likelihoods", "impossible", "plan",
-    "first_posterior", "sample_initial", "sample_next", "sample_readings", "sampler", "stepper", "advancer", "vector_advancer", "vector_bank", "VectorBank", "states_of", "simulate", "action_indices", "path", "terms",
+    "first_posterior", "sample_initial", "sample_next", "sample_readings", "stepper", "vector_bank", "VectorBank", "Rows", "states_of", "simulate", "action_indices", "path", "terms",
     "checked_model", "OUTCOMES_CACHED",
 ]
 
@@ -256,8 +256,8 @@ def stepper(model: GridModel, *, normalise: bool = True) -> Callable[[np.ndarray
     """:func:`step` for one belief as a bound function ``(belief, action, reading, out) -> z``,
     for hot loops (the single filter): ``belief`` and ``out`` C-contiguous float64 arrays of the
     belief's ``L*H*W`` values, ``(L, H, W)`` or flat (not checked), ``action`` an int or None,
-    ``reading`` an int.  Normalising multiplies by ``1.0 / z`` (both kernels), except with
-    kidnapping, which divides by ``z``; :class:`~gym_gridloc.ForwardFilter` relies on it."""
+    ``reading`` an int.  Normalising multiplies by ``1.0 / z`` (every kernel, and the mixing of
+    kidnapping): :class:`~gym_gridloc.ForwardFilter` relies on it."""
     d = derived.of(model)
     if normalise not in d.steppers:
         d.steppers[normalise] = _make_stepper(model, d, normalise)
@@ -306,53 +306,3 @@ def _no_liks(n: int) -> np.ndarray:
 @functools.cache
 def _all(n: int) -> np.ndarray:
     return read_only(np.ones(n, dtype=bool))
-
-
-def advancer(model: GridModel) -> Callable[..., tuple[np.ndarray, np.ndarray]]:
-    """:func:`sample_next`, :func:`sample_readings` and :func:`step` for N robots and their
-    beliefs as one bound function, for hot loops (the native vector environment):
-    ``(states, actions, beliefs, out, rng) -> (next states, readings)``.  ``states`` ``(N, 3)``
-    int64, ``actions`` N int64 actions in ``0..A-1`` (not checked: the caller has), ``beliefs``
-    and ``out`` C-contiguous float64 ``(N, L*H*W)``, apart; ``out`` receives the normalised
-    posteriors.  The same random draws and numbers as the three functions; an impossible reading
-    raises as :func:`step` does (it cannot happen to readings drawn from the model)."""
-    d = derived.of(model)
-    if d.advancer is None:
-        d.advancer = _make_advancer(model, d)
-    return d.advancer
-
-
-def _make_advancer(model: GridModel, d: derived.Derived):
-    fast = kernels.compiled(model.n_layers * model.shape[0] * model.shape[1])
-    plan_ = d.plan
-    model_ref = weakref.ref(model)  # (the model's cache keeps this function)
-    if fast is None or model.kidnap_prob > 0.0 or not isinstance(plan_, kernels.NumbaPlan):
-        del model
-
-        def advance_generic(states, actions, beliefs, out, rng):
-            m = model_ref()
-            nxt = sampling.sample_next(m, states, actions, rng)
-            readings = sampling.sample_readings(m, nxt, rng)
-            shape = (-1, *m.belief_shape)
-            step(m, beliefs.reshape(shape), actions, readings, out=out.reshape(shape))
-            return nxt, readings
-
-        return advance_generic
-    weights, keys = d.moves
-    width, layered, n_layers = model.shape[1], d.layered, model.n_layers
-    sample, liks_of = model.sensor.sample, model.sensor.likelihoods
-    w, meta, batch, moves = plan_.w, plan_.meta, fast.batch_update, fast.sample_moves
-    del model
-
-    def advance(states, actions, beliefs, out, rng):
-        n = states.shape[0]
-        nxt = np.empty((n, 3), dtype=np.int64)
-        moves(weights, keys, actions, states, rng.random(n), width, nxt)
-        readings = sample(nxt, rng)
-        z = np.empty(n)
-        batch(beliefs, w, meta, actions, liks_of(readings), layered, out, n_layers, 1, _all(n), z)
-        if not ((z > 0.0) & (z < math.inf)).all():  # (NaN fails both)
-            derived.check_z(model_ref(), z, readings)
-        return nxt, readings
-
-    return advance

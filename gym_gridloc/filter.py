@@ -75,6 +75,7 @@ class ForwardFilter:
         self._f: np.ndarray | None = None
         self._spare: np.ndarray | None = None  # the other buffer: steps alternate between the two
         self._scale = 1.0  # the belief is self._f * self._scale (see step)
+        self._lent: np.ndarray | None = None  # a belief shown, not owned: never written (see _show)
         self.log_likelihood = 0.0
 
     # -- the API ---------------------------------------------------------------------------------
@@ -93,7 +94,7 @@ class ForwardFilter:
         out = self._spare
         if out is None or out is f or out.shape != f.shape:
             out = np.empty_like(f)
-        self._f, self._spare = engine.predict(self.model, f, action, out=out), f
+        self._f, self._spare = engine.predict(self.model, f, action, out=out), None if f is self._lent else f
         return self
 
     def update(self, observation: Any = None, *, reading: int | None = None) -> "ForwardFilter":
@@ -121,21 +122,27 @@ class ForwardFilter:
         if self._step_now is not None:  # normalised in the pass (times 1 / z, as on a read)
             zz = self._step_now(before, action, reading, out)
             self.log_likelihood += math.log(zz * self._scale)
-            self._f, self._spare, self._scale = out, before, 1.0
+            self._f, self._spare, self._scale = out, None if before is self._lent else before, 1.0
             return self
         zz = self._step(before, action, reading, out)
         # Normalised lazily: the next read (or step) multiplies by 1/z, a pass that a loop of
         # steps without reads never pays; the log likelihood carries the deferred scale.
         self.log_likelihood += math.log(zz * self._scale)
-        self._f, self._spare, self._scale = out, before, 1.0 / zz
+        self._f, self._spare, self._scale = out, None if before is self._lent else before, 1.0 / zz
         if zz < 1e-150:  # keep the raw numbers far from underflow
             self._belief()
         return self
 
+    def _show(self, belief: np.ndarray) -> None:
+        """Hold ``belief`` (an (L, H, W) float64 array that its owner writes: an environment's
+        posterior) as this filter's normalised belief, without a copy; the filter's own steps
+        never write into it."""
+        self._f, self._spare, self._scale, self._lent = belief, None, 1.0, belief
+
     def _bind(self) -> None:
-        """The engine's bound functions (rebuilt on load).  ``_step_now`` normalises in the pass:
-        only without kidnapping, where the engine's normalised step multiplies by ``1 / z``
-        exactly as a read does (its kidnapping step divides)."""
+        """The engine's bound functions (rebuilt on load).  ``_step_now`` normalises in the pass
+        (the engine's normalised step multiplies by ``1 / z``, exactly as a read does), without
+        kidnapping (whose step normalises in a pass of its own either way)."""
         self._step = engine.stepper(self.model, normalise=False)
         eager = self.read_every_step and self.model.kidnap_prob == 0.0
         self._step_now = engine.stepper(self.model, normalise=True) if eager else None
@@ -148,6 +155,7 @@ class ForwardFilter:
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         self.__dict__.setdefault("read_every_step", False)
+        self.__dict__.setdefault("_lent", None)
         self._bind()
 
     # -- reading the belief -----------------------------------------------------------------------

@@ -122,12 +122,13 @@ def _sums_in_one_piece() -> bool:
 
 def weigh(out, liks, layered: int, n_layers: int, mode: int) -> np.ndarray:
     """Multiply N predicted flat beliefs ``out`` ``(N, L*H*W)`` by their likelihoods ``liks``, in
-    place (mode 1: and normalise each whose sum is positive and finite); returns the sums."""
+    place (mode 1: and normalise each whose sum is positive and finite, times ``1 / z`` as every
+    kernel normalises); returns the sums."""
     view = out if layered else out.reshape(out.shape[0], n_layers, -1)
     view *= liks if layered else liks[:, None, :]
     z = out.sum(axis=1)
     if mode == 1:
-        out /= np.where((z > 0.0) & np.isfinite(z), z, 1.0)[:, None]
+        out *= (1.0 / np.where((z > 0.0) & np.isfinite(z), z, 1.0))[:, None]
     return z
 
 

@@ -1,8 +1,10 @@
 """The referee: what an episode reports, and when it ends, from the exact posterior.
 
-The single environment and the native vector environment build ``info``, the reward and the
-termination with these functions: :func:`summarise` for a batch of N, :func:`summary` for one
-belief (the same numbers, on scalars; a test holds them equal).
+The step of N robots (:mod:`gym_gridloc.batch`: the single environment is its N = 1 view, the
+native vector environment its N view) builds ``info``, the reward and the termination with these
+functions, :func:`readout` (:func:`summarise`) and :func:`outcomes`, or has the compiled step fill
+the same numbers in its call (:class:`Blocks`); :func:`scalars` gives one row as the single
+environment reports it.
 """
 
 from __future__ import annotations
@@ -110,93 +112,142 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
     numpy sums longer ones): the same numbers (``tests/test_readout.py``)."""
     n, L, h, w = beliefs.shape
     st = np.ascontiguousarray(states, dtype=np.int64)
-    blocks = readout_blocks(n, h * w, threshold, pose)
-    fast.batch_readout(beliefs.reshape(n, -1), L, blocks[0], w, st, *blocks[1:])
-    return read_blocks(blocks, L)
+    b = Blocks(n, h * w, threshold, pose)
+    fast.batch_readout(beliefs.reshape(n, -1), L, b.pose, w, st, b.threshold, b.scratch, b.kept, b.ints, b.confidence,
+                       b.estimate, b.flags, b.observed)
+    return b.infos(L)
 
 
-def readout_blocks(n: int, cells: int, threshold: float, pose: bool, *, observed: bool = False) -> tuple:
-    """What the compiled readout of N beliefs of ``cells`` positions fills, with its two
-    parameters: ``(pose, threshold, scratch, kept, ints, confidence, estimate, flags, observed)``
-    (``_numba_readout.batch_readout``'s, or the engine's vector step's with them); then
-    :func:`read_blocks` gives the infos.  ``observed``: the readout also writes the observed
-    position beliefs (float32 (N, cells), as ``observation.observed_belief`` makes them) in the
-    last block (else it has no rows).  Few allocations: blocks whose rows are the arrays (a
-    vector env pays them at every step)."""
-    return (bool(pose), float(threshold), np.empty((2, n, cells)), np.empty(n * cells, dtype=np.int64),
-            np.empty((5, n), dtype=np.int64), np.empty(n),
-            np.empty((2, n, 2), dtype=np.int64), np.empty((2, n), dtype=bool),
-            np.empty((n if observed else 0, cells), dtype=np.float32))
+class Blocks:
+    """What the compiled step fills for the referee (``_numba_vector.vector_advance``), for N
+    rows of beliefs of ``cells`` positions, with the rules it follows: the readout of
+    :func:`readout` and how each step ends (:func:`outcomes`).  Rules: ``threshold`` and
+    ``pose`` (as :func:`summarise`'s), ``kind`` (the reward, :data:`REWARDS`), ``limit`` (the step
+    count that truncates; None: never), ``fixed_length`` (episodes end by truncation only).
+    Blocks: ``scratch`` (2, N, cells) the position beliefs and the entropy's log2 arguments,
+    ``kept`` the cells of those arguments, ``ints`` (5, N) the tested index, the estimated layer,
+    the error, where each row's arguments end and the true layer, ``confidence``, ``estimate``
+    (2, N, 2) the estimated and true positions, ``flags`` (2, N) localised and success,
+    ``observed`` (float32 (N, cells) with ``observed``: the observation's position beliefs, as
+    ``observation.observed_belief`` makes them; else no rows), ``rewards`` and ``ends`` (3, N)
+    terminated, truncated and their or.  :meth:`infos` and :meth:`outcomes` read them (copied
+    for a caller that keeps them: a vector env's infos are its caller's).  Few allocations (blocks
+    whose rows are the arrays); the compiled structure of the blocks is made once."""
+
+    __slots__ = ("pose", "threshold", "limit", "fixed_length", "belief_reward", "scratch", "kept", "ints", "confidence",
+                 "estimate", "flags", "observed", "rewards", "ends", "_compiled", "_views")
+
+    def __init__(self, n: int, cells: int, threshold: float, pose: bool, *, kind: str = "step", limit: int | None = None,
+                 fixed_length: bool = False, observed: bool = False) -> None:
+        self.pose, self.threshold, self.limit = bool(pose), float(threshold), int(limit or 0)
+        self.fixed_length, self.belief_reward = bool(fixed_length), kind == "belief"
+        self.scratch, self.kept = np.empty((2, n, cells)), np.empty(n * cells, dtype=np.int64)
+        self.ints, self.confidence = np.empty((5, n), dtype=np.int64), np.empty(n)
+        self.estimate, self.flags = np.empty((2, n, 2), dtype=np.int64), np.empty((2, n), dtype=bool)
+        self.observed = np.empty((n if observed else 0, cells), dtype=np.float32)
+        self.rewards, self.ends = np.empty(n), np.empty((3, n), dtype=bool)
+        self._compiled = self._views = None
+
+    @property
+    def compiled(self):
+        """The compiled structure of these blocks (``_numba_structs.BLOCKS``), made once."""
+        if self._compiled is None:
+            self._compiled = kernels.compiled(1).referee_blocks(
+                self.pose, self.threshold, self.limit, self.fixed_length, self.belief_reward, self.scratch, self.kept,
+                self.ints, self.confidence, self.estimate, self.flags, self.observed, self.rewards, self.ends)
+        return self._compiled
+
+    def __getstate__(self) -> dict:
+        return {k: getattr(self, k) for k in self.__slots__ if k not in ("_compiled", "_views")}
+
+    def __setstate__(self, state: dict) -> None:
+        for k, v in state.items():
+            setattr(self, k, v)
+        self._compiled = self._views = None
+
+    def infos(self, n_layers: int, *, copy: bool = False) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """:func:`readout`'s infos and position beliefs from the filled blocks of beliefs of
+        ``n_layers`` layers (the readout copied the true positions and headings): numpy's log2 (of
+        the positive probabilities only: the others' terms are zeros), then the entropies.
+        ``copy``: the infos are copies, the caller's to keep (the blocks are filled again)."""
+        pos, q = self.scratch
+        n, cells = pos.shape
+        ints = self.ints.copy() if copy else self.ints
+        _, layer, error, _, heading = ints
+        ends = self.ints[3]
+        if cells <= COMPILED_ENTROPY_CELLS:
+            ent = np.empty(n)
+            q = q.reshape(-1)[:ends[-1]]
+            kernels.compiled(1).batch_entropy(pos, np.log2(q, out=q), self.kept, ends, ent)
+        else:
+            ent = entropy(pos)
+        localised, success = self.flags.copy() if copy else self.flags
+        estimate, position = self.estimate.copy() if copy else self.estimate
+        confidence = self.confidence.copy() if copy else self.confidence
+        info = {"position": position, "estimate": estimate, "confidence": confidence, "error": error,
+                "localised": localised, "success": success, "entropy": ent}
+        if n_layers > 1:
+            info["heading"] = heading
+        if self.pose:
+            info["estimate_heading"] = layer
+        return info, pos
+
+    def outcomes(self, *, copy: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(rewards, terminated, truncated, done)`` of the filled blocks (``copy``: copies)."""
+        ends = self.ends.copy() if copy else self.ends
+        return self.rewards.copy() if copy else self.rewards, ends[0], ends[1], ends[2]
+
+    def one(self, n_layers: int) -> dict[str, Any]:
+        """:meth:`infos` of blocks of ONE row as the single environment reports them
+        (:func:`scalars`: the same numbers), read from the blocks directly (no arrays of rows:
+        the single environment pays this at every step)."""
+        if self._views is None:  # (the blocks are filled again at every step: their views are kept)
+            self._views = (self.scratch[0], self.scratch[1].reshape(-1), self.ints[3], np.empty(1))
+        pos, q, ends, ent = self._views
+        cells = pos.shape[1]
+        if cells <= COMPILED_ENTROPY_CELLS:
+            q = q[:ends.item(0)]
+            kernels.compiled(1).batch_entropy(pos, np.log2(q, out=q), self.kept, ends, ent)
+            h = ent.item(0)
+        else:
+            h = entropy(pos).item(0)
+        ints, est, flags = self.ints, self.estimate, self.flags
+        info = {"position": (est.item(1, 0, 0), est.item(1, 0, 1)), "estimate": (est.item(0, 0, 0), est.item(0, 0, 1)),
+                "confidence": self.confidence.item(0), "error": ints.item(2, 0), "localised": flags.item(0, 0),
+                "success": flags.item(1, 0), "entropy": h}
+        if n_layers > 1:
+            info["heading"] = ints.item(4, 0)
+        if self.pose:
+            info["estimate_heading"] = ints.item(1, 0)
+        return info
 
 
-def read_blocks(blocks: tuple, n_layers: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """:func:`readout`'s infos and position beliefs from the filled :func:`readout_blocks` of
-    beliefs of ``n_layers`` layers (the readout copied the true positions and headings): numpy's
-    log2 (of the positive probabilities only: the others' terms are zeros), then the entropies."""
-    pose, _, scratch, kept, ints, confidence, estimates, flags, _ = blocks
-    pos, q = scratch
-    n, cells = pos.shape
-    _, layer, error, ends, heading = ints
-    if cells <= COMPILED_ENTROPY_CELLS:
-        ent = np.empty(n)
-        q = q.reshape(-1)[:ends[-1]]
-        kernels.compiled(1).batch_entropy(pos, np.log2(q, out=q), kept, ends, ent)
-    else:
-        ent = entropy(pos)
-    localised, success = flags
-    estimate, position = estimates
-    info = {"position": position, "estimate": estimate, "confidence": confidence, "error": error,
-            "localised": localised, "success": success, "entropy": ent}
-    if n_layers > 1:
-        info["heading"] = heading
-    if pose:
-        info["estimate_heading"] = layer
-    return info, pos
+def scalars(info: dict[str, np.ndarray], i: int) -> dict[str, Any]:
+    """Row ``i`` of N environments' infos (:func:`summarise`) as the single environment reports
+    it: tuples for positions, Python ``int``/``float``/``bool`` for the rest (the same numbers)."""
+    est, pos = info["estimate"], info["position"]
+    out = {
+        "position": (pos.item(i, 0), pos.item(i, 1)),
+        "estimate": (est.item(i, 0), est.item(i, 1)),
+        "confidence": info["confidence"].item(i),
+        "error": info["error"].item(i),
+        "localised": info["localised"].item(i),
+        "success": info["success"].item(i),
+        "entropy": info["entropy"].item(i),
+    }
+    if "heading" in info:
+        out["heading"] = info["heading"].item(i)
+    if "estimate_heading" in info:
+        out["estimate_heading"] = info["estimate_heading"].item(i)
+    return out
 
 
 def summary(belief: np.ndarray, state: np.ndarray, threshold: float, *, pose: bool = False) -> dict[str, Any]:
     """:func:`summarise` for one belief ``(L, H, W)`` and its true state ``(3,)``, as the single
-    environment reports it: tuples for positions, Python ``int``/``float``/``bool`` for the rest.
-    The same numbers as row 0 of :func:`summarise` (a test holds them equal), computed on scalars:
-    the single environment pays this on every step."""
-    L, h, w = belief.shape
-    hw = h * w
-    flat = belief.reshape(-1)
-    fast = kernels.compiled(flat.size) if flat.dtype.char == "d" and flat.flags.c_contiguous else None
-    if fast is not None:  # small beliefs: one compiled pass, numpy's log2 (the same numbers)
-        q = np.empty(hw)
-        pos = flat if L == 1 else np.empty(hw)  # (one layer: the kernel writes the same values back)
-        k = fast.readout(flat, L, pose, pos, q)
-        confidence = flat.item(k) if pose else pos.item(k)
-        ent = fast.entropy_sum(pos, np.log2(q, out=q)) if hw <= COMPILED_ENTROPY_CELLS else float(entropy(pos))
-    else:
-        pos = flat if L == 1 else belief.sum(axis=0).reshape(-1)
-        tested = flat if pose else pos
-        k = int(tested.argmax())
-        confidence = float(tested[k])
-        ent = float(entropy(pos))
-    layer, cell = divmod(k, hw)
-    estimate = divmod(cell, w)
-    truth_layer, row, col = state.tolist() if isinstance(state, np.ndarray) else state
-    if not (type(truth_layer) is int and type(row) is int and type(col) is int):
-        truth_layer, row, col = int(truth_layer), int(row), int(col)
-    error = abs(estimate[0] - row) + abs(estimate[1] - col)
-    localised = confidence >= threshold
-    right = error == 0 and (not pose or layer == truth_layer)
-    info = {
-        "position": (row, col),
-        "estimate": estimate,
-        "confidence": confidence,
-        "error": error,
-        "localised": localised,
-        "success": localised and right,
-        "entropy": ent,
-    }
-    if L > 1:
-        info["heading"] = truth_layer
-    if pose:
-        info["estimate_heading"] = layer
-    return info
+    environment reports it (:func:`scalars`)."""
+    b = np.ascontiguousarray(belief, dtype=np.float64)
+    st = np.asarray(state, dtype=np.int64).reshape(1, 3)
+    return scalars(summarise(b[None], st, threshold, pose=pose), 0)
 
 
 _MASK_NAMES: dict[tuple, tuple[tuple[str, ...], np.ndarray]] = {}  # (info's keys, N) -> the mask keys, a block of ones
@@ -213,35 +264,14 @@ def masked(info: dict[str, np.ndarray], mask: np.ndarray | None) -> dict[str, np
     return out
 
 
-def ending_blocks(kind: str, restarted: np.ndarray, elapsed: np.ndarray, limit: int | None, fixed_length: bool) -> tuple:
-    """:func:`outcomes`'s arguments and outputs as a compiled step takes them (the engine's vector
-    step computes them beside its readout): ``(restarted, elapsed, limit, fixed_length,
-    belief_reward, rewards, flags)``; :func:`ended` gives ``(rewards, terminated, truncated,
-    done)`` from them."""
-    n = elapsed.shape[0]
-    return restarted, elapsed, int(limit or 0), bool(fixed_length), kind == "belief", np.empty(n), np.empty((3, n), dtype=bool)
-
-
-def ended(blocks: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(rewards, terminated, truncated, done)`` of filled :func:`ending_blocks`."""
-    rewards_, flags = blocks[5], blocks[6]
-    return rewards_, flags[0], flags[1], flags[2]
-
-
 def outcomes(kind: str, info: dict[str, np.ndarray], restarted: np.ndarray, elapsed: np.ndarray, limit: int | None,
-             fixed_length: bool, *, cells: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+             fixed_length: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """How N steps end, from the referee's ``info`` (:func:`summarise`): ``(rewards, terminated,
     truncated, done)``.  ``restarted`` (N booleans): the environments that started an episode
     instead of stepping (reward 0.0, never terminated); ``elapsed`` (N,) int64 the episodes'
     step counts, advanced here (+1, or 0 where restarted); ``limit``: the count
-    that truncates (None: never); ``fixed_length``: episodes end by truncation only.  ``cells``:
-    the size of a belief (L*H*W), which decides, as for :func:`summarise`, whether one compiled
-    pass does it (the same numbers)."""
-    fast = None if cells is None else kernels.compiled(cells)
-    if fast is not None:
-        blocks = ending_blocks(kind, restarted, elapsed, limit, fixed_length)
-        fast.batch_outcomes(info["localised"], info["confidence"], *blocks)
-        return ended(blocks)
+    that truncates (None: never); ``fixed_length``: episodes end by truncation only.  The
+    compiled step computes the same in its call (:class:`Blocks`)."""
     stepped = ~restarted
     elapsed += 1
     elapsed *= stepped  # +1, or 0 when restarted

@@ -1,24 +1,22 @@
 """The engine's simulator side, batched: hidden states are ``(N, 3)`` int64 arrays of ``(layer,
 row, col)``.  :func:`sample_initial` (uniform over the free states), :func:`sample_next` (the
 model's transition, kidnapping drawn here), :func:`sample_readings` (the sensor), :func:`simulate`
-(one robot's trajectory), and :func:`sampler`, the bound move and reading of one robot for hot
-loops (the single environment): the same random draws and numbers as the batched functions.
-:mod:`gym_gridloc.engine` re-exports them.
+(one robot's trajectory).  :mod:`gym_gridloc.engine` re-exports them; the step of N robots
+(:mod:`gym_gridloc.batch`) is built on them.
 """
 
 from __future__ import annotations
 
 import bisect
 import itertools
-import weakref
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from gym_gridloc import derived, kernels
 from gym_gridloc.core.model import GridModel, Term
 
-__all__ = ["states_of", "sample_initial", "sample_next", "sample_readings", "sampler", "simulate", "OUTCOMES_CACHED"]
+__all__ = ["states_of", "sample_initial", "sample_next", "sample_readings", "simulate", "OUTCOMES_CACHED"]
 
 
 def states_of(model: GridModel, indices: np.ndarray) -> np.ndarray:
@@ -118,34 +116,6 @@ def _next_one(ts: tuple[Term, ...], state: np.ndarray, rng: np.random.Generator,
         k = last
     t = ts[k]
     return t.dst, r + t.dr, c + t.dc
-
-
-def sampler(model: GridModel) -> Callable[[tuple[int, int, int], Any, np.random.Generator], tuple[tuple[int, int, int], int]]:
-    """:func:`sample_next` then :func:`sample_readings` for ONE state as a bound function
-    ``(state, action, rng) -> (next state, reading)``, for hot loops (the single environment):
-    ``state`` a tuple ``(layer, row, col)`` of ints, the result a tuple and an ``int``; the same
-    random draws and numbers as the batched functions with N = 1."""
-    d = derived.of(model)
-    if d.sampler is None:
-        d.sampler = _make_sampler(model, d)
-    return d.sampler
-
-
-def _make_sampler(model: GridModel, d: derived.Derived):
-    transitions, outcomes, n_actions = d.transitions, d.outcomes, model.n_actions
-    read = model.sensor.sample_one
-    scalar = model.kidnap_prob == 0.0
-    model_ref = weakref.ref(model)  # (the model's cache keeps this function)
-    del model
-
-    def sample_one(state: tuple[int, int, int], action: Any, rng: np.random.Generator):
-        if scalar and type(action) is int and 0 <= action < n_actions:
-            nxt = _next_one(transitions[action], state, rng, outcomes, action)
-        else:  # kidnapping, or an action to check: the batched draw of one
-            nxt = tuple(sample_next(model_ref(), np.array([state], dtype=np.int64), action, rng)[0].tolist())
-        return nxt, read(nxt, rng)
-
-    return sample_one
 
 
 def sample_readings(model: GridModel, states: np.ndarray, rng: np.random.Generator) -> np.ndarray:

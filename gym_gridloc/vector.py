@@ -1,15 +1,16 @@
 """A native vector environment: N robots and N exact beliefs stepped by the engine in batches.
 
 ``gym.make_vec(ENV_ID, num_envs=N, vectorization_mode="vector_entry_point")`` builds a
-:class:`GridLocVectorEnv`.  On small maps a step is one compiled call of the engine
-(:class:`engine.VectorBank`, each robot on its own model where maps are redrawn at reset): the N
-moves, readings and beliefs, the referee's readout and how each step ends; elsewhere, the engine
-once per distinct model, then :mod:`gym_gridloc.referee`.  The numbers of the single environment.
+:class:`GridLocVectorEnv`: the N view of the step of N robots (:class:`gym_gridloc.batch.Batch`),
+of which the single environment is the N = 1 view.  On small maps a step is one compiled call (each
+robot on its own model where maps are redrawn at reset): the N moves, readings and beliefs, the
+referee's readout and how each step ends; elsewhere, the engine once per distinct model, then
+:mod:`gym_gridloc.referee`.
 
 Random numbers: like Gymnasium's own vector environments (``CartPoleVectorEnv``), ONE generator
 serves the whole batch (``reset(seed=s)`` seeds it), and each step draws for all N at once.  A
 vector environment of one therefore equals the single environment exactly (same seed, same
-actions: same observations, beliefs, rewards and infos); N environments are the same process as N
+actions: same observations, beliefs, rewards and infos: the same step); N environments are the same process as N
 single ones, but not their random streams (the tests compare them statistically).
 
 Autoreset: Gymnasium's default ``AutoresetMode.NEXT_STEP`` (the step after an episode ends resets
@@ -28,7 +29,8 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from gym_gridloc import engine, kernels, referee
+from gym_gridloc import kernels, referee
+from gym_gridloc.batch import KEEP, START, Batch
 from gym_gridloc.core.validation import check_int, is_int, whole_numbers
 from gym_gridloc.envs.base import GridLocEnv
 from gym_gridloc.observation import BeliefObservation, check_belief_option, check_lookahead
@@ -103,24 +105,17 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
 
-        self._models, self._stale = [model] * n, False  # (stale: the bank's slots say which, see models)
-        self._groups = [np.arange(n)]  # env indices per distinct model, in index order
-        self._beliefs, self._spare = np.zeros((n, *model.belief_shape)), np.zeros((n, *model.belief_shape))
-        self._states, self._readings = np.zeros((n, 3), dtype=np.int64), np.zeros(n, dtype=np.int64)
-        self._elapsed, self._autoreset = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool)
-        self._started = False
-        #: engine.VectorBank of the environments' models (None: no compiled step; one engine call per model)
-        self._bank = engine.vector_bank(model, n)
-        self._slots = np.zeros(n, dtype=np.int64)  # each environment's slot in the bank
-        self._observed = self.builder is not None and self.builder.plain_positions  # (the engine's step writes it)
-        self._coded: dict[int, Any] = {}  # map code -> model: the last codes' (MapFactory.models), as many as the bank holds
-        factory = template.map_factory  # perfect mazes: the engine's step draws the new ones itself, in its one call
-        self._maps_in_call = bool(self._bank is not None and factory is not None and factory.graph is not None
-                                  and self._bank.draw_maps(*factory.graph, factory.model_of_code))
-        self._below = getattr(kernels.compiled(self._beliefs[0].size), "all_below", None)  # the actions' check (None: numpy)
         if (length := template.episode_length) is not None and length > (self.max_episode_steps or length):  # cut short
             raise ValueError(f"episode_length={length} is above max_episode_steps={self.max_episode_steps}: give at most that")
         self._limit = length or self.max_episode_steps  # the step count that truncates an episode (None: never)
+        #: The N robots, their beliefs, step counts and maps, and the one step of them all.
+        self.batch = Batch(model, n, threshold=template.localise_threshold, pose=template.referee_pose,
+                           reward=template.reward_kind, limit=self._limit, fixed_length=length is not None,
+                           observed=self.builder is not None and self.builder.plain_positions, map_factory=template.map_factory)
+        self._redrawn = template.map_factory is not None
+        self._autoreset = np.zeros(n, dtype=bool)
+        self._started = False
+        self._below = getattr(kernels.compiled(self.batch.rows.belief[0].size), "all_below", None)  # the actions' check (None: numpy)
 
     @staticmethod
     def _mode(mode: Any) -> AutoresetMode:
@@ -143,120 +138,22 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     @property
     def models(self) -> list:
         """Each environment's model (on its current map)."""
-        if self._stale:  # (the engine's step drew maps: each row's model is its slot's)
-            self._models, self._stale = [self._bank.models[s] for s in self._slots.tolist()], False
-        return self._models
+        return self.batch.models
 
-    # -- the batch through the engine --------------------------------------------------------------
-    def _regroup(self) -> None:
-        groups: dict[int, list[int]] = {}
-        for i, m in enumerate(self.models):
-            groups.setdefault(id(m), []).append(i)
-        self._groups = [np.array(g) for g in groups.values()]
-        self._group_of = np.empty(self.num_envs, dtype=np.int64)  # each env's group, groups in order
-        for k, g in enumerate(self._groups):
-            self._group_of[g] = k
-
-    def _by_model(self, idx: np.ndarray):
-        """``(model, indices)`` of ``idx`` per distinct model, in group order, indices ascending."""
-        if len(self._groups) == 1:
-            yield self.models[0], idx
-            return
-        gid = self._group_of[idx]
-        order = np.argsort(gid, kind="stable")
-        cuts = np.flatnonzero(np.diff(gid[order])) + 1
-        for sub in np.split(idx[order], cuts):
-            yield self.models[sub[0]], sub
-
-    def _redraw(self, idx: np.ndarray) -> None:
-        """New maps for the environments ``idx`` (in index order, from the batch's generator), each
-        placed in the bank (dropped, for one engine call per model, when it cannot hold one)."""
-        models, bank = self.models, self._bank
-        drawn = self.template.map_factory.models(self.np_random, idx.size, self._coded, None if bank is None else bank.limit)
-        for i, model in zip(idx.tolist(), drawn):
-            models[i] = model
-            slot = None if bank is None else bank.slot(model, self._slots)
-            if slot is None:
-                bank = self._bank = None
-            else:
-                self._slots[i] = slot
-        if bank is None:
-            self._regroup()
-
-    def _restart(self, idx: np.ndarray, *, redrawn: bool = False) -> None:
-        """Start new episodes in the environments ``idx``: maps (if redrawn, and not ``redrawn``
-        already), states, readings, beliefs, drawn in the single environment's order."""
-        rng = self.np_random
-        drawing = self.template.map_factory is not None and not redrawn
-        if drawing and not self._maps_in_call:
-            self._redraw(idx)
-        if self._bank is not None:  # one compiled call; the other rows keep their beliefs
-            modes = np.full(self.num_envs, 2, dtype=np.int8)
-            modes[idx] = 1
-            self._advance(np.zeros_like(self._readings), modes, maps=drawing and self._maps_in_call)
-            self._elapsed[idx] = 0
-            return
-        for model, sub in self._by_model(idx):
-            self._states[sub] = engine.sample_initial(model, sub.size, rng)
-        for model, sub in self._by_model(idx):  # each group's beliefs after its readings (they draw nothing)
-            self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
-            self._beliefs[sub] = engine.first_posterior(model, self._readings[sub])
-        self._elapsed[idx] = 0
-
-    def _advance(self, actions: np.ndarray, modes: np.ndarray, restarted: np.ndarray | None = None, maps: bool = False):
-        """Every environment in one engine call (:class:`engine.VectorBank`; ``modes`` as :func:`engine.vector_advancer`'s;
-        ``maps``: the call draws the starting rows' maps). A step (``restarted``: the rows that started an episode)
-        reads in the same call, and returns :meth:`_infos`'s infos and position beliefs, :func:`referee.outcomes`'s,
-        and the plain observation's belief (else None)."""
-        n, t, blocks, ending = self.num_envs, self.template, None, None
-        if restarted is not None:
-            blocks = referee.readout_blocks(n, self._beliefs.shape[2] * self._beliefs.shape[3], t.localise_threshold,
-                                            t.referee_pose, observed=self._observed)
-            ending = referee.ending_blocks(t.reward_kind, restarted, self._elapsed, self._limit, t.episode_length is not None)
-        self._bank.advance(self._states, self._readings, actions, self._beliefs.reshape(n, -1), self._spare.reshape(n, -1),
-                           modes, self.np_random, self._slots, blocks, ending, maps)
-        self._beliefs, self._spare = self._spare, self._beliefs
-        self._stale |= maps
-        if blocks is None:  # (a restart: the caller reads the infos)
-            return None
-        info, positions = referee.read_blocks(blocks, self._beliefs.shape[1])
-        return info, positions, referee.ended(ending), blocks[8] if self._observed else None
-
-    def _move(self, idx: np.ndarray, actions: np.ndarray) -> None:
-        """One step of the environments ``idx``: moves, readings, beliefs."""
-        rng = self.np_random
-        if len(self._groups) == 1:  # one model: one engine call for all (engine.advancer)
-            advance = engine.advancer(self.models[0])
-            n = self.num_envs
-            if idx.size == n:
-                beliefs, out = self._beliefs.reshape(n, -1), self._spare.reshape(n, -1)
-                self._states, self._readings = advance(self._states, actions, beliefs, out, rng)
-                self._beliefs, self._spare = self._spare, self._beliefs
-            else:
-                beliefs = self._beliefs.reshape(n, -1)[idx]
-                out = np.empty_like(beliefs)
-                self._states[idx], self._readings[idx] = advance(self._states[idx], actions[idx], beliefs, out, rng)
-                self._beliefs.reshape(n, -1)[idx] = out
-            return
-        for model, sub in self._by_model(idx):
-            self._states[sub] = engine.sample_next(model, self._states[sub], actions[sub], rng)
-        for model, sub in self._by_model(idx):
-            self._readings[sub] = engine.sample_readings(model, self._states[sub], rng)
-            self._beliefs[sub] = engine.step(model, self._beliefs[sub], actions[sub], self._readings[sub])[0]
-
-    # -- observations and infos -------------------------------------------------------------------
-    def _observations(self, positions: np.ndarray | None = None, observed: np.ndarray | None = None):
-        """The N observations (``positions``, ``observed``: what :meth:`_infos` or :meth:`_advance` read)."""
+    def _observations(self, positions: np.ndarray, observed: np.ndarray | None):
+        """The N observations (``positions``, ``observed``: what the step read)."""
         model = self.template.model  # (the family's sensor; the plain observation made in the step needs no other)
-        obs = model.sensor.observations(self._readings)
-        models = model if self.template.map_factory is None or observed is not None else self.models
-        return obs if self.builder is None else self.builder.encode(models, obs, self._readings, self._beliefs, positions,
+        readings = self.batch.rows.readings
+        obs = model.sensor.observations(readings)
+        models = model if not self._redrawn or observed is not None else self.models
+        return obs if self.builder is None else self.builder.encode(models, obs, readings, self.batch.beliefs, positions,
                                                                     observed=observed)
 
-    def _infos(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """The referee's infos and the position beliefs it read (:func:`referee.readout`)."""
-        t = self.template
-        return referee.readout(self._beliefs, self._states, t.localise_threshold, pose=t.referee_pose)
+    def _start(self, idx: np.ndarray):
+        """New episodes in the environments ``idx`` (the others kept)."""
+        modes = np.full(self.num_envs, KEEP, dtype=np.int8)
+        modes[idx] = START
+        return self.batch.advance(None, modes, self.np_random, maps=self._redrawn)
 
     # -- Gymnasium API ----------------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int] | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
@@ -276,11 +173,10 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         if seed is not None:
             self._np_random, self._np_random_seed = self._seeded(seed)
         idx = np.flatnonzero(mask)
-        self._restart(idx)
+        out = self._start(idx)
         self._autoreset[idx] = False
         self._started = True
-        info, positions = self._infos()
-        return self._observations(positions), referee.masked(info, mask)
+        return self._observations(out.positions, out.observed), referee.masked(out.info, mask)
 
     @staticmethod
     def _seeded(seed: Any) -> tuple[np.random.Generator, int]:
@@ -301,23 +197,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
         # self._autoreset is replaced, never changed in place, so no copy)
         resetting = np.zeros(n, dtype=bool) if same_step else self._autoreset
         acts = self._actions(actions, resetting)
-        in_call = self._maps_in_call
-        starting = resetting.nonzero()[0] if self._bank is not None and self.template.map_factory is not None and not in_call else ()
-        if redrawn := len(starting) > 0:  # maps first, then the one call's draws (moves, starts, readings)
-            self._redraw(starting)
-        if self._bank is not None:  # (new maps,) moves, new episodes, the referee's readout and outcomes in one engine call
-            info, positions, (rewards, terminated, truncated, done), observed = self._advance(acts, resetting.view(np.int8), resetting, in_call)
-        else:
-            observed = None
-            moving = np.flatnonzero(~resetting)
-            if moving.size:
-                self._move(moving, acts)
-            if resetting.any():
-                self._restart(np.flatnonzero(resetting), redrawn=redrawn)
-            info, positions = self._infos()
-            rewards, terminated, truncated, done = referee.outcomes(
-                self.template.reward_kind, info, resetting, self._elapsed, self._limit, self.template.episode_length is not None,
-                cells=self._beliefs[0].size)  # (and the step counts: +1, or 0 where restarted)
+        # moves, new episodes (and their maps), the referee's readout and outcomes: the one step
+        info, positions, observed, rewards, terminated, truncated, done = self.batch.advance(
+            acts, resetting.view(np.int8), self.np_random, maps=self._redrawn)
         obs = self._observations(positions, observed)
         if same_step and done.any():
             ended = np.flatnonzero(done)
@@ -326,10 +208,9 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
             for i in ended:
                 final_obs[i] = {k: v[i].copy() for k, v in obs.items()} if isinstance(obs, dict) else obs[i].copy()
                 final_info[i] = {k: v[i] for k, v in info.items()}
-            self._restart(ended)
-            info, positions = self._infos()
-            obs = self._observations(positions)
-            info = {**info, "final_obs": final_obs, "_final_obs": done.copy(),
+            out = self._start(ended)
+            obs = self._observations(out.positions, out.observed)
+            info = {**out.info, "final_obs": final_obs, "_final_obs": done.copy(),
                     "final_info": final_info, "_final_info": done.copy()}
         else:
             self._autoreset = done
@@ -355,12 +236,12 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     @property
     def full_beliefs(self) -> np.ndarray:
         """The exact hidden-state beliefs, (N, L, H, W) float64 (a copy)."""
-        return self._beliefs.copy()
+        return self.batch.beliefs.copy()
 
     @property
     def position_beliefs(self) -> np.ndarray:
         """The exact position beliefs, (N, H, W) float64."""
-        b = self._beliefs
+        b = self.batch.beliefs
         return b[:, 0].copy() if b.shape[1] == 1 else b.sum(axis=1)
 
     @property
@@ -372,7 +253,7 @@ class GridLocVectorEnv(gym.vector.VectorEnv):
     @property
     def states(self) -> np.ndarray:
         """The true hidden states (N, 3): layer, row, col (not part of the observation)."""
-        return self._states.copy()
+        return self.batch.rows.states.copy()
 
 
 class ColourGridVectorEnv(GridLocVectorEnv):

@@ -125,7 +125,7 @@ def map_build_bound(native, n: int, sync_rate: float, steps: int = 200, builds: 
     what one costs (the map, its model and the engine's tables), and the largest native / sync
     ratio that leaves (the sync env builds the same maps, so the native step can never cost less
     than its maps).  None when the maps are fixed."""
-    from gym_gridloc import engine
+    from gym_gridloc import derived, engine
 
     factory = native.unwrapped.template.map_factory
     if factory is None:
@@ -139,7 +139,7 @@ def map_build_bound(native, n: int, sync_rate: float, steps: int = 200, builds: 
     t0 = time.perf_counter()
     for _ in range(builds):
         model = factory(rng)
-        engine.plan(model), engine.advancer(model)
+        engine.plan(model), derived.of(model).first_table(now=True)  # (what the step's tables are made of, kept per model)
     each = (time.perf_counter() - t0) / builds
     per_step = ended / steps
     bound = (n / sync_rate) / (per_step * each)

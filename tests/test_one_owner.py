@@ -37,18 +37,23 @@ def test_the_wrapper_serves_the_environments_posterior(env_id):
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_one_filter_step_per_environment_step(env_id, monkeypatch):
+    """The belief is filtered once per environment step, in the step of the batch (the single
+    environment is its N = 1 view); the wrapper filters nothing of its own."""
+    from gym_gridloc.batch import Batch
+
     env = HMMBeliefWrapper(gym.make(env_id))
     env.reset(seed=1)
-    calls = []
-    real = ForwardFilter.step
-    monkeypatch.setattr(ForwardFilter, "step", lambda self, *a, **k: (calls.append(1), real(self, *a, **k))[1])
+    calls, filtered = [], []
+    real, real_filter = Batch.advance, ForwardFilter.step
+    monkeypatch.setattr(Batch, "advance", lambda self, *a, **k: (calls.append(1), real(self, *a, **k))[1])
+    monkeypatch.setattr(ForwardFilter, "step", lambda self, *a, **k: (filtered.append(1), real_filter(self, *a, **k))[1])
     steps = 0
     for a in [0, 1, 2, 1, 0, 2, 2, 1]:
         _, _, terminated, truncated, _ = env.step(a)
         steps += 1
         if terminated or truncated:
             break
-    assert len(calls) == steps
+    assert len(calls) == steps and not filtered
 
 
 def test_another_model_or_particles_keep_a_filter_of_their_own():

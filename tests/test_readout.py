@@ -1,8 +1,7 @@
-"""The single step's fast paths give the numbers of the code they replace, bit for
-bit: the compiled readout of one belief (the referee's summary, the observed float32 belief)
-against their numpy code, a referee filter normalised in its step against the lazy one read after
-every step, the engine's one-robot sampler against the batched draws, and the numpy diagonal pass
-against its definition."""
+"""The compiled code gives the numbers of the numpy code it stands for, bit for bit: the step of N
+robots against its numpy reference, the compiled readout (the referee's summary, the observed
+float32 belief), the sensors' draw tables, a filter normalised in its step against the lazy one
+read after every step, and the numpy diagonal pass against its definition."""
 
 from __future__ import annotations
 
@@ -165,30 +164,6 @@ def test_compiled_sample_next_equals_numpy(env_id, kwargs, monkeypatch):
     assert np.array_equal(top, engine.sample_next(model, states[:7], actions[:7], Near1()))
 
 
-@pytest.mark.parametrize("n", [1, 2, 37])
-@pytest.mark.parametrize("env_id, kwargs", [("WindyMaze-v0", {}), ("DepthMaze-v0", {"map_seed": 3}),
-                                             ("RingSensor8x8-v0", {}), ("ColourGrid-v0", {"kidnap_prob": 0.05})])
-def test_the_advancer_equals_sample_next_sample_readings_and_step(env_id, kwargs, n):
-    """The native vector env's one engine call per step: the same draws, states, readings and
-    beliefs (to the bit) as the three engine functions it stands for (kidnapping: the generic path)."""
-    model = gym.make(env_id, **kwargs).unwrapped.model
-    rng = np.random.default_rng(n)
-    states = engine.sample_initial(model, n, rng)
-    beliefs = engine.first_posterior(model, engine.sample_readings(model, states, rng)).reshape(n, -1)
-    a, b = np.random.default_rng(4), np.random.default_rng(4)
-    for _ in range(5):
-        actions = rng.integers(0, model.n_actions, size=n)
-        out = np.empty_like(beliefs)
-        nxt, readings = engine.advancer(model)(states, actions, beliefs, out, a)
-        ref_states = engine.sample_next(model, states, actions, b)
-        ref_readings = engine.sample_readings(model, ref_states, b)
-        ref, _ = engine.step(model, beliefs.reshape(n, *model.belief_shape), actions, ref_readings)
-        assert np.array_equal(nxt, ref_states) and np.array_equal(readings, ref_readings)
-        assert out.tobytes() == ref.tobytes()
-        states, beliefs = nxt, out
-    assert a.random() == b.random()  # the same number of draws
-
-
 @needs_numba
 @pytest.mark.parametrize("full_state", [False, True])
 def test_compiled_observed_belief_equals_numpy(full_state, monkeypatch):
@@ -217,25 +192,6 @@ def test_a_filter_normalised_in_its_step_equals_the_lazy_one_read_every_step(env
         eager.step(a, reading=r)
         assert lazy.full_belief.tobytes() == eager.belief_view.tobytes()
         assert repr(lazy.log_likelihood) == repr(eager.log_likelihood)
-
-
-@pytest.mark.parametrize("env_id, kwargs", [("WindyMaze-v0", {}), ("ColourGrid-v0", {}), ("RingSensor8x8-v0", {}),
-                                             ("RingSensor8x8-v0", {"dynamics": "passive"}), ("DepthMaze-v0", {}),
-                                             ("ColourGrid-v0", {"kidnap_prob": 0.2})])
-def test_the_one_robot_sampler_draws_what_the_batched_functions_draw(env_id, kwargs):
-    model = gym.make(env_id, **kwargs).unwrapped.model
-    sample = engine.sampler(model)
-    one, batch = np.random.default_rng(3), np.random.default_rng(3)
-    state = tuple(engine.sample_initial(model, 1, one)[0].tolist())
-    states = engine.sample_initial(model, 1, batch)
-    actions = np.random.default_rng(4).integers(model.n_actions, size=300).tolist()
-    for k, a in enumerate(actions):
-        state, reading = sample(state, np.int64(a) if k % 5 == 0 else a, one)
-        states = engine.sample_next(model, states, a, batch)
-        assert type(reading) is int and all(type(v) is int for v in state)
-        assert state == tuple(states[0].tolist())
-        assert reading == int(engine.sample_readings(model, states, batch)[0])
-    assert one.random() == batch.random()  # as many draws
 
 
 def test_diagonal_add_is_the_dia_product_of_one_diagonal():
@@ -308,43 +264,43 @@ def test_the_sensors_draw_tables_draw_what_sample_draws(env_id, kwargs):
 @needs_numba
 @pytest.mark.parametrize("n", [1, 2, 37])
 @pytest.mark.parametrize("env_id, kwargs", SENSOR_ENVS[:4])
-def test_the_vector_advancer_equals_the_engine_functions(env_id, kwargs, n):
-    """engine.vector_advancer, the native vector env's one call per step: moving rows as
-    sample_next, sample_readings and step; starting rows as sample_initial, sample_readings and
-    first_posterior (moving rows drawn first); kept rows untouched. The same draws, states,
-    readings and beliefs, to the bit."""
+@pytest.mark.parametrize("pose, reward", [(False, "step"), (True, "belief")])
+def test_the_compiled_step_equals_its_numpy_reference(env_id, kwargs, n, pose, reward):
+    """The one step of N robots (batch.Batch.advance) has two implementations: the compiled call
+    and the numpy reference (the engine's sample_next, sample_readings and step for moving rows;
+    sample_initial, sample_readings and first_posterior for starting rows, moving rows drawn
+    first; kept rows untouched; then the referee's readout and outcomes).  The same draws, states,
+    readings, beliefs, step counts, infos, rewards and ends, to the bit."""
+    from gym_gridloc.batch import KEEP, START, START_AT, STEP, Batch
+
     model = gym.make(env_id, **kwargs).unwrapped.model
-    advance = engine.vector_advancer(model)
-    assert advance is not None
-    rng = np.random.default_rng(n)
-    states = engine.sample_initial(model, n, rng)
-    readings = engine.sample_readings(model, states, rng)
-    beliefs = engine.first_posterior(model, readings).reshape(n, -1)
+    rules = dict(threshold=0.6, pose=pose, reward=reward, limit=6, observed=True)
+    compiled, reference = Batch(model, n, **rules), Batch(model, n, **rules)
+    assert compiled.bank is not None
+    reference.bank = None  # the numpy reference
     a, b = np.random.default_rng(4), np.random.default_rng(4)
-    for _ in range(8):
+    rng = np.random.default_rng(n)
+    for t in range(12):
         actions = rng.integers(0, model.n_actions, size=n)
-        modes = rng.integers(0, 3, size=n).astype(np.int8)
-        move, start = np.flatnonzero(modes == 0), np.flatnonzero(modes == 1)
-        ref_states, ref_readings, ref = states.copy(), readings.copy(), beliefs.copy()
-        if move.size:
-            ref_states[move] = engine.sample_next(model, states[move], actions[move], b)
-            ref_readings[move] = engine.sample_readings(model, ref_states[move], b)
-            ref[move] = engine.step(model, beliefs[move].reshape(-1, *model.belief_shape), actions[move],
-                                    ref_readings[move])[0].reshape(move.size, -1)
-        if start.size:
-            ref_states[start] = engine.sample_initial(model, start.size, b)
-            ref_readings[start] = engine.sample_readings(model, ref_states[start], b)
-            ref[start] = engine.first_posterior(model, ref_readings[start]).reshape(start.size, -1)
-        out = np.empty_like(beliefs)
-        advance(states, readings, actions, beliefs, out, modes, a)
-        assert np.array_equal(states, ref_states) and np.array_equal(readings, ref_readings)
-        assert out.tobytes() == ref.tobytes()
-        beliefs = out
+        modes = np.full(n, START, dtype=np.int8) if t == 0 else rng.choice([STEP, STEP, START, KEEP, START_AT], size=n).astype(np.int8)
+        at = np.flatnonzero(modes == START_AT)
+        for batch in (compiled, reference):
+            batch.rows.states[at] = engine.sample_initial(model, at.size, np.random.default_rng(t))
+        got, want = compiled.advance(actions, modes, a), reference.advance(actions, modes, b)
+        for name in ("states", "readings", "elapsed"):
+            assert np.array_equal(getattr(compiled.rows, name), getattr(reference.rows, name)), name
+        assert compiled.beliefs.tobytes() == reference.beliefs.tobytes()
+        assert got.info.keys() == want.info.keys() and all(same(got.info[k], want.info[k]) for k in got.info)
+        assert same(got.positions, want.positions)
+        for x, y in zip(got[3:], want[3:]):  # rewards, terminated, truncated, done
+            assert same(np.asarray(x), np.asarray(y))
+        assert want.observed is None  # (the numpy reference leaves the observation to the caller: the same numbers)
+        assert same(got.observed, observation.observed_belief(reference.beliefs, False).reshape(n, -1))
     assert a.random() == b.random()  # the same number of draws
 
 
-def test_the_vector_advancer_is_none_where_there_is_no_compiled_path():
-    assert engine.vector_advancer(gym.make("ColourGrid-v0", kidnap_prob=0.05).unwrapped.model) is None
+def test_there_is_no_compiled_step_where_there_is_no_compiled_path():
+    assert engine.vector_bank(gym.make("ColourGrid-v0", kidnap_prob=0.05).unwrapped.model, 1) is None
 
 
 class _Replay:
@@ -364,7 +320,7 @@ class _Replay:
 @needs_numba
 @pytest.mark.parametrize("kwargs", [{}, {"p_depth_error": 0.2, "p_move_fail": 0.1}])
 def test_a_vector_bank_steps_each_row_on_its_own_model(kwargs):
-    """engine.VectorBank, the native vector step with maps redrawn at reset: every row moves,
+    """engine.VectorBank, the compiled step with maps redrawn at reset: every row moves,
     starts or keeps on its own model as the engine's functions do for that row alone, given the
     same draws: the bank draws from the generator's bit stream what Generator.random and
     Generator.integers would (the moving rows' moves, then their readings, in row order; the
@@ -382,6 +338,8 @@ def test_a_vector_bank_steps_each_row_on_its_own_model(kwargs):
     states = np.concatenate([engine.sample_initial(models[i % 6], 1, rng) for i in range(n)])
     readings = np.concatenate([engine.sample_readings(models[i % 6], states[i:i + 1], rng) for i in range(n)])
     beliefs = np.concatenate([engine.first_posterior(models[i % 6], readings[i:i + 1]).reshape(1, -1) for i in range(n)])
+    rows = engine.Rows(n, beliefs.shape[1])
+    rows.slots[:], rows.states[:], rows.readings[:], rows.belief[:] = slots, states, readings, beliefs
     per = 1  # DepthSensor: one uniform per reading
     n_states = models[0].n_states
     for _ in range(6):
@@ -389,10 +347,10 @@ def test_a_vector_bank_steps_each_row_on_its_own_model(kwargs):
         modes = rng.integers(0, 3, size=n).astype(np.int8)
         seed = int(rng.integers(1000))
         drawn, replayed = np.random.default_rng(seed), np.random.default_rng(seed)
-        new_states, new_readings, out = states.copy(), readings.copy(), np.empty_like(beliefs)
-        blocks = referee.readout_blocks(n, 49, 0.9, True)  # the referee's readout, in the same call
-        bank.advance(new_states, new_readings, actions, beliefs, out, modes, drawn, slots, blocks)
-        info, positions = referee.read_blocks(blocks, 4)
+        blocks = referee.Blocks(n, 49, 0.9, True)  # the referee's readout, in the same call
+        bank.advance(rows, actions, modes, drawn, blocks)
+        new_states, new_readings, out = rows.states.copy(), rows.readings.copy(), rows.belief.copy()
+        info, positions = blocks.infos(4)
         ref_info, ref_positions = referee.readout(out.reshape(n, 4, 7, 7).copy(), new_states, 0.9, pose=True)
         assert positions.tobytes() == ref_positions.tobytes() and info.keys() == ref_info.keys()
         assert all(info[k].tobytes() == ref_info[k].tobytes() for k in info)

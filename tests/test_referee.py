@@ -105,10 +105,11 @@ def test_rewards_of_reset_environments_are_zero(kind):
 
 @pytest.mark.parametrize("kind", referee.REWARDS)
 @pytest.mark.parametrize("limit, fixed_length", [(None, False), (3, False), (4, True)])
-def test_outcomes_compiled_and_numpy_agree(kind, limit, fixed_length, monkeypatch):
-    """referee.outcomes, the vector env's end of a step: rewards (0.0 where restarted),
-    terminated (localised, on a step, unless the length is fixed), truncated (at the limit) and
-    the step counts (+1, or 0 where restarted), compiled and in numpy, to the bit."""
+def test_outcomes_compiled_and_numpy_agree(kind, limit, fixed_length):
+    """referee.outcomes, the end of a step: rewards (0.0 where restarted), terminated (localised,
+    on a step, unless the length is fixed), truncated (at the limit) and the step counts (+1, or
+    0 where restarted), in numpy and as the compiled step fills them (its ``batch_outcomes``), to
+    the bit; a row the compiled step keeps keeps its step count and ends nothing."""
     from gym_gridloc import kernels
 
     rng = np.random.default_rng(1)
@@ -116,20 +117,25 @@ def test_outcomes_compiled_and_numpy_agree(kind, limit, fixed_length, monkeypatc
     info = {"localised": rng.random(n) < 0.3, "confidence": rng.random(n)}
     restarted = rng.random(n) < 0.2
     elapsed = rng.integers(0, 5, size=n)
-    results = []
-    for available in (True, False):
-        if kernels.compiled(1) is None and available:
-            continue
-        monkeypatch.setattr(kernels, "AVAILABLE", available)
-        assert (kernels.compiled(49) is not None) is available  # (each path taken)
-        e = elapsed.copy()
-        out = referee.outcomes(kind, info, restarted, e, limit, fixed_length, cells=49)
-        results.append(([x.tobytes() for x in out], e.tobytes()))
-        rewards, terminated, truncated, done = out
-        after = np.where(restarted, 0, elapsed + 1)
-        assert np.array_equal(e, after)
-        assert rewards.tobytes() == np.where(restarted, 0.0, info["confidence"] if kind == "belief" else -1.0).tobytes()
-        assert np.array_equal(terminated, info["localised"] & ~restarted & (not fixed_length))
-        assert np.array_equal(truncated, after >= limit if limit else np.zeros(n, dtype=bool))
-        assert np.array_equal(done, terminated | truncated)
-    assert all(r == results[0] for r in results)  # compiled and numpy: the same bits
+    e = elapsed.copy()
+    out = referee.outcomes(kind, info, restarted, e, limit, fixed_length)
+    rewards, terminated, truncated, done = out
+    after = np.where(restarted, 0, elapsed + 1)
+    assert np.array_equal(e, after)
+    assert rewards.tobytes() == np.where(restarted, 0.0, info["confidence"] if kind == "belief" else -1.0).tobytes()
+    assert np.array_equal(terminated, info["localised"] & ~restarted & (not fixed_length))
+    assert np.array_equal(truncated, after >= limit if limit else np.zeros(n, dtype=bool))
+    assert np.array_equal(done, terminated | truncated)
+    fast = kernels.compiled(1)
+    if fast is None:
+        return
+    b = referee.Blocks(n, 1, 0.9, False, kind=kind, limit=limit, fixed_length=fixed_length)
+    modes = restarted.astype(np.int8)  # (0: a step, 1: a new episode)
+    modes[-1] = 2  # kept
+    e2 = elapsed.copy()
+    fast.batch_outcomes(modes, info["localised"], info["confidence"], e2, b.limit, b.fixed_length, b.belief_reward, b.rewards, b.ends)
+    kept = slice(0, n - 1)
+    assert e2[:-1].tobytes() == e[:-1].tobytes() and e2[-1] == elapsed[-1]
+    for got, want in zip(b.outcomes(), out):
+        assert got[kept].tobytes() == want[kept].tobytes()
+    assert b.rewards[-1] == 0.0 and not b.ends[:, -1].any()

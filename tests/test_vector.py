@@ -344,7 +344,7 @@ def test_same_step_autoreset_gives_final_observations():
         for i in np.flatnonzero(done):
             assert set(info["final_obs"][i]) == {"observation", "belief"}
             assert set(info["final_info"][i]) >= {"position", "confidence", "localised"}
-        assert np.all(env.unwrapped._elapsed[done] == 0)  # already reset
+        assert np.all(env.unwrapped.batch.rows.elapsed[done] == 0)  # already reset
         assert np.all(rew == -1.0)  # every env stepped: no reset step in between
         ever |= done
     assert ever.all()  # every episode ends by the 5th step at the latest
@@ -436,7 +436,7 @@ def test_readings_only_and_flat_observations():
     for _ in range(20):
         assert flat.observation_space.contains(o1)
         np.testing.assert_allclose(o1[:, 4:].reshape(3, 5, 5), flat.unwrapped.position_beliefs, rtol=0, atol=1e-7)
-        np.testing.assert_array_equal(o1[:, :4], np.eye(4, dtype=np.float32)[flat.unwrapped._readings])
+        np.testing.assert_array_equal(o1[:, :4], np.eye(4, dtype=np.float32)[flat.unwrapped.batch.rows.readings])
         o1, *_ = flat.step(np.array([1, 2, 3]))
 
 
@@ -506,3 +506,30 @@ def test_a_vector_env_pickles_and_goes_on_as_the_original(env_id):
         (oa, ra, *_), (ob, rb, *_) = env.step(a), twin.step(a)
         assert np.array_equal(oa["belief"], ob["belief"]) and np.array_equal(ra, rb)
     assert np.array_equal(env.states, twin.states)
+
+
+@pytest.mark.parametrize("env_id, kwargs", [("WindyMaze-v0", {"kidnap_prob": 0.1}), ("DepthMaze-v0", {}),
+                                             ("ColourGrid-v0", {"size": (6, 6), "new_map_each_reset": True}),
+                                             ("RingSensor8x8-v0", {"size": (130, 130)})])
+def test_the_single_env_is_the_steps_n_1_view_to_the_bit(env_id, kwargs):
+    """The single env and the vector env of one are views of the same step (batch.Batch): the same
+    beliefs, infos, rewards and ends to the bit (compiled step, numpy reference, redrawn maps)."""
+    native = gym.make_vec(env_id, num_envs=1, vectorization_mode="vector_entry_point", **kwargs).unwrapped
+    single = gym.make(env_id, **kwargs)
+    assert single.unwrapped._batch.n == 1
+    _, vinfo = native.reset(seed=11)
+    _, info = single.reset(seed=11)
+    rng = np.random.default_rng(0)
+    pending = False
+    for _ in range(25 if kwargs.get("size") == (130, 130) else 150):
+        assert native.full_beliefs[0].tobytes() == single.unwrapped.exact_filter.full_belief.tobytes()
+        assert referee.scalars(vinfo, 0) == info
+        a = int(rng.integers(native.single_action_space.n))
+        _, vr, vt, vtr, vinfo = native.step(np.array([a]))
+        if pending:
+            _, info = single.reset()
+            r, t, tr = 0.0, False, False
+        else:
+            _, r, t, tr, info = single.step(a)
+        assert (vr[0], bool(vt[0]), bool(vtr[0])) == (r, t, tr)
+        pending = t or tr

@@ -12,7 +12,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from gym_gridloc import engine, referee
+from gym_gridloc import referee
+from gym_gridloc.batch import START, START_AT, STEP, Batch
 from gym_gridloc.core.grid import GridMap
 from gym_gridloc.core.model import GridModel
 from gym_gridloc.core.validation import check_choice, check_int, check_threshold, is_int
@@ -26,9 +27,10 @@ _SDLK_RIGHT, _SDLK_LEFT, _SDLK_DOWN, _SDLK_UP = 0x4000004F, 0x40000050, 0x400000
 class GridLocEnv(gym.Env):
     """Active localisation on a grid model (see the subclasses for the documented models).
 
-    The environment simulates the hidden robot with ``model`` (through :mod:`gym_gridloc.engine`)
-    and keeps the exact posterior as the referee of the termination rule
-    (:mod:`gym_gridloc.referee`); the observation is only the reading.
+    The environment simulates the hidden robot with ``model`` and keeps the exact posterior as the
+    referee of the termination rule (:mod:`gym_gridloc.referee`); the observation is only the
+    reading.  It is the N = 1 view of the step of N robots (:class:`gym_gridloc.batch.Batch`), of
+    which the native vector environment is the N view: the same draws and numbers.
 
     Keyword arguments the subclasses pass on: ``localise_threshold``; ``builder`` (``GridMap ->
     GridModel``: the family's model on another map, for the ``map`` reset option); ``map_factory``
@@ -70,17 +72,27 @@ class GridLocEnv(gym.Env):
         self.observation_space = model.sensor.observation_space
         self.action_space = spaces.Discrete(model.n_actions)
         self._n_actions = model.n_actions
-        self._referee = ForwardFilter(model, read_every_step=True)
-        self._sample = engine.sampler(model)  # the engine's move and reading of one robot
-        self._to_observation = model.sensor.to_observation
         self._fixed_model = model
         self._builder = builder
         self._map_factory = map_factory
+        #: The robot, its belief, its step count and its map, and the step (N = 1).
+        self._batch = Batch(model, 1, threshold=self.localise_threshold, pose=self.referee_pose, reward=self.reward_kind,
+                            limit=self.episode_length, fixed_length=self.episode_length is not None, map_factory=map_factory,
+                            reuse=True)
+        self._bind()
         self._state: tuple[int, int, int] | None = None  # layer, row, col
         self._last_reading: int | None = None
         self._last_action: int | None = None
-        self._elapsed = 0
         self._window = None
+
+    def _bind(self) -> None:
+        """The step's per-call arrays and the views of the belief's two buffers (rebuilt on load)."""
+        rows = self._batch.rows
+        self._actions, self._stepping = np.zeros(1, dtype=np.int64), np.full(1, STEP, dtype=np.int8)
+        shape = self._batch.shape
+        self._views = (rows.beliefs[0, 0].reshape(shape), rows.beliefs[1, 0].reshape(shape))
+        self._referee = ForwardFilter(self.model, read_every_step=True)
+        self._to_observation = self.model.sensor.to_observation
 
     # -- Gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -89,6 +101,7 @@ class GridLocEnv(gym.Env):
         unknown = set(options) - {"state", "map"}
         if unknown:
             raise ValueError(f"unknown reset option(s) {sorted(unknown)}; allowed: 'state' (row, col) or (layer, row, col), 'map'")
+        batch, rng, maps = self._batch, self.np_random, False
         if "map" in options:  # this episode's map, given: the family's model on it
             if self._builder is None:
                 raise ValueError(
@@ -99,17 +112,20 @@ class GridLocEnv(gym.Env):
                                  f"{'x'.join(map(str, self._fixed_model.shape))} (its spaces are declared for that size)")
             self._set_model(model)
         elif self._map_factory is not None:  # a new map from np_random: same seed, same map
-            self._set_model(self._map_factory(self.np_random))
+            if "state" in options:  # (drawn first: the state is checked on it)
+                self._set_model(self._map_factory(rng))
+            else:
+                maps = True  # (drawn by the step, as the factory draws it)
         elif self.model is not self._fixed_model:
             self._set_model(self._fixed_model)
         start = self._start_state(options)
-        states = start if start is not None else engine.sample_initial(self.model, 1, self.np_random)
+        if start is not None:
+            batch.rows.states[0] = start
         self._last_action = None
-        self._elapsed = 0
-        self._last_reading = reading = int(engine.sample_readings(self.model, states, self.np_random)[0])
-        self._state = tuple(states[0].tolist())
-        self._referee.reset(reading=reading)
-        return self.model.sensor.to_observation(reading), self._info()
+        out = batch.advance(None, np.full(1, START if start is None else START_AT, dtype=np.int8), rng, maps=maps, one=True)
+        if maps and batch.models[0] is not self.model:
+            self._set_model(batch.models[0])
+        return self._to_observation(self._read()), out.info
 
     def step(self, action):
         if self._state is None:
@@ -120,21 +136,21 @@ class GridLocEnv(gym.Env):
             a = int(action)
         else:
             raise ValueError(f"action {action!r} is not in the action space {self.action_space} ({self.model.action_legend})")
-        self._state, reading = self._sample(self._state, a, self._np_random)  # engine.sample_next, sample_readings
+        self._actions[0] = a
+        info, _, _, reward, terminated, truncated, _ = self._batch.advance(self._actions, self._stepping, self._np_random, one=True)
         self._last_action = a
-        self._last_reading = reading
-        self._elapsed += 1
-        obs = self._to_observation(reading)
-        self._referee.step(a, reading=reading)  # the reading drawn: no round trip through obs
-        info = self._info()
-        if self.episode_length is None:
-            terminated, truncated = bool(info["localised"]), False
-        else:
-            terminated, truncated = False, self._elapsed >= self.episode_length
+        obs = self._to_observation(self._read())
         if self.render_mode == "human":
             self.render()
-        reward = -1.0 if self.reward_kind == "step" else float(info["confidence"])
         return obs, reward, terminated, truncated, info
+
+    def _read(self) -> int:
+        """After a step of the batch: the state, the reading and the referee's belief of row 0."""
+        rows = self._batch.rows
+        self._state = tuple(rows.states[0].tolist())
+        self._last_reading = reading = rows.readings.item(0)
+        self._referee._show(self._views[rows.current.item(0)])
+        return reading
 
     def render(self):
         if self.render_mode is None:
@@ -191,10 +207,11 @@ class GridLocEnv(gym.Env):
                 f"the map of this episode must keep the observation space {self.observation_space} and "
                 f"{self.action_space.n} actions; its model has {model.sensor.observation_space} and {model.n_actions}"
             )
+        if self._batch.models[0] is not model:
+            self._batch.set_models(np.zeros(1, dtype=np.int64), [model])
         if model is not self.model:
             self.model = model
             self._referee = ForwardFilter(model, read_every_step=True)
-            self._sample = engine.sampler(model)
             self._to_observation = model.sensor.to_observation
 
     def _start_state(self, options) -> np.ndarray | None:
@@ -212,16 +229,14 @@ class GridLocEnv(gym.Env):
             )
         return np.array([st], dtype=np.int64)
 
-    def _info(self) -> dict[str, Any]:
-        return referee.summary(self._referee.belief_view, self._state, self.localise_threshold, pose=self.referee_pose)
-
     def __getstate__(self) -> dict:
-        return {k: v for k, v in self.__dict__.items() if k not in ("_sample", "_to_observation")}  # (rebuilt on load)
+        return {k: v for k, v in self.__dict__.items() if k not in ("_to_observation", "_views", "_referee")}  # (rebuilt on load)
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        self._sample = engine.sampler(self.model)
-        self._to_observation = self.model.sensor.to_observation
+        self._bind()
+        if self._state is not None:
+            self._referee._show(self._views[self._batch.rows.current.item(0)])
 
     # Exposed for renderers and tests: the true hidden state and the referee's posterior.
     @property
@@ -237,10 +252,11 @@ class GridLocEnv(gym.Env):
 
     @property
     def exact_filter(self) -> ForwardFilter:
-        """The referee: the exact forward filter of the episode's model, stepped once per step
-        with the action and the reading (not part of the observation).  Read its belief
+        """The referee: the exact forward filter of the episode's model, whose belief is the
+        environment's posterior after every step (not part of the observation).  Read its belief
         (``full_belief``, ``position_belief``); :class:`~gym_gridloc.HMMBeliefWrapper` serves it
-        as the observation's belief.  Stepping or setting it changes the referee."""
+        as the observation's belief.  Stepping it yourself moves it off the environment's
+        posterior (until the environment's next step or reset) and never changes the referee."""
         return self._referee
 
     @property

@@ -231,7 +231,7 @@ def test_the_vector_steps_own_map_draws_are_those_of_the_map_factory(autoreset, 
         env = gym.make_vec("DepthMaze-v0", num_envs=n, vectorization_mode="vector_entry_point", autoreset_mode=autoreset,
                            max_episode_steps=12).unwrapped
         monkeypatch.setattr(engine.VectorBank, "CODE_WALLS", 16)
-        assert env._maps_in_call == in_call
+        assert env.batch._maps_in_call == in_call
         out = [env.reset(seed=9)]
         rng = np.random.default_rng(0)
         for _ in range(steps):
@@ -241,7 +241,7 @@ def test_the_vector_steps_own_map_draws_are_those_of_the_map_factory(autoreset, 
         out.append([m.grid.labels.tobytes() for m in env.models])
         out.append(env.np_random.random())
         if full:
-            assert len(env._bank.models) == n + 1
+            assert len(env.batch.bank.models) == n + 1
         return out
 
     def same(a, b):
