@@ -76,14 +76,14 @@ class ForwardFilter:
         self._spare: np.ndarray | None = None  # the other buffer: steps alternate between the two
         self._scale = 1.0  # the belief is self._f * self._scale (see step)
         self._lent: np.ndarray | None = None  # a belief shown, not owned: never written (see _show)
-        self.log_likelihood = 0.0
+        self._log_likelihood: float | None = 0.0  # None: unknown since a belief was shown (see _show)
 
     # -- the API ---------------------------------------------------------------------------------
     def reset(self, observation: Any = None, *, reading: int | None = None) -> "ForwardFilter":
         """Start from the prior (uniform over free states), updated with ``observation`` if given
         (or with its reading index ``reading``, unchecked: for the environment, which drew it)."""
         self._f, self._spare, self._scale = self.model.prior(), None, 1.0
-        self.log_likelihood = 0.0
+        self._log_likelihood = 0.0
         if observation is not None or reading is not None:
             self.update(observation, reading=reading)
         return self
@@ -103,7 +103,8 @@ class ForwardFilter:
         if reading is None:
             reading = self.model.sensor.to_reading(observation)
         post = self._belief().copy()
-        self.log_likelihood += math.log(float(engine.update(self.model, post, reading)[0]))
+        if self._log_likelihood is not None:  # (unknown after _show)
+            self._log_likelihood += math.log(float(engine.update(self.model, post, reading)[0]))
         self._f = post
         return self
 
@@ -121,13 +122,15 @@ class ForwardFilter:
             out = np.empty_like(before)
         if self._step_now is not None:  # normalised in the pass (times 1 / z, as on a read)
             zz = self._step_now(before, action, reading, out)
-            self.log_likelihood += math.log(zz * self._scale)
+            if self._log_likelihood is not None:  # (unknown after _show)
+                self._log_likelihood += math.log(zz * self._scale)
             self._f, self._spare, self._scale = out, None if before is self._lent else before, 1.0
             return self
         zz = self._step(before, action, reading, out)
         # Normalised lazily: the next read (or step) multiplies by 1/z, a pass that a loop of
         # steps without reads never pays; the log likelihood carries the deferred scale.
-        self.log_likelihood += math.log(zz * self._scale)
+        if self._log_likelihood is not None:  # (unknown after _show)
+            self._log_likelihood += math.log(zz * self._scale)
         self._f, self._spare, self._scale = out, None if before is self._lent else before, 1.0 / zz
         if zz < 1e-150:  # keep the raw numbers far from underflow
             self._belief()
@@ -136,8 +139,25 @@ class ForwardFilter:
     def _show(self, belief: np.ndarray) -> None:
         """Hold ``belief`` (an (L, H, W) float64 array that its owner writes: an environment's
         posterior) as this filter's normalised belief, without a copy; the filter's own steps
-        never write into it."""
+        never write into it.  Its owner does not say how likely the readings were:
+        :attr:`log_likelihood` is unknown until the next :meth:`reset`."""
         self._f, self._spare, self._scale, self._lent = belief, None, 1.0, belief
+        self._log_likelihood = None
+
+    @property
+    def log_likelihood(self) -> float:
+        """``log P(readings so far | actions)`` since :meth:`reset`.  An environment's
+        :attr:`~gym_gridloc.GridLocEnv.exact_filter` shows the step's posterior without it and
+        raises ``ValueError``: run a ``ForwardFilter`` of your own beside the environment."""
+        if self._log_likelihood is None:
+            raise ValueError("this filter shows an environment's posterior (GridLocEnv.exact_filter), whose step does not "
+                             "compute log P(readings); for it, run a ForwardFilter(env.unwrapped.model) of your own: "
+                             "reset(reading=...) with the first reading, then step(action, reading=...) after every step")
+        return self._log_likelihood
+
+    @log_likelihood.setter
+    def log_likelihood(self, value: float) -> None:
+        self._log_likelihood = value
 
     def _bind(self) -> None:
         """The engine's bound functions (rebuilt on load).  ``_step_now`` normalises in the pass
@@ -156,6 +176,8 @@ class ForwardFilter:
         self.__dict__.update(state)
         self.__dict__.setdefault("read_every_step", False)
         self.__dict__.setdefault("_lent", None)
+        if "log_likelihood" in self.__dict__:  # pickled before it was a property
+            self._log_likelihood = self.__dict__.pop("log_likelihood")
         self._bind()
 
     # -- reading the belief -----------------------------------------------------------------------

@@ -541,3 +541,17 @@ def test_bench_filter_script_runs_and_refuses_bad_counts():
     for flag in ("--repeats", "--steps"):
         bad = subprocess.run([*run, flag, "0"], capture_output=True, text=True, timeout=300)
         assert bad.returncode == 2 and f"{flag} must be at least 1, got 0" in bad.stderr
+
+
+def test_the_environments_filter_refuses_a_log_likelihood_it_does_not_have():
+    """The environment's exact_filter shows the step's posterior, which is computed without
+    log P(readings): asking for it is an error that says what to run instead, never a 0.0."""
+    from gym_gridloc import HMMBeliefWrapper
+
+    env = HMMBeliefWrapper(gym.make("WindyMaze-v0"))
+    env.reset(seed=0)
+    env.step(0)
+    with pytest.raises(ValueError, match=r"ForwardFilter\(env.unwrapped.model\)"):
+        env.filter.log_likelihood
+    own = ForwardFilter(env.unwrapped.model).reset(reading=0)
+    assert own.log_likelihood < 0.0
