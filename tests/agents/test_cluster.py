@@ -349,3 +349,19 @@ def test_on_a_two_node_cluster(cluster, tmp_path):
         if local_sweep.poll() is None:
             kill_session(local_sweep.pid)
             local_sweep.wait(30)
+
+
+def test_ctrl_c_while_waiting_for_chunks_is_noted_not_raised_inside_ray():
+    """The first Ctrl-C is noted for the driver's loop (never raised inside one of Ray's calls,
+    which could take it for a lost chunk); a second raises at once; the handler is put back."""
+    from gym_gridloc_agents.evaluation.bench_cluster import _ctrl_c_noted
+
+    before = signal.getsignal(signal.SIGINT)
+    with _ctrl_c_noted() as pressed:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)
+        assert pressed == [signal.SIGINT]
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+    assert signal.getsignal(signal.SIGINT) is before

@@ -24,11 +24,14 @@ only when a run on a cluster starts.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import os
+import signal
 import sys
 import tempfile
+import threading
 from collections import Counter
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -159,9 +162,12 @@ def run_chunks(address: str, chunks: Callable[[int], list[tuple[int, tuple]]], n
             return f"the Ray cluster at {address} stopped answering during the run (its head {gcs}: {why})"
 
         pending = {submit(k): k for k in range(len(work))}
-        with tqdm(total=len(work), desc=f"benchmark chunks on {len(nodes)} node(s), {cpus} CPU(s)", disable=not progress) as bar:
+        with tqdm(total=len(work), desc=f"benchmark chunks on {len(nodes)} node(s), {cpus} CPU(s)", disable=not progress) as bar, \
+                _ctrl_c_noted() as pressed:
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1, timeout=HEARTBEAT)
+                if pressed:
+                    raise KeyboardInterrupt
                 if not ready:  # nothing came back: is the cluster still there? (Ray would wait for it for minutes)
                     if (lost := head_gone()) is not None:
                         raise ChunksStopped(work, done, where(), lost)
@@ -193,10 +199,30 @@ def run_chunks(address: str, chunks: Callable[[int], list[tuple[int, tuple]]], n
             _shutdown_quietly(ray)
 
 
+@contextlib.contextmanager
+def _ctrl_c_noted():
+    """While the driver waits for chunks, Ctrl-C (SIGINT) is noted in the list yielded, which the
+    loop reads after every wait: a KeyboardInterrupt raised inside Ray's own calls could be taken
+    for a lost chunk there.  A second Ctrl-C raises at once.  Outside the main thread: no change."""
+    pressed: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield pressed
+        return
+
+    def note(signum, frame):
+        if pressed:
+            raise KeyboardInterrupt
+        pressed.append(signum)
+
+    previous = signal.signal(signal.SIGINT, note)
+    try:
+        yield pressed
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _shutdown_quietly(ray) -> None:
     """``ray.shutdown()`` of a driver whose cluster is gone, in a daemon thread given a few seconds."""
-    import threading
-
     thread = threading.Thread(target=ray.shutdown, daemon=True)
     thread.start()
     thread.join(10)
