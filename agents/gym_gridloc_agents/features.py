@@ -59,7 +59,7 @@ class BeliefMapCNN(BaseFeaturesExtractor):
         maps = observation_space.spaces.get("map")
         c_in = image[0] + (maps.shape[0] if maps is not None else 0)
         reading = get_flattened_obs_dim(observation_space["observation"])
-        super().__init__(observation_space, features_dim=features + reading)
+        super().__init__(observation_space, features_dim=features + reading + _history_dim(observation_space))
         convs = [m for k in range(layers)
                  for m in (nn.Conv2d(c_in if k == 0 else channels, channels, 3, padding=1), nn.ReLU())]
         self.cnn = nn.Sequential(*convs, nn.Flatten(), nn.Linear(channels * math.prod(image[1:]), features), nn.ReLU())
@@ -68,7 +68,18 @@ class BeliefMapCNN(BaseFeaturesExtractor):
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         belief = obs["belief"].unsqueeze(1) if obs["belief"].dim() == 3 else obs["belief"]
         image = torch.cat([belief, obs["map"]], dim=1) if self.has_map else belief
-        return torch.cat([self.cnn(image), obs["observation"].flatten(1)], dim=1)
+        return _with_history(torch.cat([self.cnn(image), obs["observation"].flatten(1)], dim=1), obs)
+
+
+def _history_dim(space: spaces.Dict) -> int:
+    """The size of the ``"history"`` entry (:mod:`gym_gridloc_agents.history`: the last actions and
+    the steps left) that every Dict extractor passes on beside its features, 0 without one."""
+    history = space.spaces.get("history")
+    return int(math.prod(history.shape)) if history is not None else 0
+
+
+def _with_history(features: torch.Tensor, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+    return torch.cat([features, obs["history"].flatten(1)], dim=1) if "history" in obs else features
 
 
 # -- pooling over the belief's poses -------------------------------------------------------------
@@ -146,7 +157,7 @@ class PosePoolCNN(BaseFeaturesExtractor):
         if len(belief) != 3 or belief[0] != 4 or belief[1] != belief[2]:
             raise ValueError(f"PosePoolCNN needs a square pose belief (4, N, N) (full_state=True, four headings); got {belief}")
         reading = get_flattened_obs_dim(observation_space["observation"])
-        super().__init__(observation_space, features_dim=features + reading)
+        super().__init__(observation_space, features_dim=features + reading + _history_dim(observation_space))
         self.first = nn.Conv2d(5, channels, 3, padding=1)
         self.convs = _dilated_convs(channels, layers, max_dilation)
         self.head = nn.Sequential(nn.Linear(2 * channels + 1, features), nn.ReLU())
@@ -175,7 +186,7 @@ class PosePoolCNN(BaseFeaturesExtractor):
             mean.append(b[rows] @ feats[k])
             top.append((support[rows].unsqueeze(2) * feats[k]).amax(dim=1))
         pooled = torch.cat([torch.cat(mean), torch.cat(top)], dim=1)[torch.argsort(order)]
-        return torch.cat([self.head(torch.cat([pooled, size], dim=1)), obs["observation"].flatten(1)], dim=1)
+        return _with_history(torch.cat([self.head(torch.cat([pooled, size], dim=1)), obs["observation"].flatten(1)], dim=1), obs)
 
 
 class CellPoolCNN(BaseFeaturesExtractor):
@@ -211,7 +222,7 @@ class CellPoolCNN(BaseFeaturesExtractor):
         reading = get_flattened_obs_dim(observation_space["observation"])
         look = observation_space.spaces.get("lookahead")
         self.n_look = int(math.prod(look.shape)) if look is not None else 0
-        super().__init__(observation_space, features_dim=features + 2 * self.n_look + reading)
+        super().__init__(observation_space, features_dim=features + 2 * self.n_look + reading + _history_dim(observation_space))
         self.first = nn.Conv2d(maps[0], channels, 3, padding=1)
         self.convs = _dilated_convs(channels, layers, max_dilation)
         self.head = nn.Sequential(nn.Linear(3 * channels + 1 + 2 * self.n_look, features), nn.ReLU())
@@ -232,10 +243,10 @@ class CellPoolCNN(BaseFeaturesExtractor):
         top = (f * support.unsqueeze(1)).amax(dim=2)
         pooled = torch.cat([mean, spread, top, size], dim=1)
         if not self.n_look:
-            return torch.cat([self.head(pooled), obs["observation"].flatten(1)], dim=1)
+            return _with_history(torch.cat([self.head(pooled), obs["observation"].flatten(1)], dim=1), obs)
         look = obs["lookahead"]  # (B, depth, A)
         look = torch.cat([look, look - look.amin(dim=2, keepdim=True)], dim=1).flatten(1)
-        return torch.cat([self.head(torch.cat([pooled, look], dim=1)), look, obs["observation"].flatten(1)], dim=1)
+        return _with_history(torch.cat([self.head(torch.cat([pooled, look], dim=1)), look, obs["observation"].flatten(1)], dim=1), obs)
 
 
 class BeliefLogFeatures(BaseFeaturesExtractor):

@@ -173,6 +173,24 @@ def test_belief_map_cnn_shapes():
     assert net(_observation(model, _random_belief(model, 0))).shape == (1, 8 + 14)
 
 
+@pytest.mark.parametrize("cls", [BeliefMapCNN, PosePoolCNN, CellPoolCNN])
+def test_dict_extractors_pass_the_history_on(cls):
+    """A Dict observation's "history" (the last actions, the steps left) reaches the policy as it is."""
+    space = _space(7)
+    history = spaces.Box(0, 1, (11,))
+    plain = cls(space, channels=4, layers=2, features=8)
+    net = cls(spaces.Dict({**space.spaces, "history": history}), channels=4, layers=2, features=8)
+    assert net.features_dim == plain.features_dim + 11
+    model = _maze(7, 0)
+    obs = _observation(model, _random_belief(model, 0))
+    h = torch.zeros(1, 11)
+    h[0, 2], h[0, 10] = 1.0, 0.4
+    with torch.no_grad():
+        out = net({**obs, "history": h})
+    assert out.shape == (1, net.features_dim)
+    torch.testing.assert_close(out[0, -11:], h[0])
+
+
 def _cfg(**policy_kwargs):
     return {"algo": "ppo", "env_id": "DepthMaze-v0", "env_kwargs": {"size": 7, "episode_length": 5},
             "wrapper": {"belief": True, "flatten": False, "full_state": True, "map": True}, "total_timesteps": 64,
