@@ -17,6 +17,8 @@ import numpy as np
 from gym_gridloc import derived, kernels
 from gym_gridloc.core.model import GridModel
 
+_INT64, _INT8 = np.dtype(np.int64), np.dtype(np.int8)
+
 __all__ = ["Rows", "vector_bank", "VectorBank"]
 
 #: What a step does with each row (``modes``, int8): move, read and filter; start an episode at a
@@ -161,12 +163,29 @@ class VectorBank:
                 missing = fast.draw_maps(self._maze_struct, rows.slots, modes, functions)
             if missing:
                 self._place_codes(self._maze[3], modes, rows.slots)
+        args = (self._tables, rows.compiled, actions, modes, blocks.compiled, functions)
+        entry = self._entry
+        if (entry is None or entry[1] is not rows or entry[2] is not blocks or actions.dtype != _INT64 or modes.dtype != _INT8
+                or not (actions.flags.c_contiguous and modes.flags.c_contiguous and actions.flags.writeable and modes.flags.writeable)):
+            entry = self._entry = self._entry_point(args, rows, blocks)
         with bits.lock:
-            bad = fast.vector_advance(self._tables, rows.compiled, actions, modes, blocks.compiled, functions)
+            bad = entry[0](*args)
         if bad >= 0:
             model = self.models[int(rows.slots[bad])]
             reading = int(rows.readings[bad])
             raise derived.impossible(model, reading, label=f"observation {model.sensor.observation_text(reading)} of belief {bad}")
+
+    def _entry_point(self, args: tuple, rows: Rows, blocks: Any) -> tuple[Callable[..., int], Rows, Any] | None:
+        """The compiled step for arguments of the types of ``args`` (the common ones: C-contiguous
+        writable int64 actions and int8 modes), as numba's dispatcher would choose it, but called
+        without the dispatch: it compiles the step once if needed and keeps its entry point (a
+        microsecond of each step's cost, where a small map's whole step costs a few).  Made again
+        for other rows, blocks or tables, or arguments of other types."""
+        step = self._fast.vector_advance
+        types = tuple(step.typeof_pyval(a) for a in args)
+        if types not in step.overloads:
+            step.compile(types)
+        return step.overloads[types].entry_point, rows, blocks
 
     def draw_maps(self, walls: np.ndarray, rooms: int, model_of_code: Callable[[int], GridModel]) -> bool:
         """Let ``advance(..., maps=True)`` draw the starting rows' maps in the step's own call:
@@ -250,10 +269,11 @@ class VectorBank:
         self._fast = fast = kernels.compiled(1)
         self._bits = self._functions = None
         self._tables = fast.step_tables(*self._stacked, *(int(x) for x in self.scalars))
+        self._entry = None  # (the step's entry point, for these tables: see _entry_point)
         self._maze_struct = None if self._maze is None else fast.step_maze(*self._maze)
 
     def __getstate__(self) -> dict:
-        return {k: v for k, v in self.__dict__.items() if k not in ("_tables", "_maze_struct", "_slot_of", "_fast", "_bits", "_functions")}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_tables", "_maze_struct", "_slot_of", "_fast", "_bits", "_functions", "_entry")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)

@@ -17,9 +17,10 @@ and the native vector env against ``SyncVectorEnv`` over the wrapper.
   times): a full collection of the process's objects (tens of ms) falling in one env's rounds and
   not the other's would decide a ratio.
 
-Targets: a wrapped step at most 2.5 x FrozenLake for WindyMaze-v0 and ColourGrid-v0,
-at most 4 x for RingSensor8x8-v0 and DepthMaze-v0 (7x7); the native vector env at least 30 x
-SyncVectorEnv at 64 envs.
+Targets: a wrapped step at most 2 x FrozenLake for WindyMaze-v0, ColourGrid-v0 and
+RingSensor8x8-v0, at most 3 x for DepthMaze-v0 (7x7); the native vector env at least 40 x
+SyncVectorEnv at 64 envs.  (SyncVectorEnv steps the single environment, itself the compiled step
+of one robot: a faster single step makes this ratio harder to reach.)
 
     .venv/bin/python scripts/bench_step.py
     .venv/bin/python scripts/bench_step.py --steps 20000 --num-envs 64
@@ -37,7 +38,9 @@ import numpy as np
 
 import gym_gridloc
 
-TARGETS = {"WindyMaze-v0": 2.5, "ColourGrid-v0": 2.5, "RingSensor8x8-v0": 4.0, "DepthMaze-v0": 4.0}
+TARGETS = {"WindyMaze-v0": 2.0, "ColourGrid-v0": 2.0, "RingSensor8x8-v0": 2.0, "DepthMaze-v0": 3.0}
+#: The native vector env's target: at least this many times SyncVectorEnv's steps per second.
+VECTOR_TARGET = 40.0
 
 
 @contextlib.contextmanager
@@ -177,7 +180,8 @@ def main(argv=None) -> None:
             # mazes; both envs share what redraw keeps), so that both are timed as they run for hours
             a, b = vector_rates(native, sync, n, args.vector_steps, args.rounds, warmup=args.warmup if redrawn else 5)
             ratio = a / b
-            print(f"{env_id:<18} | {a:>8.0f}/s {b:>8.0f}/s | {ratio:>12.1f}x {'>= 30x: met' if ratio >= 30 else '>= 30x: NOT met'}")
+            verdict = f">= {VECTOR_TARGET:g}x: {'met' if ratio >= VECTOR_TARGET else 'NOT met'}"
+            print(f"{env_id:<18} | {a:>8.0f}/s {b:>8.0f}/s | {ratio:>12.1f}x {verdict}")
             bound = map_build_bound(native, n, b)
             if bound is not None:
                 print(f"{'':<18} | {bound}")
