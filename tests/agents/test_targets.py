@@ -56,6 +56,23 @@ def test_a_policy_against_itself_is_a_tie_and_against_the_random_walk_better(tmp
     assert "other file" not in text  # its source is not among the table's files
 
 
+def test_within_a_fraction_of_another_policy_is_judged_on_the_paired_interval():
+    rows = run_benchmark(["ColourGrid-v0"], ["random", "greedy"], 200, progress=False)
+    base = {"task": "t", "source": "r", "env": "ColourGrid-v0", "env_kwargs": {}}
+    greedy, rand = rows[1]["mean_steps"], rows[0]["mean_steps"]
+    assert greedy < rand
+    found = judge({**base, "policy": "greedy", "within": {"of": "random", "fraction": 0.0}}, rows)
+    assert found["verdict"] == "met" and "vs 1 x" in found["measured"]
+    assert judge({**base, "policy": "random", "within": {"of": "greedy", "fraction": 0.1}}, rows)["verdict"] == "not met"
+    # the random walk within a fraction generous enough: the scaled greedy mean is far above it
+    big = 2 * rand / greedy
+    assert judge({**base, "policy": "random", "within": {"of": "greedy", "fraction": big}}, rows)["verdict"] == "met"
+    # the difference is A's mean minus (1 + fraction) times B's
+    assert f"{rand - 1.1 * greedy:+.2f}" in judge({**base, "policy": "random", "within": {"of": "greedy", "fraction": 0.1}}, rows)["measured"]
+    with pytest.raises(ValueError, match="within compares mean steps"):
+        judge({**_target(within={"of": "random", "fraction": 0.1})}, [{**ACC, "per_episode": {}}, {**ACC, "policy": "random", "per_episode": {}}])
+
+
 def test_bad_target_files_are_named(tmp_path):
     with pytest.raises(ValueError, match="cannot read the targets"):
         read_targets(tmp_path)
@@ -65,3 +82,7 @@ def test_bad_target_files_are_named(tmp_path):
     (tmp_path / "targets.json").write_text(json.dumps([{**_target(at_least=0.9), "colour": "red"}]))
     with pytest.raises(ValueError, match="target 0 must have task, source, env and policy, and only"):
         read_targets(tmp_path)
+    for bad in ({"of": "ppo"}, {"of": "ppo", "fraction": -0.1}, {"of": 3, "fraction": 0.1}, 0.1):
+        (tmp_path / "targets.json").write_text(json.dumps([_target(within=bad)]))
+        with pytest.raises(ValueError, match="within must be"):
+            read_targets(tmp_path)

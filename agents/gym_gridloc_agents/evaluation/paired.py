@@ -53,9 +53,11 @@ def mcnemar(a: np.ndarray, b: np.ndarray) -> dict[str, Any]:
 
 
 def compare(a: dict[str, Any], b: dict[str, Any], *, resamples: int = stats.BOOTSTRAP_RESAMPLES,
-            seed: int = stats.BOOTSTRAP_SEED) -> dict[str, Any] | None:
+            seed: int = stats.BOOTSTRAP_SEED, scale: float = 1.0) -> dict[str, Any] | None:
     """Row ``a`` against row ``b`` (module docstring); None when they are not of one task on the
-    same episodes or either lacks its episodes' results."""
+    same episodes or either lacks its episodes' results.  ``scale``: against ``scale`` times
+    ``b`` (the difference is A's mean minus ``scale`` times B's, paired as ever: "A within 10%
+    of B" is ``scale=1.1`` and a ``better`` verdict for fewer steps)."""
     from gym_gridloc_agents.evaluation.report import env_label, policy_label
 
     ea, eb = episode_arrays(a), episode_arrays(b)
@@ -66,13 +68,13 @@ def compare(a: dict[str, Any], b: dict[str, Any], *, resamples: int = stats.BOOT
         return None
     n = min(ea[key].shape[1], eb[key].shape[1])
     x, y = ea[key][:, :n], eb[key][:, :n]
-    reps = stats.hierarchical_replicates([x, y], [1.0, -1.0], resamples=resamples, seed=seed)
+    reps = stats.hierarchical_replicates([x, y], [1.0, -float(scale)], resamples=resamples, seed=seed)
     ci = [float(reps[0])] * 2 if np.ptp(reps) == 0 else stats.percentile_interval(reps)
     # per pair of seeds: episodes where A does better, ties half
     wins = (x[:, None, :] < y[None, :, :]) if lower else (x[:, None, :] > y[None, :, :])
     ties = x[:, None, :] == y[None, :, :]
     out = {"env": env_label(a), "a": policy_label(a), "b": policy_label(b), "metric": key, "episodes": int(n),
-           "seeds": [int(x.shape[0]), int(y.shape[0])], "difference": float(x.mean() - y.mean()), "ci95": ci,
+           "seeds": [int(x.shape[0]), int(y.shape[0])], "difference": float(x.mean() - scale * y.mean()), "ci95": ci,
            "interval_over": ("episodes (paired bootstrap)" if x.shape[0] == y.shape[0] == 1
                              else "seeds, then the common episodes (hierarchical bootstrap)"),
            "probability_of_improvement": float(np.mean(wins + 0.5 * ties)), "verdict": verdict(ci, lower)}
