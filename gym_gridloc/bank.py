@@ -164,23 +164,27 @@ class VectorBank:
             if missing:
                 self._place_codes(self._maze[3], modes, rows.slots)
         args = (self._tables, rows.compiled, actions, modes, blocks.compiled, functions)
-        entry = self._entry
-        if (entry is None or entry[1] is not rows or entry[2] is not blocks or actions.dtype != _INT64 or modes.dtype != _INT8
-                or not (actions.flags.c_contiguous and modes.flags.c_contiguous and actions.flags.writeable and modes.flags.writeable)):
-            entry = self._entry = self._entry_point(args, rows, blocks)
+        if (actions.dtype == _INT64 and modes.dtype == _INT8 and actions.flags.c_contiguous and modes.flags.c_contiguous
+                and actions.flags.writeable and modes.flags.writeable):  # the usual types: the kept entry point
+            entry = self._entry
+            if entry is None or entry[1] is not rows or entry[2] is not blocks:
+                entry = self._entry = self._entry_point(args, rows, blocks)
+            step = entry[0]
+        else:  # other types: numba's dispatcher chooses (and compiles) the step for them
+            step = fast.vector_advance
         with bits.lock:
-            bad = entry[0](*args)
+            bad = step(*args)
         if bad >= 0:
             model = self.models[int(rows.slots[bad])]
             reading = int(rows.readings[bad])
             raise derived.impossible(model, reading, label=f"observation {model.sensor.observation_text(reading)} of belief {bad}")
 
-    def _entry_point(self, args: tuple, rows: Rows, blocks: Any) -> tuple[Callable[..., int], Rows, Any] | None:
-        """The compiled step for arguments of the types of ``args`` (the common ones: C-contiguous
-        writable int64 actions and int8 modes), as numba's dispatcher would choose it, but called
-        without the dispatch: it compiles the step once if needed and keeps its entry point (a
-        microsecond of each step's cost, where a small map's whole step costs a few).  Made again
-        for other rows, blocks or tables, or arguments of other types."""
+    def _entry_point(self, args: tuple, rows: Rows, blocks: Any) -> tuple[Callable[..., int], Rows, Any]:
+        """The compiled step for arguments of the types of ``args`` (the usual ones: C-contiguous
+        writable int64 actions and int8 modes), as numba's dispatcher would choose it, to be
+        called without the dispatch (a microsecond of each step's cost, where a small map's whole
+        step costs a few): compiled once if needed, its entry point kept with the rows and blocks
+        it was made for (made again for others, and for new tables)."""
         step = self._fast.vector_advance
         types = tuple(step.typeof_pyval(a) for a in args)
         if types not in step.overloads:
