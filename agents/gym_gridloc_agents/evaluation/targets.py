@@ -81,24 +81,19 @@ def judge(target: dict[str, Any], rows: Sequence[dict[str, Any]]) -> dict[str, s
         from gym_gridloc_agents.evaluation import paired
 
         within = target.get("within")
+        if within and not lower_is_better:
+            raise ValueError(f"target {target['task']!r}: within compares mean steps, not {col}")
+        scale = 1.0 + within["fraction"] if within else 1.0
         other = _row(rows, target, within["of"] if within else target["better_than"])
         if other is None or "per_episode" not in row or "per_episode" not in other:
             return {"measured": f"{row[col]:.{digits}f}", "episodes": _episodes(row), "verdict": "not measured"}
-        if within:
-            if not lower_is_better:
-                raise ValueError(f"target {target['task']!r}: within compares mean steps, not {col}")
-            scale = 1.0 + within["fraction"]
-            p = paired.compare(row, other, scale=scale)
-            lo, hi = p["ci95"]
-            verdict = "met" if hi < 0 else "not met" if lo > 0 else "undecided"
-            return {"measured": f"{row[col]:.{digits}f} vs {scale:g} x {other[col]:.{digits}f}: difference "
-                                f"{p['difference']:+.{digits}f} ({lo:+.{digits}f} to {hi:+.{digits}f}, paired)",
-                    "episodes": _episodes(row), "verdict": verdict}
-        p = paired.compare(row, other)
+        p = paired.compare(row, other, scale=scale)
         lo, hi = p["ci95"]
-        return {"measured": f"{row[col]:.{digits}f} vs {other[col]:.{digits}f}: difference {p['difference']:+.{digits}f} "
+        versus = f"{scale:g} x " if within else ""
+        return {"measured": f"{row[col]:.{digits}f} vs {versus}{other[col]:.{digits}f}: difference {p['difference']:+.{digits}f} "
                             f"({lo:+.{digits}f} to {hi:+.{digits}f}, paired)",
-                "episodes": _episodes(row), "verdict": {"better": "met", "worse": "not met"}.get(p["verdict"], "tie")}
+                "episodes": _episodes(row),
+                "verdict": {"better": "met", "worse": "not met"}.get(p["verdict"], "undecided" if within else "tie")}
     lo, hi = row.get(f"{col}_ci95") or (row[col], row[col])
     goal, above = (target["at_least"], True) if "at_least" in target else (target["at_most"], False)
     if (lo > goal if above else hi < goal):
