@@ -18,7 +18,7 @@ import gym_gridloc
 from gym_gridloc.core.validation import unknown_names, whole_numbers
 from gym_gridloc.envs.base import GridLocEnv
 from gym_gridloc.vector import GridLocVectorEnv
-from gym_gridloc_agents.history import History, HistoryWrapper, episode_limit, history_options
+from gym_gridloc_agents.history import HISTORY_KEYS, History, HistoryWrapper, episode_limit, history_options
 
 
 def check_environment(env_id: str, env_kwargs: dict[str, Any], *, what: str, error: type[Exception]) -> gym.Space:
@@ -79,18 +79,19 @@ def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, wrapper: dic
     """``gym.make(env_id, **env_kwargs)``, behind ``HMMBeliefWrapper(**wrapper)`` unless
     ``wrapper["belief"]`` is false (raw readings; behind :class:`gym_gridloc.PreviousActionWrapper`
     with ``wrapper["previous_action"]``), and behind :class:`~gym_gridloc_agents.history.HistoryWrapper`
-    with ``wrapper["past_actions"]`` or ``wrapper["steps_left"]``.  ``wrapper=None``: the Dict
+    with ``wrapper["past_actions"]``, ``wrapper["steps_left"]`` or ``wrapper["time_step"]``.  ``wrapper=None``: the Dict
     belief observation every policy of the benchmark reads."""
     env = gym.make(env_id, **dict(env_kwargs or {}))
     opts = {"belief": True} if wrapper is None else dict(wrapper)
-    k, h = history_options(opts)
-    opts.pop("past_actions", None), opts.pop("steps_left", None)
+    history = history_options(opts)
+    for key in HISTORY_KEYS:
+        opts.pop(key, None)
     previous = opts.pop("previous_action", False)
     if opts.pop("belief", True) is False:
         env = gym_gridloc.PreviousActionWrapper(env) if previous else env
     else:
         env = gym_gridloc.HMMBeliefWrapper(env, **opts)
-    return HistoryWrapper(env, past_actions=k, steps_left=h) if k or h else env
+    return HistoryWrapper(env, **history.wrapper) if history.any else env
 
 
 def served_env(env: gym.Env, policy: Any) -> gym.Env:
@@ -115,10 +116,11 @@ def make_training_env(cfg: dict[str, Any]):
     through :class:`SB3VecEnv`)."""
     if cfg.get("vec_env", "dummy") == "native":
         wrapper = dict(cfg["wrapper"])
-        k, h = history_options(wrapper)
-        wrapper.pop("past_actions", None), wrapper.pop("steps_left", None)
+        history = history_options(wrapper)
+        for key in HISTORY_KEYS:
+            wrapper.pop(key, None)
         venv = SB3VecEnv.make(cfg["env_id"], cfg["n_envs"], belief="exact" if wrapper.pop("belief", True) else None,
-                              history={"past_actions": k, "steps_left": h}, **wrapper, **cfg["env_kwargs"])
+                              history=history.wrapper, **wrapper, **cfg["env_kwargs"])
         venv.seed(cfg["seed"])
         return venv
     return make_vec_env(env_thunk(cfg), n_envs=cfg["n_envs"], seed=cfg["seed"])
@@ -140,7 +142,7 @@ class SB3VecEnv(VecEnv):
     8
 
     ``SB3VecEnv.make(env_id, num_envs, **kwargs)`` builds the native env and the adapter.
-    ``history={"past_actions": K, "steps_left": H}`` appends each episode's
+    ``history={"past_actions": K, "steps_left": H}`` (or ``"time_step": H``) appends each episode's
     :class:`~gym_gridloc_agents.history.History` to its observations (as :class:`HistoryWrapper` does).
     """
 
@@ -150,9 +152,9 @@ class SB3VecEnv(VecEnv):
             raise TypeError(f"SB3VecEnv needs a gym_gridloc native vector env (GridLocVectorEnv), got {type(venv).__name__}")
         env.set_autoreset_mode(AutoresetMode.SAME_STEP)
         self.venv = env
-        k, h = history_options(history)
-        self.history = (History(int(env.single_action_space.n), actions=k, horizon=h, n=env.num_envs,
-                                limit=episode_limit(env) if h else None) if k or h else None)
+        opts = history_options(history)
+        self.history = (History(int(env.single_action_space.n), options=opts, n=env.num_envs,
+                                limit=episode_limit(env) if opts.horizon and not opts.time_step else None) if opts.any else None)
         space = env.single_observation_space if self.history is None else self.history.space(env.single_observation_space)
         super().__init__(env.num_envs, space, env.single_action_space)
         self._actions: np.ndarray | None = None

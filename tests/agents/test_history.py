@@ -72,13 +72,67 @@ def test_the_vector_env_keeps_a_history_per_episode():
         assert last[-1] == 0.0 and last[-4 + i] == 1.0
 
 
+def test_the_time_step_counts_from_the_start_whatever_the_episode_length():
+    for limit in (5, 15, 30, 60):  # the clock of an episode of any length is that of the first steps of one of 30
+        h = History(3, horizon=30, limit=limit, time_step=True)
+        seen = [h.features()[0, 0]]
+        for _ in range(40):
+            h.record(np.array([0]))
+            seen.append(h.features()[0, 0])
+        assert np.array_equal(seen, np.float32([max(30 - t, 0) / 30 for t in range(41)]))
+    left, time = History(3, actions=2, horizon=30, limit=30, n=2), History(3, actions=2, horizon=30, n=2, time_step=True)
+    for t in range(35):  # episodes of the horizon's length: the same features as the steps left
+        assert np.array_equal(left.features(), time.features())
+        left.record(np.array([t % 3, 2])), time.record(np.array([t % 3, 2]))
+    short = History(3, horizon=30, limit=15)
+    assert short.features()[0, 0] == 0.5  # the steps left of a shorter episode: what the first step shows differs
+
+
+def test_time_step_and_steps_left_train_the_same_model_on_episodes_of_the_horizon(tmp_path):
+    import torch
+
+    weights = []
+    for clock in ("steps_left", "time_step"):
+        cfg = {"algo": "ppo", "env_id": "DepthMaze-v0", "env_kwargs": {"size": 7, "episode_length": 8, "reward": "belief"},
+               "wrapper": {**FLAT, "past_actions": 2, clock: 8}, "vec_env": "native", "n_envs": 4, "seed": 3,
+               "total_timesteps": 256, "policy_kwargs": {"net_arch": [16]},
+               "hyperparams": {"n_steps": 32, "batch_size": 64, "n_epochs": 2}, "eval_freq": 0,
+               "output": str(tmp_path / f"{clock}.zip"), "checkpoint_dir": str(tmp_path / clock)}
+        train(cfg, progress_bar=False)
+        policy = make_policy("ppo", make_env("DepthMaze-v0", {"size": 7, "episode_length": 8}).unwrapped.model,
+                             env_id="DepthMaze-v0", env_kwargs={"size": 7, "episode_length": 8}, path=tmp_path / f"{clock}.zip")
+        weights.append(policy.sb3.policy.state_dict())
+        assert policy.history.time_step == (clock == "time_step")
+    assert weights[0].keys() == weights[1].keys()
+    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+
+
+def test_a_model_that_sees_the_time_step_plays_a_shorter_episode_as_the_start_of_a_longer_one(tmp_path):
+    cfg = {"algo": "ppo", "env_id": "DepthMaze-v0", "env_kwargs": {"size": 7, "episode_length": 12, "reward": "belief"},
+           "wrapper": {**FLAT, "past_actions": 2, "time_step": 12}, "vec_env": "native", "n_envs": 4, "seed": 1,
+           "total_timesteps": 128, "policy_kwargs": {"net_arch": [16]},
+           "hyperparams": {"n_steps": 32, "batch_size": 64, "n_epochs": 1}, "eval_freq": 0,
+           "output": str(tmp_path / "m.zip"), "checkpoint_dir": str(tmp_path / "ckpt")}
+    train(cfg, progress_bar=False)
+    played = []
+    for length in (6, 12):
+        kw = {"size": 7, "episode_length": length}
+        env = make_env("DepthMaze-v0", kw)
+        policy = make_policy("ppo", env.unwrapped.model, env_id="DepthMaze-v0", env_kwargs=kw, path=tmp_path / "m.zip")
+        played.append(rollout(env, policy, seed=4, keep=True).actions)
+    assert len(played[0]) == 6 and played[0] == played[1][:6]
+
+
 def test_history_options_are_checked_in_configs():
     base = {"algo": "ppo", "env_id": "WindyMaze-v0", "total_timesteps": 64, "output": "m.zip"}
     for key, value, message in (("past_actions", -1, "wrapper.past_actions must be an integer from 0 to 32"),
                                 ("past_actions", 2.5, "wrapper.past_actions must be an integer from 0 to 32"),
-                                ("steps_left", 10**6, "wrapper.steps_left must be an integer from 0 \\(none\\) to 10000")):
+                                ("steps_left", 10**6, "wrapper.steps_left must be an integer from 0 \\(none\\) to 10000"),
+                                ("time_step", -3, "wrapper.time_step must be an integer from 0 \\(none\\) to 10000")):
         with pytest.raises(ConfigError, match=message):
             validate_config({**base, "wrapper": {"belief": True, "flatten": True, key: value}})
+    with pytest.raises(ConfigError, match="wrapper.steps_left and time_step are two clocks: give one of them"):
+        validate_config({**base, "wrapper": {"belief": True, "flatten": True, "steps_left": 10, "time_step": 10}})
 
 
 def test_a_model_that_sees_its_history_acts_with_it(tmp_path):

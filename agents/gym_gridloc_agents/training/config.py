@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from gym_gridloc.core.validation import check_int, is_int
-from gym_gridloc_agents.history import history_options
+from gym_gridloc_agents.history import HISTORY_KEYS, history_options
 from gym_gridloc_agents.loading import ALGOS
 from gym_gridloc_agents.registry import EXPERT_NAMES, VALUE_NAMES, either
 from gym_gridloc_agents.training.config_values import (HYPER_RANGES, SCHEDULED, ConfigError, allowed_hyperparams,  # noqa: F401
@@ -44,7 +44,7 @@ TOP_KEYS = {
     "env_id": "a registered environment id",
     "env_kwargs": "keyword arguments of gym.make",
     "wrapper": "HMMBeliefWrapper options: belief, flatten, full_state, map, lookahead; previous_action (raw readings); "
-               "past_actions, steps_left (gym_gridloc_agents.history)",
+               "past_actions, steps_left or time_step (gym_gridloc_agents.history)",
     "n_envs": "number of parallel environments (DummyVecEnv)",
     "seed": "the seed of environments, numpy and torch",
     "total_timesteps": "environment steps to train for",
@@ -83,7 +83,7 @@ PRETRAIN_KEYS = {
 }
 
 WRAPPER_KEYS = {"belief": bool, "flatten": bool, "full_state": bool, "map": bool, "lookahead": int,
-                "previous_action": bool, "past_actions": int, "steps_left": int}
+                "previous_action": bool, "past_actions": int, "steps_left": int, "time_step": int}
 
 POLICIES = {
     "ppo": ("MlpPolicy", "MultiInputPolicy"),
@@ -197,10 +197,9 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
     for k, v in wrapper.items():
         if k == "lookahead":
             check_int(f"{source}: wrapper.lookahead", v, 0, 2, what="0, 1 or 2", error=ConfigError)
-        elif k in ("past_actions", "steps_left"):
-            history_options({k: v}, error=ConfigError, source=f"{source}: wrapper.")
-        elif not isinstance(v, bool):
+        elif k not in HISTORY_KEYS and not isinstance(v, bool):
             raise ConfigError(f"{source}: wrapper.{k} must be true or false, got {v!r}")
+    history_options(wrapper, error=ConfigError, source=f"{source}: wrapper.")  # the history's (one clock at most)
     if not wrapper["belief"] and (wrapper["flatten"] or wrapper["full_state"] or wrapper["map"] or wrapper.get("lookahead")):
         raise ConfigError(f"{source}: wrapper.flatten / wrapper.full_state / wrapper.map / wrapper.lookahead need wrapper.belief: true")
     if not wrapper["belief"] and algo != "recurrent_ppo":
