@@ -235,8 +235,18 @@ def eller_maze(size: int, *, seed: Any = None) -> GridMap:
     return GridMap(labels, ("O",))
 
 
+def mixed_maze(size: int, *, seed: Any = None) -> GridMap:
+    """A perfect maze from Kruskal's algorithm (:func:`perfect_maze`) or Eller's
+    (:func:`eller_maze`), each with probability 1/2: one uniform draw from ``seed`` chooses, the
+    chosen generator draws the maze from the same generator.  A policy trained on these mazes has
+    seen both constructions, whose distributions differ (see :func:`eller_maze`)."""
+    rng = as_rng(seed)
+    draw = eller_maze if rng.random() < 0.5 else perfect_maze
+    return draw(size, seed=rng)
+
+
 #: The generators of perfect mazes, by the name DepthMaze's ``generator=`` keyword takes.
-MAZE_GENERATORS = ("kruskal", "eller")
+MAZE_GENERATORS = ("kruskal", "eller", "mixed")
 
 
 def is_rotation_symmetric(grid: GridMap) -> bool:
@@ -251,7 +261,7 @@ def is_rotation_symmetric(grid: GridMap) -> bool:
 
 def random_maze(size: int, rng: Any = None, *, generator: str = "kruskal", reject_symmetric: bool = False) -> GridMap:
     """A perfect maze from ``generator`` (``"kruskal"``: :func:`perfect_maze`, ``"eller"``:
-    :func:`eller_maze`); with ``reject_symmetric``, mazes equal to their own 90- or 180-degree
+    :func:`eller_maze`, ``"mixed"``: :func:`mixed_maze`); with ``reject_symmetric``, mazes equal to their own 90- or 180-degree
     rotation (:func:`is_rotation_symmetric`) are drawn again from the same generator until one is
     not.  ``random_maze(size, rng)`` draws what ``perfect_maze(size, seed=rng)`` draws."""
     draw = _maze_generator(generator)
@@ -267,6 +277,8 @@ def _maze_generator(generator: Any):
         return perfect_maze
     if generator == "eller":
         return eller_maze
+    if generator == "mixed":
+        return mixed_maze
     raise ValueError(f"generator must be one of {', '.join(map(repr, MAZE_GENERATORS))} (how perfect mazes are drawn), got {generator!r}")
 
 

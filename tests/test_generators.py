@@ -330,3 +330,25 @@ def test_rotation_symmetric_mazes_are_found_and_rejected():
         assert not any(is_rotation_symmetric(x) for x in drawn)
     with pytest.raises(ValueError, match="generator must be one of 'kruskal', 'eller'"):
         random_maze(7, 0, generator="prim")
+
+
+def test_mixed_mazes_come_from_either_generator_half_the_time():
+    """``generator="mixed"``: one uniform draw chooses Eller's (below 1/2) or Kruskal's
+    construction, which then draws from the same generator; both halves are perfect mazes."""
+    from gym_gridloc.generators import eller_maze, mixed_maze, random_maze
+
+    chosen = {"eller": 0, "kruskal": 0}
+    for seed in range(400):
+        rng = np.random.default_rng(seed)
+        eller = rng.random() < 0.5
+        expected = (eller_maze if eller else perfect_maze)(7, seed=rng)
+        m = mixed_maze(7, seed=seed)
+        assert np.array_equal(m.labels, expected.labels)
+        assert np.array_equal(m.labels, random_maze(7, seed, generator="mixed").labels)
+        assert is_connected(m.free) and m.n_free == 9 + 8  # 3 x 3 rooms joined by a spanning tree
+        chosen["eller" if eller else "kruskal"] += 1
+    assert abs(chosen["eller"] / 400 - 0.5) < 4.5 * np.sqrt(0.25 / 400)
+    env = gym.make("DepthMaze-v0", generator="mixed", episode_length=15).unwrapped
+    assert env.map_options == {"generator": "mixed", "reject_symmetric": True}
+    with pytest.raises(ValueError, match="generator must be 'kruskal' or 'eller'"):  # held-out sets are per generator
+        gym_gridloc.maps.test_set("DepthMaze-v0", 7, generator="mixed", reject_symmetric=True)

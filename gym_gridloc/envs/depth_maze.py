@@ -104,12 +104,14 @@ class DepthMazeEnv(GridLocEnv):
     opacity: the heading's probability given the cell), and the depth read in the strip under the maze (the robot's
     cell, the free cells it sees, the wall).
 
-    ``generator`` (``"kruskal"`` or ``"eller"``) and ``reject_symmetric`` (None) choose how mazes are drawn.
+    ``generator`` (``"kruskal"``, ``"eller"`` or ``"mixed"``) and ``reject_symmetric`` (None) choose how mazes are drawn.
 
     Mazes are perfect (one path between any two cells, walls all round), drawn by Kruskal's
     algorithm (:func:`gym_gridloc.generators.perfect_maze`, the default) or row by row by Eller's
     (``generator="eller"``: :func:`gym_gridloc.generators.eller_maze`, the construction Active
-    Neural Localization's mazes come from).  With ``reject_symmetric``, a drawn maze equal to its
+    Neural Localization's mazes come from), or by either, each with probability 1/2
+    (``generator="mixed"``: :func:`gym_gridloc.generators.mixed_maze`, for training a policy that
+    meets both; the held-out sets are per generator).  With ``reject_symmetric``, a drawn maze equal to its
     own 90- or 180-degree rotation is drawn again: in such a maze every pose has a twin that reads
     the same depths whatever the robot does, so no policy can localise there and a score on such
     mazes measures the maze, not the policy (about 5% of 7x7 mazes; none seen at 15x15).  Its

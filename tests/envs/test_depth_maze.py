@@ -297,7 +297,7 @@ def test_the_generator_keyword_draws_its_mazes_from_the_reset_seed(generator):
 
 
 def test_maze_variant_keywords_are_checked():
-    with pytest.raises(ValueError, match=r"generator must be one of 'kruskal', 'eller' \(how perfect mazes are drawn\), got 'prim'"):
+    with pytest.raises(ValueError, match=r"generator must be one of 'kruskal', 'eller', 'mixed' \(how perfect mazes are drawn\), got 'prim'"):
         gym.make("DepthMaze-v0", generator="prim")
     with pytest.raises(TypeError, match=r"reject_symmetric must be True, False or None, got 'yes'"):
         gym.make("DepthMaze-v0", reject_symmetric="yes")
