@@ -154,7 +154,7 @@ class SB3VecEnv(VecEnv):
         self.venv = env
         opts = history_options(history)
         self.history = (History(int(env.single_action_space.n), options=opts, n=env.num_envs,
-                                limit=episode_limit(env) if opts.horizon and not opts.time_step else None) if opts.any else None)
+                                limit=episode_limit(env) if opts.needs_limit else None) if opts.any else None)
         space = env.single_observation_space if self.history is None else self.history.space(env.single_observation_space)
         super().__init__(env.num_envs, space, env.single_action_space)
         self._actions: np.ndarray | None = None

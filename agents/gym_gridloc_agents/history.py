@@ -54,6 +54,11 @@ class HistoryOptions(NamedTuple):
         return bool(self.actions or self.horizon)
 
     @property
+    def needs_limit(self) -> bool:
+        """Whether the clock counts the steps left, so it needs the episode's step limit."""
+        return bool(self.horizon and not self.time_step)
+
+    @property
     def wrapper(self) -> dict[str, int]:
         """The options as a wrapper section gives them (``past_actions``, and ``steps_left`` or ``time_step``)."""
         return {"past_actions": self.actions, "time_step" if self.time_step else "steps_left": self.horizon}
@@ -102,7 +107,7 @@ def acting_history(wrapper: dict[str, Any] | None, n_actions: int, env_id: str |
     if not opts.any:
         return None
     limit = None
-    if opts.horizon and not opts.time_step:
+    if opts.needs_limit:
         limit = (env_kwargs or {}).get("episode_length") or (gym.spec(env_id).max_episode_steps if env_id else None)
         if not limit:
             raise ValueError(f"{path or 'this model'} sees the steps left: give env_id= or env_kwargs with an episode_length")
@@ -134,7 +139,7 @@ class History:
             actions, horizon, time_step = options
         self.n_actions, self.actions, self.horizon, self.n = int(n_actions), int(actions), int(horizon), int(n)
         self.time_step = bool(time_step)
-        if self.horizon and not self.time_step and not limit:
+        if HistoryOptions(self.actions, self.horizon, self.time_step).needs_limit and not limit:
             raise ValueError("steps_left needs the episodes' step limit")
         self.limit = int(limit or 0)
         self.size = self.actions * self.n_actions + (1 if self.horizon else 0)
@@ -196,7 +201,7 @@ class HistoryWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise ValueError(f"HistoryWrapper needs a Discrete action space, got {env.action_space}")
         opts = history_options({"past_actions": past_actions, "steps_left": steps_left, "time_step": time_step})
         self.history = History(int(env.action_space.n), options=opts,
-                               limit=episode_limit(env) if opts.horizon and not opts.time_step else None)
+                               limit=episode_limit(env) if opts.needs_limit else None)
         self.observation_space = self.history.space(env.observation_space)
 
     def reset(self, **kwargs):
