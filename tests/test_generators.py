@@ -335,6 +335,7 @@ def test_rotation_symmetric_mazes_are_found_and_rejected():
 def test_mixed_mazes_come_from_either_generator_half_the_time():
     """``generator="mixed"``: one uniform draw chooses Eller's (below 1/2) or Kruskal's
     construction, which then draws from the same generator; both halves are perfect mazes."""
+    from gym_gridloc import maps
     from gym_gridloc.generators import eller_maze, mixed_maze, random_maze
 
     chosen = {"eller": 0, "kruskal": 0}
@@ -351,4 +352,4 @@ def test_mixed_mazes_come_from_either_generator_half_the_time():
     env = gym.make("DepthMaze-v0", generator="mixed", episode_length=15).unwrapped
     assert env.map_options == {"generator": "mixed", "reject_symmetric": True}
     with pytest.raises(ValueError, match="generator must be 'kruskal' or 'eller'"):  # held-out sets are per generator
-        gym_gridloc.maps.test_set("DepthMaze-v0", 7, generator="mixed", reject_symmetric=True)
+        maps.test_set("DepthMaze-v0", 7, generator="mixed", reject_symmetric=True)
