@@ -135,11 +135,12 @@ class History:
 
     def __init__(self, n_actions: int, *, actions: int = 0, horizon: int = 0, limit: int | None = None, n: int = 1,
                  time_step: bool = False, options: HistoryOptions | None = None) -> None:
-        if options is not None:
-            actions, horizon, time_step = options
+        if options is None:
+            options = HistoryOptions(int(actions), int(horizon), bool(time_step))
+        actions, horizon, time_step = options
         self.n_actions, self.actions, self.horizon, self.n = int(n_actions), int(actions), int(horizon), int(n)
         self.time_step = bool(time_step)
-        if HistoryOptions(self.actions, self.horizon, self.time_step).needs_limit and not limit:
+        if options.needs_limit and not limit:
             raise ValueError("steps_left needs the episodes' step limit")
         self.limit = int(limit or 0)
         self.size = self.actions * self.n_actions + (1 if self.horizon else 0)
