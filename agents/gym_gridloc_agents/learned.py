@@ -49,10 +49,14 @@ class PPOPolicy(Policy):
     method = "ppo"
 
     @classmethod
-    def build(cls, model: GridModel, context) -> "PPOPolicy":
+    def build(cls, model: GridModel, context, deterministic: bool | None = None) -> "PPOPolicy":
         """As the policy table builds it: the model file ``context.path`` (default: the shipped
-        one for the environment's id and keywords) and the seed."""
-        return cls(model, env_id=context.env_id, env_kwargs=context.env_kwargs, path=context.path, seed=context.seed)
+        one for the environment's id and keywords), the seed, and ``deterministic`` (None: as the
+        model's metadata says)."""
+        if deterministic is not None and not isinstance(deterministic, (bool, np.bool_)):
+            raise ValueError(f"policy {cls.name!r}: deterministic must be true, false or None, got {deterministic!r}")
+        return cls(model, env_id=context.env_id, env_kwargs=context.env_kwargs, path=context.path, seed=context.seed,
+                   deterministic=None if deterministic is None else bool(deterministic))
 
     def __init__(
         self,

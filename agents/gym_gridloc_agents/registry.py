@@ -86,6 +86,7 @@ def _spec(name: str, kind: str, entry_point: str, summary: str, **kw: Any) -> tu
 
 
 _PLANNING = ("threshold",)  # the referee's threshold the planners stop at (default: the environment's)
+_ACTING = ("deterministic",)  # the learned policies: the most probable action, or sampled (default: as the model's metadata says)
 
 #: The one table of policies, in the benchmark's order.
 POLICIES: dict[str, PolicySpec] = dict([
@@ -111,11 +112,11 @@ POLICIES: dict[str, PolicySpec] = dict([
           "pomdp_py's POMCP from the exact belief (the planning extra)",
           options=("num_sims", "planning_time", "max_depth", "discount", "exploration_const", "n_particles", *_PLANNING)),
     _spec("ppo", "learned", "gym_gridloc_agents.learned:PPOPolicy.build",
-          "a PPO model on the belief, trained from the reward alone", default=True),
+          "a PPO model on the belief, trained from the reward alone", options=_ACTING, default=True),
     _spec("distilled", "learned", "gym_gridloc_agents.learned:DistilledPolicy.build",
-          "a PPO network that imitated a planner", default=True),
+          "a PPO network that imitated a planner", options=_ACTING, default=True),
     _spec("recurrent", "learned", "gym_gridloc_agents.learned:RecurrentPolicy.build",
-          "a RecurrentPPO (LSTM) model on the raw readings", default=True),
+          "a RecurrentPPO (LSTM) model on the raw readings", options=_ACTING, default=True),
 ])
 
 #: Names accepted by :func:`~gym_gridloc_agents.policies.make_policy`.

@@ -6,6 +6,7 @@ line, the viewer and the docs read their names and options from it."""
 from __future__ import annotations
 
 import importlib.util
+import inspect
 import re
 from pathlib import Path
 
@@ -76,6 +77,23 @@ def test_the_tables_options_are_the_constructors_own():
     assert set(POLICIES["mcts"].options) == {"readings"}.union(*(keywords(c) - own for c in READINGS.values()))
     assert set(POLICIES["optimal"].options) == keywords(OptimalPolicy) - own
     assert set(POLICIES["pomcp"].options) == keywords(PomcpPolicy) - own
+    for name in ("ppo", "distilled", "recurrent"):  # (the model file and the environment come from make_policy)
+        build = inspect.signature(POLICIES[name].load()).parameters
+        assert set(POLICIES[name].options) == set(build) - {"model", "context"}, name
+
+
+@pytest.mark.parametrize("given, acts", [(None, True), (False, False), (True, True)])
+def test_a_learned_policy_acts_as_its_model_says_unless_told(given, acts):
+    """``deterministic``: the most probable action or a sampled one; not given, the model's
+    metadata decides (the shipped ColourGrid model's: the most probable)."""
+    options = {} if given is None else {"deterministic": given}
+    policy = make_policy("ppo", colour_grid(), env_id="ColourGrid-v0", seed=0, **options)
+    assert policy.deterministic is acts
+
+
+def test_a_learned_policy_refuses_a_deterministic_that_is_not_a_bool():
+    with pytest.raises(ValueError, match="deterministic must be true, false or None, got 'no'"):
+        make_policy("ppo", colour_grid(), env_id="ColourGrid-v0", deterministic="no")
 
 
 @pytest.mark.parametrize("readings, other", [("enumerate", "rollout"), ("sample", "prune")])
