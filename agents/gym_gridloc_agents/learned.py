@@ -53,10 +53,8 @@ class PPOPolicy(Policy):
         """As the policy table builds it: the model file ``context.path`` (default: the shipped
         one for the environment's id and keywords), the seed, and ``deterministic`` (None: as the
         model's metadata says)."""
-        if deterministic is not None and not isinstance(deterministic, (bool, np.bool_)):
-            raise ValueError(f"policy {cls.name!r}: deterministic must be true, false or None, got {deterministic!r}")
         return cls(model, env_id=context.env_id, env_kwargs=context.env_kwargs, path=context.path, seed=context.seed,
-                   deterministic=None if deterministic is None else bool(deterministic))
+                   deterministic=deterministic)
 
     def __init__(
         self,
@@ -72,6 +70,8 @@ class PPOPolicy(Policy):
         deterministic: bool | None = None,
     ) -> None:
         super().__init__(model, seed=seed)
+        if deterministic is not None and not isinstance(deterministic, (bool, np.bool_)):
+            raise ValueError(f"policy {self.name!r}: deterministic must be true, false or None, got {deterministic!r}")
         self.deterministic = True if deterministic is None else bool(deterministic)
         if sb3_model is not None:  # a model in memory (e.g. evaluated during training)
             self.path, self.sb3, self.meta = None, sb3_model, {}
