@@ -23,7 +23,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-_CHUNK = 2048
+#: Cells of a layer weighed and summed at a time by the small models' stencil (kept in cache).
+STENCIL_CHUNK = 2048
 _U = np.uint64  # Offsets and indices are unsigned: numba then emits no negative-index checks, and
 # flat arrays with offsets need no per-row views (a view, or a reshape, costs more than a small
 # belief's arithmetic: tables and beliefs are flattened once per call and addressed by offset).
@@ -59,8 +60,8 @@ def stencil(b, bo, w, wo, meta, mo, K, lik, lo, out, oo, n_layers, hw, layered, 
     for layer in range(n_layers):
         base = oo + _U(layer * hw)
         lbase = lo + _U(layer * hw * layered)
-        for c0 in range(0, hw, _CHUNK):
-            n = min(hw, c0 + _CHUNK) - c0
+        for c0 in range(0, hw, STENCIL_CHUNK):
+            n = min(hw, c0 + STENCIL_CHUNK) - c0
             cb = base + _U(c0)
             lb = lbase + _U(c0)
             for i in range(_U(n)):

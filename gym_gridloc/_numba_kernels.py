@@ -1,5 +1,6 @@
 """The compiled (numba) kernels, one module each by concept, gathered here: the filter steps
-(:mod:`gym_gridloc._numba_filter`), the readout (:mod:`gym_gridloc._numba_readout`), a bit
+(:mod:`gym_gridloc._numba_filter`; for beliefs with mass on few states, :mod:`gym_gridloc._numba_sparse`),
+the readout (:mod:`gym_gridloc._numba_readout`), a bit
 generator's draws (:mod:`gym_gridloc._numba_draws`), the step of N robots (:mod:`gym_gridloc._numba_vector`) and
 the named structures it takes (:mod:`gym_gridloc._numba_structs`).
 Imported only by :mod:`gym_gridloc.kernels`, and only when a model small enough for them is first

@@ -14,6 +14,8 @@ import numpy as np
 from llvmlite import ir
 from numba.extending import intrinsic
 
+from gym_gridloc._numba_sparse import sparse_argmax, sparse_enough, sparse_positions
+
 _U = np.uint64  # unsigned offsets and indices (see gym_gridloc._numba_filter)
 
 
@@ -215,7 +217,8 @@ def _trailing_zeros(typingctx, x):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, kept, ints, confidence, estimate, flags, observed):  # pragma: no cover - compiled
+def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, kept, ints, confidence, estimate, flags, observed,
+                  support, spans):  # pragma: no cover - compiled
     """:func:`readout` of N hidden-state beliefs ``flat`` (N, L*H*W) and the referee's arrays of
     ``referee.summarise`` (the same numbers), in blocks (few arguments and allocations: the vector
     env pays them at every step): ``scratch`` (2, N, H*W) gets ``pos`` as :func:`readout` fills
@@ -226,8 +229,12 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, kept,
     true ``states`` (layer, row, col), where the row's values in q's block end and the true layer;
     ``confidence``; ``estimate`` (2, N, 2) the estimated and the true (row, column); ``flags`` (2, N) localised (confidence >=
     threshold) and success; ``observed`` (N, H*W) float32, unless it has no rows, the observed
-    position beliefs (:func:`observed32`'s numbers).  Rows are indexed in place, not sliced (a
-    row's view costs more than its work on small maps): the arrays are read flat."""
+    position beliefs (:func:`observed32`'s numbers).  A row whose states with mass the step listed
+    (``spans[i]`` >= 0 of them at ``support[i * L*H*W:]``, ascending) is read over those states
+    only (:mod:`gym_gridloc._numba_sparse`: the same numbers); every other row's ``spans[i]`` is
+    set to -1, or to -2 when too many of its positions hold mass for a sparse step.  Rows are
+    indexed in place, not sliced (a row's view costs more than its work on small maps): the
+    arrays are read flat."""
     n, size = flat.shape[0], flat.shape[1]
     hw = scratch.shape[2]
     ff, sc = flat.reshape(flat.size), scratch.reshape(scratch.size)
@@ -235,12 +242,16 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, kept,
     k = _U(0)
     for i in range(n):
         fo, po = _U(i * size), _U(i * hw)
-        for c in range(_U(hw)):
-            sc[po + c] = ff[fo + c]
-        for lay in range(1, n_layers):  # the layers added in order, as numpy's sum over them
-            lo = fo + _U(lay * hw)
+        span = spans[i]
+        if span >= 0:
+            sparse_positions(ff, fo, support, fo, span, hw, sc, po)
+        else:
             for c in range(_U(hw)):
-                sc[po + c] += ff[lo + c]
+                sc[po + c] = ff[fo + c]
+            for lay in range(1, n_layers):  # the layers added in order, as numpy's sum over them
+                lo = fo + _U(lay * hw)
+                for c in range(_U(hw)):
+                    sc[po + c] += ff[lo + c]
         # the entropy's log2 arguments, in q's block (batch_entropy reads them)
         count = 0
         for c in range(_U(hw)):
@@ -262,10 +273,15 @@ def batch_readout(flat, n_layers, pose, width, states, threshold, scratch, kept,
                     k += _U(1)
                     bits &= bits - _U(1)
         ints[3, i] = k
+        if span < 0:
+            spans[i] = -1 if sparse_enough(count, size) else -2
         if observed.shape[0]:
             for c in range(hw):
                 observed[i, c] = min(np.float32(sc[po + _U(c)]), np.float32(1.0))
-        j = _argmax(ff, fo, size) if pose else _argmax(sc, po, hw)
+        if pose:
+            j = sparse_argmax(ff, fo, support, fo, span) if span >= 0 else _argmax(ff, fo, size)
+        else:
+            j = _argmax(sc, po, hw)
         conf = ff[fo + _U(j)] if pose else sc[po + _U(j)]
         cell = j % hw if pose and n_layers > 1 else j
         er, ec = cell // width, cell % width

@@ -49,7 +49,7 @@ BLOCKS = StepStructType([
     ("pose", _b1), ("threshold", _f8), ("limit", _i8), ("fixed_length", _b1), ("belief_reward", _b1),
     ("scratch", _f8[:, :, ::1]), ("kept", _i8[::1]), ("ints", _i8[:, ::1]), ("confidence", _f8[::1]),
     ("estimate", _i8[:, :, ::1]), ("flags", _b1[:, ::1]), ("observed", _f4[:, ::1]), ("rewards", _f8[::1]),
-    ("ends", _b1[:, ::1]),
+    ("ends", _b1[:, ::1]), ("support", _i8[::1]), ("spans", _i8[::1]),
 ])
 MAZE = StepStructType([("walls", _i8[:, ::1]), ("n_rooms", _i8), ("code_slots", _i8[::1]), ("codes", _i8[::1])])
 
@@ -75,12 +75,12 @@ def step_rows(states, readings, beliefs, current, slots, elapsed):  # pragma: no
 
 @numba.njit(cache=True)
 def referee_blocks(pose, threshold, limit, fixed_length, belief_reward, scratch, kept, ints, confidence, estimate,
-                   flags, observed, rewards, ends):  # pragma: no cover - compiled
+                   flags, observed, rewards, ends, support, spans):  # pragma: no cover - compiled
     """:data:`BLOCKS` of these rules and arrays."""
     s = structref.new(BLOCKS)
     s.pose, s.threshold, s.limit, s.fixed_length, s.belief_reward = pose, threshold, limit, fixed_length, belief_reward
     s.scratch, s.kept, s.ints, s.confidence, s.estimate, s.flags = scratch, kept, ints, confidence, estimate, flags
-    s.observed, s.rewards, s.ends = observed, rewards, ends
+    s.observed, s.rewards, s.ends, s.support, s.spans = observed, rewards, ends, support, spans
     return s
 
 

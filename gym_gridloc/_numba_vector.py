@@ -12,6 +12,7 @@ import numpy as np
 from gym_gridloc._numba_draws import bounded, draw_double, maze_code
 from gym_gridloc._numba_filter import stencil
 from gym_gridloc._numba_readout import batch_outcomes, batch_readout
+from gym_gridloc._numba_sparse import sparse_enough, sparse_stencil, support
 
 _U = np.uint64  # unsigned offsets and indices (see gym_gridloc._numba_filter)
 
@@ -154,6 +155,8 @@ def vector_advance(tables, rows, actions, modes, blocks, bits):  # pragma: no co
     lf, pf, bf, of = liks.reshape(liks.size), posts.reshape(posts.size), beliefs.reshape(beliefs.size), out.reshape(out.size)
     cf, tf, vf = cum.reshape(cum.size), tables.total.reshape(tables.total.size), tables.values.reshape(tables.values.size)
     scratch = np.empty(K)
+    spans, sup = blocks.spans, blocks.support
+    src, marks = np.empty(size, dtype=np.int64), np.zeros(size, dtype=np.uint8)
     jm = 0
     jd = 0
     js = 0
@@ -169,12 +172,25 @@ def vector_advance(tables, rows, actions, modes, blocks, bits):  # pragma: no co
             s = (states[i, 0] * hw if layered else 0) + states[i, 1] * width + states[i, 2]
             rd = draw_reading(kind, cf, tf, vf, R, m * S + s, u_move, n_moving + jm * per_draw)
             readings[i] = rd
-            z = stencil(bf, oi, wf, _U((m * A + a) * K * hw), mf, _U((m * A + a) * 5 * K), K,
-                        lf, _U((m * n_read + rd) * lsize), of, oi, n_layers, hw, layered, 1)
+            span = spans[i]
+            if span >= 0:  # the states with mass the last step listed
+                n_src = span
+                for c in range(span):
+                    src[c] = sup[oi + _U(c)]
+            else:  # (blocks without room for every row's states: never sparse)
+                n_src = support(bf, oi, size, src) if span == -1 and sup.size >= n * size else size
+            if sparse_enough(n_src, size):
+                z, spans[i] = sparse_stencil(bf, oi, src, n_src, wf, _U((m * A + a) * K * hw), mf, _U((m * A + a) * 5 * K), K,
+                                             lf, _U((m * n_read + rd) * lsize), of, oi, n_layers, hw, layered, marks, sup, oi)
+            else:
+                spans[i] = -1
+                z = stencil(bf, oi, wf, _U((m * A + a) * K * hw), mf, _U((m * A + a) * 5 * K), K,
+                            lf, _U((m * n_read + rd) * lsize), of, oi, n_layers, hw, layered, 1)
             if not (z > 0.0 and z < np.inf) and bad < 0:
                 bad = i
             jm += 1
         elif mode == 1 or mode == 3:
+            spans[i] = -1
             if mode == 1:
                 idx = starts[jd]
                 layer = idx // n_free
@@ -198,7 +214,7 @@ def vector_advance(tables, rows, actions, modes, blocks, bits):  # pragma: no co
                 of[oi + c] = bf[oi + c]
     rows.current[0] = 1 - cur
     batch_readout(out, n_layers, blocks.pose, width, states, blocks.threshold, blocks.scratch, blocks.kept, blocks.ints,
-                  blocks.confidence, blocks.estimate, blocks.flags, blocks.observed)
+                  blocks.confidence, blocks.estimate, blocks.flags, blocks.observed, sup, spans)
     batch_outcomes(modes, blocks.flags[0], blocks.confidence, rows.elapsed, blocks.limit, blocks.fixed_length,
                    blocks.belief_reward, blocks.rewards, blocks.ends)
     return bad

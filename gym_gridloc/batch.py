@@ -65,7 +65,7 @@ class Batch:
         self.rows = Rows(n, int(np.prod(model.belief_shape)))
         self.rules = dict(threshold=threshold, pose=pose, kind=reward, limit=limit, fixed_length=fixed_length)
         self.blocks = referee.Blocks(n, model.shape[0] * model.shape[1], threshold, pose, kind=reward, limit=limit,
-                                     fixed_length=fixed_length, observed=observed)
+                                     fixed_length=fixed_length, observed=observed, states=self.rows.beliefs.shape[2])
         self._models, self._stale = [model] * n, False  # (stale: the bank's slots say which, see models)
         self._groups = [np.arange(n)]  # row indices per distinct model, in index order
         #: The compiled step of the rows' models (None: the numpy reference, once per distinct model).

@@ -112,9 +112,9 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
     numpy sums longer ones): the same numbers (``tests/test_readout.py``)."""
     n, L, h, w = beliefs.shape
     st = np.ascontiguousarray(states, dtype=np.int64)
-    b = Blocks(n, h * w, threshold, pose)
+    b = Blocks(n, h * w, threshold, pose, states=1)  # (no states with mass known: spans -1)
     fast.batch_readout(beliefs.reshape(n, -1), L, b.pose, w, st, b.threshold, b.scratch, b.kept, b.ints, b.confidence,
-                       b.estimate, b.flags, b.observed)
+                       b.estimate, b.flags, b.observed, b.support, b.spans)
     return b.infos(L)
 
 
@@ -130,15 +130,19 @@ class Blocks:
     (2, N, 2) the estimated and true positions, ``flags`` (2, N) localised and success,
     ``observed`` (float32 (N, cells) with ``observed``: the observation's position beliefs, as
     ``observation.observed_belief`` makes them; else no rows), ``rewards`` and ``ends`` (3, N)
-    terminated, truncated and their or.  :meth:`infos` and :meth:`outcomes` read them (copied
+    terminated, truncated and their or; ``support`` (N * ``states``) and ``spans`` (N) what the
+    compiled step knows of each row's belief of ``states`` hidden states (default ``cells``): its
+    states with mass, ascending, at ``support[i * states:]``, and how many (``spans[i]`` >= 0),
+    or -1 (unknown) or -2 (too many to filter sparsely: ``gym_gridloc._numba_sparse``).
+    :meth:`infos` and :meth:`outcomes` read them (copied
     for a caller that keeps them: a vector env's infos are its caller's).  Few allocations (blocks
     whose rows are the arrays); the compiled structure of the blocks is made once."""
 
     __slots__ = ("pose", "threshold", "limit", "fixed_length", "belief_reward", "scratch", "kept", "ints", "confidence",
-                 "estimate", "flags", "observed", "rewards", "ends", "_compiled", "_views")
+                 "estimate", "flags", "observed", "rewards", "ends", "support", "spans", "_compiled", "_views")
 
     def __init__(self, n: int, cells: int, threshold: float, pose: bool, *, kind: str = "step", limit: int | None = None,
-                 fixed_length: bool = False, observed: bool = False) -> None:
+                 fixed_length: bool = False, observed: bool = False, states: int | None = None) -> None:
         self.pose, self.threshold, self.limit = bool(pose), float(threshold), int(limit or 0)
         self.fixed_length, self.belief_reward = bool(fixed_length), kind == "belief"
         self.scratch, self.kept = np.empty((2, n, cells)), np.empty(n * cells, dtype=np.int64)
@@ -146,6 +150,7 @@ class Blocks:
         self.estimate, self.flags = np.empty((2, n, 2), dtype=np.int64), np.empty((2, n), dtype=bool)
         self.observed = np.empty((n if observed else 0, cells), dtype=np.float32)
         self.rewards, self.ends = np.empty(n), np.empty((3, n), dtype=bool)
+        self.support, self.spans = np.empty(n * (states or cells), dtype=np.int64), np.full(n, -1, dtype=np.int64)
         self._compiled = self._views = None
 
     @property
@@ -154,7 +159,8 @@ class Blocks:
         if self._compiled is None:
             self._compiled = kernels.compiled(1).referee_blocks(
                 self.pose, self.threshold, self.limit, self.fixed_length, self.belief_reward, self.scratch, self.kept,
-                self.ints, self.confidence, self.estimate, self.flags, self.observed, self.rewards, self.ends)
+                self.ints, self.confidence, self.estimate, self.flags, self.observed, self.rewards, self.ends, self.support,
+                self.spans)
         return self._compiled
 
     def __getstate__(self) -> dict:

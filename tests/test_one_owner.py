@@ -312,12 +312,12 @@ def _times_a_likelihood(node: ast.AST) -> bool:
 def test_one_bayes_update():
     """The belief MDP's Bayes update (``Lookahead.update``: the prediction times the reading's
     likelihood, normalised) is the planners' one (``BeliefOps.update``) and the engine's numbers;
-    no module but the engine's (its step, compiled or not) and the belief MDP's multiplies by
+    no module but the engine's (its step, compiled or not, dense or sparse) and the belief MDP's multiplies by
     likelihoods inline."""
     from gym_gridloc.lookahead import Lookahead
     from gym_gridloc_agents.planners.ops import BeliefOps
 
-    owners = {"gym_gridloc/lookahead.py", "gym_gridloc/derived.py", "gym_gridloc/_numba_filter.py"}
+    owners = {"gym_gridloc/lookahead.py", "gym_gridloc/derived.py", "gym_gridloc/_numba_filter.py", "gym_gridloc/_numba_sparse.py"}
     assert _found(_times_a_likelihood, owners) == []
     assert _times_a_likelihood(ast.parse("post = preds[a] * self.ops.lik[z]").body[0].value)
     for model in (gym_gridloc.ring_sensor_model((5, 5), dynamics="passive"), gym.make("DepthMaze-v0", size=7).unwrapped.model,

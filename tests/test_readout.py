@@ -347,7 +347,7 @@ def test_a_vector_bank_steps_each_row_on_its_own_model(kwargs):
         modes = rng.integers(0, 3, size=n).astype(np.int8)
         seed = int(rng.integers(1000))
         drawn, replayed = np.random.default_rng(seed), np.random.default_rng(seed)
-        blocks = referee.Blocks(n, 49, 0.9, True)  # the referee's readout, in the same call
+        blocks = referee.Blocks(n, 49, 0.9, True, states=196)  # the referee's readout, in the same call
         bank.advance(rows, actions, modes, drawn, blocks)
         new_states, new_readings, out = rows.states.copy(), rows.readings.copy(), rows.belief.copy()
         info, positions = blocks.infos(4)
