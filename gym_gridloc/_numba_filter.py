@@ -31,6 +31,15 @@ _U = np.uint64  # Offsets and indices are unsigned: numba then emits no negative
 
 
 @numba.njit(cache=True, nogil=True)
+def term(meta, mo, K, k):  # pragma: no cover - compiled
+    """Term ``k`` of an action's ``(5, K)`` meta at ``meta[mo:]``: ``(source layer, destination
+    layer, flat offset, first and end destination cell)``; a destination below 0 (padding) or an
+    end at most the first cell: no term."""
+    return (meta[mo + _U(k)], meta[mo + _U(K + k)], meta[mo + _U(2 * K + k)], meta[mo + _U(3 * K + k)],
+            meta[mo + _U(4 * K + k)])
+
+
+@numba.njit(cache=True, nogil=True)
 def stencil(b, bo, w, wo, meta, mo, K, lik, lo, out, oo, n_layers, hw, layered, mode):  # pragma: no cover - compiled
     """``out = T^T b`` over flat arrays, the belief at ``b[bo:]`` into ``out[oo:]`` (``L*hw``
     values), the action's ``(K, hw)`` weights at ``w[wo:]`` and its ``(5, K)`` meta at
@@ -41,16 +50,11 @@ def stencil(b, bo, w, wo, meta, mo, K, lik, lo, out, oo, n_layers, hw, layered, 
     for i in range(_U(n_layers * hw)):
         out[oo + i] = 0.0
     for k in range(K):
-        dst = meta[mo + _U(K + k)]
-        if dst < 0:  # padding
+        src, dst, o, a, e = term(meta, mo, K, k)
+        if dst < 0 or e <= a:
             continue
-        a = meta[mo + _U(3 * K + k)]
-        e = meta[mo + _U(4 * K + k)]
-        if e <= a:
-            continue
-        o = meta[mo + _U(2 * K + k)]
         wk = wo + _U(k * hw + a - o)
-        bk = bo + _U(meta[mo + _U(k)] * hw + a - o)
+        bk = bo + _U(src * hw + a - o)
         ok = oo + _U(dst * hw + a)
         for i in range(_U(e - a)):
             out[ok + i] += w[wk + i] * b[bk + i]

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from gym_gridloc._numba_filter import STENCIL_CHUNK
+from gym_gridloc._numba_filter import STENCIL_CHUNK, term
 
 _U = np.uint64  # unsigned offsets and indices (see gym_gridloc._numba_filter)
 
@@ -53,15 +53,10 @@ def sparse_stencil(b, bo, src, n_src, w, wo, meta, mo, K, lik, lo, out, oo, n_la
         out[oo + i] = 0.0
     n_dst = 0
     for k in range(K):
-        d_layer = meta[mo + _U(K + k)]
-        if d_layer < 0:  # padding
+        s_layer, d_layer, o, a, e = term(meta, mo, K, k)
+        if d_layer < 0 or e <= a:
             continue
-        a = meta[mo + _U(3 * K + k)]
-        e = meta[mo + _U(4 * K + k)]
-        if e <= a:
-            continue
-        s_lo = meta[mo + _U(k)] * hw
-        o = meta[mo + _U(2 * K + k)]
+        s_lo = s_layer * hw
         for j in range(n_src):
             s = src[j]
             if s < s_lo:
