@@ -120,6 +120,9 @@ def vector_advance(tables, rows, actions, modes, blocks, bits):  # pragma: no co
     weights ``w`` with the ``keys`` (as :func:`sample_moves` draws them).  Then the referee's
     ``blocks``: every row's readout (:func:`batch_readout`) and how its step ended
     (:func:`batch_outcomes`).  The tables are read flat, each row's at its slot's offset.
+    A moving row whose belief holds mass on few states (the last step's list of them in
+    ``blocks.support``, ``blocks.spans`` how many; or found now) is filtered over those states
+    only (:mod:`gym_gridloc._numba_sparse`: the same numbers), and its new list kept.
     Returns -1, or the first row whose reading is impossible (z not positive and finite: the
     caller raises)."""
     w, liks, cum, free_cells, posts, possible = tables.w, tables.liks, tables.cum, tables.free_cells, tables.posts, tables.possible
