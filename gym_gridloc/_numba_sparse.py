@@ -93,26 +93,26 @@ def sparse_stencil(b, bo, src, n_src, w, wo, meta, mo, K, lik, lo, out, oo, n_la
         c0 = cell - cell % STENCIL_CHUNK
         i = cell - c0
         n = min(hw, c0 + STENCIL_CHUNK) - c0
-        m = i % 4 if i < n - n % 4 else 0
-        if m == 0:
+        lane = i % 4 if i < n - n % 4 else 0  # (the dense loop's four running sums, the tail in the first)
+        if lane == 0:
             z0 += v
-        elif m == 1:
+        elif lane == 1:
             z1 += v
-        elif m == 2:
+        elif lane == 2:
             z2 += v
         else:
             z3 += v
     z = (z0 + z1) + (z2 + z3)
     normalise = z > 0.0 and np.isfinite(z)
     inv = 1.0 / z if normalise else 1.0
-    kept = 0
+    n_mass = 0
     for j in range(n_dst):
         t = dst[do + _U(j)]
         if normalise:
             out[oo + _U(t)] *= inv
-        dst[do + _U(kept)] = t
-        kept += out[oo + _U(t)] != 0.0
-    return z, kept
+        dst[do + _U(n_mass)] = t
+        n_mass += out[oo + _U(t)] != 0.0
+    return z, n_mass
 
 
 @numba.njit(cache=True, nogil=True)

@@ -180,7 +180,7 @@ def vector_advance(tables, rows, actions, modes, blocks, bits):  # pragma: no co
                 n_src = span
                 for c in range(span):
                     src[c] = sup[oi + _U(c)]
-            else:  # (blocks without room for every row's states: never sparse)
+            else:  # (blocks without room for every row's states, as a readout's: never sparse)
                 n_src = support(bf, oi, size, src) if span == -1 and sup.size >= n * size else size
             if sparse_enough(n_src, size):
                 z, spans[i] = sparse_stencil(bf, oi, src, n_src, wf, _U((m * A + a) * K * hw), mf, _U((m * A + a) * 5 * K), K,

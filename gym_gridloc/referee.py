@@ -112,7 +112,7 @@ def _summarise_compiled(fast, beliefs: np.ndarray, states: np.ndarray, threshold
     numpy sums longer ones): the same numbers (``tests/test_readout.py``)."""
     n, L, h, w = beliefs.shape
     st = np.ascontiguousarray(states, dtype=np.int64)
-    b = Blocks(n, h * w, threshold, pose, states=1)  # (no states with mass known: spans -1)
+    b = Blocks(n, h * w, threshold, pose)
     fast.batch_readout(beliefs.reshape(n, -1), L, b.pose, w, st, b.threshold, b.scratch, b.kept, b.ints, b.confidence,
                        b.estimate, b.flags, b.observed, b.support, b.spans)
     return b.infos(L)
@@ -131,9 +131,10 @@ class Blocks:
     ``observed`` (float32 (N, cells) with ``observed``: the observation's position beliefs, as
     ``observation.observed_belief`` makes them; else no rows), ``rewards`` and ``ends`` (3, N)
     terminated, truncated and their or; ``support`` (N * ``states``) and ``spans`` (N) what the
-    compiled step knows of each row's belief of ``states`` hidden states (default ``cells``): its
-    states with mass, ascending, at ``support[i * states:]``, and how many (``spans[i]`` >= 0),
-    or -1 (unknown) or -2 (too many to filter sparsely: ``gym_gridloc._numba_sparse``).
+    compiled step knows of each row's belief of ``states`` hidden states: its states with mass,
+    ascending, at ``support[i * states:]``, and how many (``spans[i]`` >= 0), or -1 (unknown) or
+    -2 (too many to filter sparsely: ``gym_gridloc._numba_sparse``); ``states`` 0 (the default:
+    blocks for a readout only) leaves no room, and the step then never filters sparsely.
     :meth:`infos` and :meth:`outcomes` read them (copied
     for a caller that keeps them: a vector env's infos are its caller's).  Few allocations (blocks
     whose rows are the arrays); the compiled structure of the blocks is made once."""
@@ -142,7 +143,7 @@ class Blocks:
                  "estimate", "flags", "observed", "rewards", "ends", "support", "spans", "_compiled", "_views")
 
     def __init__(self, n: int, cells: int, threshold: float, pose: bool, *, kind: str = "step", limit: int | None = None,
-                 fixed_length: bool = False, observed: bool = False, states: int | None = None) -> None:
+                 fixed_length: bool = False, observed: bool = False, states: int = 0) -> None:
         self.pose, self.threshold, self.limit = bool(pose), float(threshold), int(limit or 0)
         self.fixed_length, self.belief_reward = bool(fixed_length), kind == "belief"
         self.scratch, self.kept = np.empty((2, n, cells)), np.empty(n * cells, dtype=np.int64)
@@ -150,7 +151,7 @@ class Blocks:
         self.estimate, self.flags = np.empty((2, n, 2), dtype=np.int64), np.empty((2, n), dtype=bool)
         self.observed = np.empty((n if observed else 0, cells), dtype=np.float32)
         self.rewards, self.ends = np.empty(n), np.empty((3, n), dtype=bool)
-        self.support, self.spans = np.empty(n * (states or cells), dtype=np.int64), np.full(n, -1, dtype=np.int64)
+        self.support, self.spans = np.empty(n * states, dtype=np.int64), np.full(n, -1, dtype=np.int64)
         self._compiled = self._views = None
 
     @property
