@@ -39,6 +39,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
 from gym_gridloc.core.validation import check_int
+from gym_gridloc_agents.candidate_views import CandidateViews
 
 
 class BeliefMapCNN(BaseFeaturesExtractor):
@@ -321,4 +322,4 @@ class ReadingCellFeatures(BaseFeaturesExtractor):
 
 #: Features extractors a config may name.
 EXTRACTORS = {"belief_map_cnn": BeliefMapCNN, "pose_pool_cnn": PosePoolCNN, "cell_pool_cnn": CellPoolCNN,
-              "belief_log": BeliefLogFeatures, "reading_cell": ReadingCellFeatures}
+              "belief_log": BeliefLogFeatures, "reading_cell": ReadingCellFeatures, "candidate_views": CandidateViews}
