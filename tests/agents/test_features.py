@@ -199,7 +199,7 @@ def _cfg(**policy_kwargs):
 
 
 def test_configs_name_the_extractors():
-    assert set(EXTRACTORS) == {"belief_map_cnn", "pose_pool_cnn", "cell_pool_cnn", "belief_log", "reading_cell"}
+    assert set(EXTRACTORS) == {"belief_map_cnn", "pose_pool_cnn", "cell_pool_cnn", "belief_log", "reading_cell", "candidate_views"}
     cfg = validate_config(_cfg(features_extractor="pose_pool_cnn", features_extractor_kwargs={"channels": 8, "max_dilation": 4}))
     assert cfg["pretrain"]["episode_batches"] is True
     with pytest.raises(ConfigError, match="features_extractor must be one of belief_map_cnn, pose_pool_cnn"):

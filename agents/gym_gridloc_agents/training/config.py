@@ -258,8 +258,8 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             raise ConfigError(f"{source}: policy_kwargs.features_extractor {pk['features_extractor']} reads {'Dict' if reads_dict else 'flat'} "
                               f"observations: use policy {POLICIES[algo][int(reads_dict)]} (wrapper.flatten: {str(not reads_dict).lower()})")
     fek = pk.get("features_extractor_kwargs", {})
-    if not isinstance(fek, dict) or not all(isinstance(k, str) and is_int(v) and v > 0 for k, v in fek.items()):
-        raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs must map names to positive integers, got {fek!r}")
+    if not isinstance(fek, dict) or not all(isinstance(k, str) and (isinstance(v, bool) or (is_int(v) and v > 0)) for k, v in fek.items()):
+        raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs must map names to positive integers or true/false, got {fek!r}")
     if fek and "features_extractor" not in pk:
         raise ConfigError(f"{source}: policy_kwargs.features_extractor_kwargs needs policy_kwargs.features_extractor")
     if fek:
@@ -278,6 +278,13 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
                               f"(wrapper.belief: false) of a sensor reporting a cell of a {sides[0]}x{sides[1]} grid, {decoded}; "
                               f"{cfg['env_id']} with {cfg['env_kwargs']} reads {raw_space} on a {grid[0]}x{grid[1]} grid"
                               f"{' behind the belief wrapper' if wrapper['belief'] else ''}")
+    if pk.get("features_extractor") == "candidate_views":  # it reads the flat layout of one maze size
+        side = fek.get("size", inspect.signature(EXTRACTORS["candidate_views"]).parameters["size"].default)
+        layout = all(wrapper.get(k) for k in ("belief", "flatten", "full_state", "map"))
+        if cfg["env_id"] != "DepthMaze-v0" or not layout or tuple(grid) != (side, side):
+            raise ConfigError(f"{source}: features_extractor candidate_views (size {side}) reads the flat pose belief and maze of a "
+                              f"DepthMaze-v0 of size {side} (wrapper belief, flatten, full_state and map true); got {cfg['env_id']} "
+                              f"on a {grid[0]}x{grid[1]} grid with wrapper {wrapper}")
     if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
         raise ConfigError(f"{source}: policy_kwargs.activation_fn must be one of {', '.join(ACTIVATIONS)}, got {pk['activation_fn']!r}")
     if "net_arch" in pk:
