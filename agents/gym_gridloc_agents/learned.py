@@ -36,6 +36,13 @@ class PPOPolicy(Policy):
     is the same every time); ``None`` (default): as the model's metadata says (``deterministic``,
     true when absent).
 
+    ``break_cycles``: with the most probable action, sample the action instead whenever the belief
+    is one the episode held before (a deterministic function of the belief would repeat what it
+    did then, and could do so forever: turning on the spot between two poses, say); seeded as
+    sampled actions are.  ``None`` (default): as the model's metadata says (``break_cycles``, false
+    when absent).  Beliefs that never come back exactly (noisy sensors, mostly) leave it the most
+    probable action at every step.
+
     ``path`` defaults to the shipped model for ``env_id`` (``agents/gym_gridloc_agents/models/<env_id>-ppo.zip``).  The
     observation is built as the wrapper the model was trained behind built it: its options
     (``flatten``, ``full_state``, ``map``) come from the metadata beside the model (or
@@ -49,12 +56,12 @@ class PPOPolicy(Policy):
     method = "ppo"
 
     @classmethod
-    def build(cls, model: GridModel, context, deterministic: bool | None = None) -> "PPOPolicy":
+    def build(cls, model: GridModel, context, deterministic: bool | None = None, break_cycles: bool | None = None) -> "PPOPolicy":
         """As the policy table builds it: the model file ``context.path`` (default: the shipped
-        one for the environment's id and keywords), the seed, and ``deterministic`` (None: as the
-        model's metadata says)."""
+        one for the environment's id and keywords), the seed, ``deterministic`` and
+        ``break_cycles`` (None: as the model's metadata says)."""
         return cls(model, env_id=context.env_id, env_kwargs=context.env_kwargs, path=context.path, seed=context.seed,
-                   deterministic=deterministic)
+                   deterministic=deterministic, break_cycles=break_cycles)
 
     def __init__(
         self,
@@ -68,11 +75,15 @@ class PPOPolicy(Policy):
         wrapper: dict[str, Any] | None = None,
         seed: int | None = None,
         deterministic: bool | None = None,
+        break_cycles: bool | None = None,
     ) -> None:
         super().__init__(model, seed=seed)
-        if deterministic is not None and not isinstance(deterministic, (bool, np.bool_)):
-            raise ValueError(f"policy {self.name!r}: deterministic must be true, false or None, got {deterministic!r}")
+        for key, value in (("deterministic", deterministic), ("break_cycles", break_cycles)):
+            if value is not None and not isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"policy {self.name!r}: {key} must be true, false or None, got {value!r}")
         self.deterministic = True if deterministic is None else bool(deterministic)
+        self.break_cycles = bool(break_cycles)
+        self._seen: set[bytes] = set()  # the beliefs of this episode (break_cycles)
         if sb3_model is not None:  # a model in memory (e.g. evaluated during training)
             self.path, self.sb3, self.meta = None, sb3_model, {}
             self.trained_wrapper = dict(wrapper or {})
@@ -94,6 +105,8 @@ class PPOPolicy(Policy):
                                          observation_space=expected)
         if deterministic is None:  # how the model was meant to act (its config's ``deterministic``)
             self.deterministic = bool(self.meta.get("deterministic", True))
+        if break_cycles is None:
+            self.break_cycles = bool(self.meta.get("break_cycles", False))
         #: the steps left and past actions the model sees (:mod:`gym_gridloc_agents.history`), or None
         self.history = acting_history(self.trained_wrapper, self.model.n_actions, env_id, env_kwargs, self.path)
 
@@ -101,7 +114,8 @@ class PPOPolicy(Policy):
         super().reset(seed, model)
         if getattr(self, "history", None) is not None:
             self.history.reset()
-        if not self.deterministic:  # sampled actions: torch's generator seeded from the episode's seed
+        self._seen.clear()
+        if not self.deterministic or self.break_cycles:  # sampled actions: torch's generator seeded from the episode's seed
             import torch
 
             torch.manual_seed(int(self.rng.integers(2**63 - 1)))
@@ -131,11 +145,20 @@ class PPOPolicy(Policy):
         holds it (an environment with the same wrapper options), else built here."""
         if encoded is None:
             encoded = self.encode(observation, belief)
+        deterministic = self.deterministic and not (self.break_cycles and self._repeated(belief))
         if self.history is None:
-            return int(self.sb3.predict(encoded, deterministic=self.deterministic)[0])
-        action = int(self.sb3.predict(self.history.attach(encoded, batched=False), deterministic=self.deterministic)[0])
+            return int(self.sb3.predict(encoded, deterministic=deterministic)[0])
+        action = int(self.sb3.predict(self.history.attach(encoded, batched=False), deterministic=deterministic)[0])
         self.history.record(np.array([action]))
         return action
+
+    def _repeated(self, belief: np.ndarray) -> bool:
+        """Whether the episode held this belief before (to 12 decimals: the same belief reached
+        along two paths may differ in its last bits); remembered from now on."""
+        key = np.round(np.asarray(belief, dtype=np.float64), 12).tobytes()
+        seen = key in self._seen
+        self._seen.add(key)
+        return seen
 
 
 def _wrapper_options(wrapper: dict[str, Any] | None) -> dict[str, Any]:
@@ -170,6 +193,12 @@ class RecurrentPolicy(PPOPolicy):
         self._previous: int | None = None  # the action taken last (wrapper.previous_action models read it)
 
     observation_options = None  # the raw readings: nothing to pass on
+
+    @classmethod
+    def build(cls, model: GridModel, context, deterministic: bool | None = None) -> "RecurrentPolicy":
+        """As the policy table builds it (no ``break_cycles``: its memory, not the belief, decides)."""
+        return cls(model, env_id=context.env_id, env_kwargs=context.env_kwargs, path=context.path, seed=context.seed,
+                   deterministic=deterministic)
 
     @property
     def previous_action(self) -> bool:

@@ -87,6 +87,7 @@ def _spec(name: str, kind: str, entry_point: str, summary: str, **kw: Any) -> tu
 
 _PLANNING = ("threshold",)  # the referee's threshold the planners stop at (default: the environment's)
 _ACTING = ("deterministic",)  # the learned policies: the most probable action, or sampled (default: as the model's metadata says)
+_BELIEF_ACTING = (*_ACTING, "break_cycles")  # those of the belief: sampled where the belief comes back (default: as the metadata says)
 
 #: The one table of policies, in the benchmark's order.
 POLICIES: dict[str, PolicySpec] = dict([
@@ -112,9 +113,9 @@ POLICIES: dict[str, PolicySpec] = dict([
           "pomdp_py's POMCP from the exact belief (the planning extra)",
           options=("num_sims", "planning_time", "max_depth", "discount", "exploration_const", "n_particles", *_PLANNING)),
     _spec("ppo", "learned", "gym_gridloc_agents.learned:PPOPolicy.build",
-          "a PPO model on the belief, trained from the reward alone", options=_ACTING, default=True),
+          "a PPO model on the belief, trained from the reward alone", options=_BELIEF_ACTING, default=True),
     _spec("distilled", "learned", "gym_gridloc_agents.learned:DistilledPolicy.build",
-          "a PPO network that imitated a planner", options=_ACTING, default=True),
+          "a PPO network that imitated a planner", options=_BELIEF_ACTING, default=True),
     _spec("recurrent", "learned", "gym_gridloc_agents.learned:RecurrentPolicy.build",
           "a RecurrentPPO (LSTM) model on the raw readings", options=_ACTING, default=True),
 ])

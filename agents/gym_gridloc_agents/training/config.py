@@ -62,6 +62,8 @@ TOP_KEYS = {
     "vec_env": "dummy (SB3's DummyVecEnv of wrapped envs, default) or native (gym_gridloc's vector env)",
     "deterministic": "how the policy acts in evaluations and the benchmark: true (default) the most probable action, "
                      "false sampled from the policy (seeded per episode)",
+    "break_cycles": "with deterministic true: sample the action where the belief is one the episode held before "
+                    "(a deterministic policy of the belief would repeat itself), in evaluations and the benchmark (default false)",
     "schedule": "final values of learning_rate, clip_range or ent_coef: each goes linearly from its hyperparams value to this",
 }
 
@@ -307,8 +309,12 @@ def validate_config(raw: Any, source: str = "config") -> dict[str, Any]:
             raise ConfigError(f"{source}: {key} must be a path or null, got {cfg[key]!r}")
     if not isinstance(cfg.setdefault("description", ""), str):  # (free text: 1 and '1' would print as one)
         raise ConfigError(f"{source}: description must be text (quote a number: '1'), got {cfg['description']!r}")
-    if not isinstance(cfg.setdefault("deterministic", True), bool):
-        raise ConfigError(f"{source}: deterministic must be true or false, got {cfg['deterministic']!r}")
+    for key, default in (("deterministic", True), ("break_cycles", False)):
+        if not isinstance(cfg.setdefault(key, default), bool):
+            raise ConfigError(f"{source}: {key} must be true or false, got {cfg[key]!r}")
+    if cfg["break_cycles"] and (algo == "recurrent_ppo" or not wrapper["belief"]):
+        raise ConfigError(f"{source}: break_cycles needs a policy of the belief (algo ppo, wrapper.belief: true): "
+                          "it samples where the belief comes back")
     pre = cfg.setdefault("pretrain", None)
     if pre is not None:
         if algo != "ppo" or not wrapper["belief"]:

@@ -32,7 +32,7 @@ def evaluation_episodes(env, cfg: dict[str, Any], episodes: int) -> list[tuple[i
 
 
 def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
-    """``model`` (acting as ``cfg["deterministic"]`` says; sampled actions are seeded per episode
+    """``model`` (acting as ``cfg["deterministic"]`` and ``cfg["break_cycles"]`` say; sampled actions are seeded per episode
     and leave training's torch generator as it was) on the held-out evaluation episodes: mean steps to localise (a
     truncated episode counts at its length), the fraction that end collapsed onto the truth
     (``accuracy``) and the fraction whose most probable state is the truth at the end."""
@@ -41,6 +41,7 @@ def evaluate(model, cfg: dict[str, Any], episodes: int) -> dict[str, float]:
     env = make_env(cfg["env_id"], cfg["env_kwargs"])
     cls = RecurrentPolicy if cfg["algo"] == "recurrent_ppo" else PPOPolicy  # (RecurrentPolicy ignores the wrapper)
     policy = cls(env.unwrapped.model, sb3_model=model, wrapper=cfg["wrapper"], deterministic=cfg.get("deterministic", True),
+                 break_cycles=cfg.get("break_cycles", False),
                  env_id=cfg["env_id"], env_kwargs=cfg["env_kwargs"])
     env = served_env(env, policy)
     with torch.random.fork_rng():

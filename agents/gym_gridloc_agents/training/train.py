@@ -257,7 +257,7 @@ def _train(
         return {
             "algo": cfg["algo"],
             "method": model_method({"algo": cfg["algo"], "pretrain": cfg.get("pretrain")}),
-            "deterministic": cfg.get("deterministic", True),
+            "deterministic": cfg.get("deterministic", True), "break_cycles": cfg.get("break_cycles", False),
             "env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"], "wrapper": cfg["wrapper"],
             "observation_space": repr(venv.observation_space), "action_space": repr(venv.action_space),
             "seed": cfg["seed"], "total_timesteps": cfg["total_timesteps"], "num_timesteps": int(model.num_timesteps),
