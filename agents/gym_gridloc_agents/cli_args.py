@@ -69,7 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--distilled-model", metavar="PATH", nargs="+",
                    help="benchmark this planner-distilled model (policy distilled) instead of the shipped one; several "
                         "files, a directory or a glob as --ppo-model")
-    b.add_argument("--recurrent-model", metavar="PATH", help="benchmark this RecurrentPPO model instead of the shipped one")
+    b.add_argument("--recurrent-model", metavar="PATH", nargs="+",
+                   help="benchmark this RecurrentPPO model (policy recurrent) instead of the shipped one; several files, a "
+                        "directory or a glob as --ppo-model")
     b.add_argument("--size", type=int, metavar="N", help="map size (the size keyword of the environment, e.g. 7 for DepthMaze 7x7; WindyMaze and "
                    "ColourGrid then run on one map of that size: add --env-kwarg new_map_each_reset=true for a new map "
                    "every episode, or --test-set; every row says how many maps it ran on)")

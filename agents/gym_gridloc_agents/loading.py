@@ -130,14 +130,14 @@ def expand_models(items: Sequence[str | Path], flag: str = "--ppo-model") -> lis
 
         ckpts = [m for m in models if re.fullmatch(r"(interrupted_)?step_\d+\.zip|best(-before-.*)?\.zip", m.name)]
         if ckpts:
-            raise ValueError(f"--ppo-model: {ckpts[0]} is a training checkpoint (step_N.zip, best.zip): several models "
+            raise ValueError(f"{flag}: {ckpts[0]} is a training checkpoint (step_N.zip, best.zip): several models "
                              f"are one per seed, and {ckpts[0].parent} looks like one training's checkpoint directory; "
                              "pass one model file")
         seeds: dict[Any, Path] = {}
         for m in models:
             seed = read_metadata(m).get("seed")
             if seed is not None and seed in seeds:
-                raise ValueError(f"--ppo-model: {seeds[seed]} and {m} were trained with the same seed {seed}: "
+                raise ValueError(f"{flag}: {seeds[seed]} and {m} were trained with the same seed {seed}: "
                                  "several models are one per seed")
             seeds[seed if seed is not None else object()] = m
     return models

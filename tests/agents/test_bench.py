@@ -469,3 +469,34 @@ def test_a_row_counts_the_maps_its_episodes_ran_on():
     fresh = run_episodes("WindyMaze-v0", "random", 4, env_kwargs={"size": 9, "new_map_each_reset": True}, progress=False)
     test = run_episodes("DepthMaze-v0", "random", 3, env_kwargs={"size": 7}, test_set=True, progress=False)
     assert (one["maps"], fresh["maps"], test["maps"]) == (1, 4, 3)
+
+
+def test_several_recurrent_models_make_one_row_across_seeds(tmp_path, capsys):
+    """``--recurrent-model`` takes one model per seed, as ``--ppo-model`` does: the row is then the
+    aggregate across seeds, each seed's numbers those of its model alone."""
+    import shutil
+
+    from gym_gridloc_agents.learned import default_model_path
+
+    shipped = default_model_path("ColourGrid-v0", "recurrent")
+    seeds = tmp_path / "seeds"
+    seeds.mkdir()
+    for name, seed in (("a", 0), ("b", 1)):  # the same network twice, as two seeds
+        shutil.copy(shipped, seeds / f"{name}.zip")
+        meta = json.loads(shipped.with_suffix(".json").read_text())
+        meta["seed"] = seed
+        (seeds / f"{name}.json").write_text(json.dumps(meta))
+    js = tmp_path / "bench.json"
+    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "recurrent", "--episodes", "4", "--recurrent-model",
+                 str(seeds), "--json", str(js), "--no-progress"]) == 0
+    row, = json.loads(js.read_text())
+    assert row["policy"] == "recurrent" and row["seeds"] == 2 and row["episodes_total"] == 8
+    single = run_benchmark(["ColourGrid-v0"], ["recurrent"], 4, recurrent_model=shipped, progress=False)[0]
+    assert "seeds" not in single
+    assert [r["mean_steps"] for r in row["per_seed"]] == [single["mean_steps"]] * 2
+    assert row["mean_steps"] == pytest.approx(single["mean_steps"])
+    capsys.readouterr()
+    # one seed twice is refused, naming the flag
+    (seeds / "b.json").write_text(shipped.with_suffix(".json").read_text())
+    assert main(["bench", "--env", "ColourGrid-v0", "--policies", "recurrent", "--recurrent-model", str(seeds)]) == 2
+    assert "--recurrent-model:" in capsys.readouterr().err

@@ -245,7 +245,7 @@ def run_benchmark(
     env_kwargs: dict | None = None,
     test_set: bool = False,
     ppo_model: str | Path | Sequence[str | Path] | None = None,
-    recurrent_model: str | Path | None = None,
+    recurrent_model: str | Path | Sequence[str | Path] | None = None,
     policy_options: dict[str, dict] | None = None,
     progress: bool = True,
     jobs: int = 1,
@@ -255,8 +255,9 @@ def run_benchmark(
 ) -> list[dict[str, Any]]:
     """Rows for every environment x policy, in that order, on the same episodes.  With
     ``jobs > 1`` the episodes are split into chunks run in parallel processes (the same
-    episodes, so the same numbers).  Several ``ppo_model`` (``distilled_model``) files, one per
-    seed, make the ``ppo`` (``distilled``) row the aggregate across seeds (:func:`seed_aggregate`);
+    episodes, so the same numbers).  Several ``ppo_model`` (``distilled_model``, ``recurrent_model``)
+    files, one per seed, make the ``ppo`` (``distilled``, ``recurrent``) row the aggregate across
+    seeds (:func:`seed_aggregate`);
     a ``ppo_model`` that was distilled from a planner is benchmarked as ``distilled``, with a
     ``FutureWarning`` (the name ``ppo`` meant the distilled models before 0.2).  ``policy_options`` maps a policy
     name to its options (e.g. ``{"expectimax": {"depth": 3}}``).  ``torch_threads``: torch's
@@ -265,7 +266,7 @@ def run_benchmark(
     ``auto``; :mod:`gym_gridloc_agents.evaluation.bench_cluster`), the same rows, each with a ``cluster``
     entry saying where its chunks ran."""
     given = {}
-    for key, value in (("ppo", ppo_model), ("distilled", distilled_model)):
+    for key, value in (("ppo", ppo_model), ("distilled", distilled_model), ("recurrent", recurrent_model)):
         given[key] = list(value) if isinstance(value, (list, tuple)) else [value]
         if not given[key]:
             raise ValueError(f"{key}_model: an empty list of models")
@@ -283,7 +284,7 @@ def run_benchmark(
                 warnings.warn(f"policy {name!r} does not apply to {env_id} (its sensor has no 'nothing' reading): "
                               "no row for it", stacklevel=2)
                 continue
-            paths = given.get(name) or ([recurrent_model] if name == "recurrent" else [None])
+            paths = given.get(name) or [None]
             groups.append([Task(env_id, _learned_name(name, p), kwargs, p, dict(options.get(name, {}))) for p in paths])
     tasks = [t for group in groups for t in group]
     for task in tasks:  # every policy and option built before the first episode: a late one never fails a long run

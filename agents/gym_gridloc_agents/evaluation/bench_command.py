@@ -160,7 +160,7 @@ def bench_main(args) -> int:
         if args.update and not json_path:
             raise ValueError("--update needs --json PATH (or --all)")
         seeds_models = {}
-        for name in ("ppo", "distilled"):
+        for name in ("ppo", "distilled", "recurrent"):
             given = getattr(args, f"{name}_model")
             found = expand_models(given, flag=f"--{name}-model") if given else None
             if found is not None and len(found) > 1 and len(envs) > 1:
@@ -169,7 +169,7 @@ def bench_main(args) -> int:
         outputs = [(json_path, files.BENCH_RESULTS, "results JSON"), (args.markdown, files.MARKDOWN, "markdown table"),
                    (args.plot, files.FIGURE, "plot"), (frontier, files.FIGURE, "frontier plot"), (table, files.TABLE, "table JSON")]
         outputs += [(here / f"bench_{e}.png", files.FIGURE, f"plot of {e}") for e in envs if args.all]
-        inputs = [*(seeds_models["ppo"] or []), *(seeds_models["distilled"] or []), args.recurrent_model]
+        inputs = [m for found in seeds_models.values() for m in found or []]
         files.check_outputs(outputs, inputs=inputs, replace=args.update or args.force, flag="--update or --force")
         old_rows = read_rows(json_path) if args.update and Path(json_path).exists() else []
         for name, found in seeds_models.items():
@@ -184,7 +184,7 @@ def bench_main(args) -> int:
             rows = run_benchmark(
                 envs, policies, episodes, seed_start=args.seed, env_kwargs=env_kwargs, test_set=args.test_set,
                 ppo_model=seeds_models["ppo"], distilled_model=seeds_models["distilled"],
-                recurrent_model=args.recurrent_model, policy_options=options,
+                recurrent_model=seeds_models["recurrent"], policy_options=options,
                 progress=not args.no_progress, jobs=args.jobs, torch_threads=args.torch_threads, address=address,
             )
     except BenchmarkInterrupted as exc:  # Ctrl-C: the finished rows are written, then exit 130

@@ -170,7 +170,7 @@ def run_suite(policies: Sequence[str] | None, episodes: int, out: str | Path, *,
         try:
             new = run_benchmark([task.env_id], run, episodes, seed_start=seed_start, env_kwargs=dict(task.env_kwargs),
                                 test_set=task.test_set, ppo_model=given.get("ppo"), distilled_model=given.get("distilled"),
-                                recurrent_model=(given.get("recurrent") or [None])[0], progress=progress, jobs=jobs,
+                                recurrent_model=given.get("recurrent"), progress=progress, jobs=jobs,
                                 torch_threads=torch_threads, address=address)
         except BenchmarkInterrupted as exc:
             if exc.rows:
