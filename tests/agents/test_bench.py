@@ -497,6 +497,6 @@ def test_several_recurrent_models_make_one_row_across_seeds(tmp_path, capsys):
     assert row["mean_steps"] == pytest.approx(single["mean_steps"])
     capsys.readouterr()
     # one seed twice is refused, naming the flag
-    (seeds / "b.json").write_text(shipped.with_suffix(".json").read_text())
+    (seeds / "b.json").write_text((seeds / "a.json").read_text())
     assert main(["bench", "--env", "ColourGrid-v0", "--policies", "recurrent", "--recurrent-model", str(seeds)]) == 2
     assert "--recurrent-model:" in capsys.readouterr().err
