@@ -160,7 +160,7 @@ def bench_main(args) -> int:
         if args.update and not json_path:
             raise ValueError("--update needs --json PATH (or --all)")
         seeds_models = {}
-        for name in ("ppo", "distilled", "recurrent"):
+        for name in LEARNED_NAMES:
             given = getattr(args, f"{name}_model")
             found = expand_models(given, flag=f"--{name}-model") if given else None
             if found is not None and len(found) > 1 and len(envs) > 1:
