@@ -9,6 +9,7 @@ Every test file imports what it needs as ``from tests.helpers import ...``: one 
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import math
 import os
 import signal
@@ -278,6 +279,14 @@ def pick_states(model, k: int, seed: int) -> list[tuple[int, int, int]]:
 
 
 # -- subprocesses ------------------------------------------------------------------------------------
+def load_module(path: Path, name: str | None = None):
+    """The Python file ``path`` (a script or an example, not a package module) loaded as a module."""
+    spec = importlib.util.spec_from_file_location(name or path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def run_python(code: str, **env: str) -> str:
     """Run ``code`` in a fresh interpreter (``GYM_GRIDLOC_NO_NUMBA`` cleared unless given in
     ``env``); return its last line of output."""

@@ -5,7 +5,6 @@ normalisation is invisible; impossible observations leave the belief alone; long
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import pickle
 import re
@@ -32,7 +31,7 @@ from gym_gridloc import (
     windy_maze_model,
 )
 from gym_gridloc.generators import colour_map, maze_map, perfect_maze
-from tests.helpers import assert_batch_equals_singles, dense_transition, simulate
+from tests.helpers import assert_batch_equals_singles, dense_transition, load_module, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 COLOURS = ("R", "G", "B", "Y")
@@ -40,15 +39,7 @@ SETTINGS = settings(
     max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow]
 )
 
-def _load_long_run():
-    """scripts/long_run.py (the million-step check), loaded from its file."""
-    spec = importlib.util.spec_from_file_location("long_run", ROOT / "scripts" / "long_run.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-LONG_RUN = _load_long_run()
+LONG_RUN = load_module(ROOT / "scripts" / "long_run.py")  # (the million-step check)
 
 
 # Probabilities: the edges 0 and 1 and values well away from underflow over a few dozen steps.

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -11,18 +10,12 @@ import pytest
 from gym_gridloc_agents.files import read_metadata
 from gym_gridloc_agents.learned import default_model_path
 from gym_gridloc_agents.loading import model_method
+from tests.helpers import load_module
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location("ppo_fixed_point", ROOT / "scripts" / "ppo_fixed_point.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-FIXED_POINT = _script()
+FIXED_POINT = load_module(ROOT / "scripts" / "ppo_fixed_point.py")
 CONFIG = ROOT / "configs" / "ppo_windymaze.yml"
 
 
