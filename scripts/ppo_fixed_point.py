@@ -29,7 +29,7 @@ from tqdm.auto import tqdm
 
 from gym_gridloc_agents.envs import make_training_env
 from gym_gridloc_agents.files import atomic_write_json, metadata_path, read_metadata
-from gym_gridloc_agents.loading import model_method
+from gym_gridloc_agents.loading import load_model, model_method
 from gym_gridloc_agents.training.config import load_config
 from gym_gridloc_agents.training.evaluation import evaluate
 
@@ -43,8 +43,6 @@ def continue_ppo(model_path: Path, config: Path, out: Path, *, learning_rate: fl
     (rounded up to whole rollouts), the first at step 0 (the model as given).  Update settings: a constant ``learning_rate``,
     ``ent_coef`` and ``clip_range``; ``n_steps``, ``batch_size``, ``n_epochs`` (default: the
     config's), ``gamma`` and ``gae_lambda`` the config's.  Returns one row per checkpoint."""
-    from stable_baselines3 import PPO
-
     if steps < 1 or chunk < 1:
         raise ValueError(f"steps and chunk must be positive, got {steps} and {chunk}")
     meta = read_metadata(model_path)
@@ -60,9 +58,9 @@ def continue_ppo(model_path: Path, config: Path, out: Path, *, learning_rate: fl
     torch.set_num_threads(1)
     venv = make_training_env(cfg)
     lr, clip = settings["learning_rate"], settings["clip_range"]
-    model = PPO.load(model_path, env=venv, device="cpu", custom_objects={
+    model = load_model(model_path, algo="ppo", env_id=cfg["env_id"], env_kwargs=cfg["env_kwargs"], env=venv, custom_objects={
         "learning_rate": lr, "lr_schedule": lambda _: lr, "clip_range": lambda _: clip,
-        **{k: settings[k] for k in ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "ent_coef")}})
+        **{k: settings[k] for k in ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "ent_coef")}})[0]
     model.set_random_seed(seed)
     eval_cfg = {**meta["config"], "env_id": cfg["env_id"], "env_kwargs": cfg["env_kwargs"]} if meta.get("config") else cfg
     out.mkdir(parents=True, exist_ok=True)

@@ -35,10 +35,11 @@ def algo_class(algo: str):
 
 
 def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None, env_kwargs: dict | None = None,
-               observation_space=None, env=None):
+               observation_space=None, env=None, custom_objects: dict | None = None):
     """Load an sb3 model, refusing one trained for another algorithm, environment (id or keyword
-    arguments) or observation space.  Returns ``(model, metadata)``.  Zip files are pickles:
-    trusted sources only."""
+    arguments) or observation space.  Returns ``(model, metadata)``.  ``custom_objects``: saved
+    attributes replaced on loading, as sb3's ``load`` takes them (e.g. other update settings).
+    Zip files are pickles: trusted sources only."""
     path = Path(path)
     if not path.is_file():
         hint = (" (train it with `gridloc train configs/...`, or pass --ppo-model PATH)"
@@ -58,7 +59,7 @@ def load_model(path: str | Path, *, algo: str = "ppo", env_id: str | None = None
             f"({', '.join(EPISODE_KWARGS)} may differ)"
         )
     try:
-        model = algo_class(algo).load(path, env=env, device="cpu")
+        model = algo_class(algo).load(path, env=env, device="cpu", custom_objects=custom_objects)
     except (ValueError, KeyError) as exc:
         if env is not None and "space" in str(exc).lower():
             raise ValueError(f"{path} does not fit this environment: {exc}") from None
